@@ -1,0 +1,4 @@
+"""firetrack's algorithms: pure numpy/scipy in, numbers out (no network, files or clocks).
+
+Loaders for real recording formats live at the edge, in :mod:`pdr.io`.
+"""

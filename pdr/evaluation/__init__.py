@@ -1,0 +1,1 @@
+"""Scoring of firetrack's algorithms against ground truth (pure functions)."""

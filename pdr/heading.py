@@ -1,0 +1,407 @@
+"""Heading of travel per step: gyro about the vertical, tilt-compensated compass, and their fusion.
+
+A hand-held phone gives two views of heading (seed 000 §2.4-2.5, seed 002 §2.4):
+
+* the gyroscope, precise over seconds but drifting with its bias;
+* the magnetometer, absolute but bent by steel and electrics indoors.
+
+This module keeps them apart long enough to judge the compass, then fuses them. Per sample:
+
+1. **Gyro bias at standstill.** Over a sliding window of ``still_window`` seconds the phone is
+   *still* when every gyro axis varies less than ``still_gyr_std`` (rad/s), the mean rate is
+   below ``still_gyr_max`` (rad/s) and the specific-force norm varies less than
+   ``still_acc_std`` (m/s²). The window mean of the gyro is then the bias ``b``; it is used for
+   every later sample (zero-velocity angular-rate update, seed 000 §2.5 "bias correction").
+2. **Levelling.** A magnetometer-free AHRS (``make_filter(ahrs, gains, mag=None)``) integrates
+   ``ω − b`` and corrects tilt with the accelerometer; its yaw is arbitrary but gyro-only, so
+   the yaw of the device's forward axis ``f`` (default the phone's y axis, Android's azimuth
+   axis), ``ψ_g = atan2((R f)_N, (R f)_E)``, is the integrated gyro heading (eq. 4.5 of seed 000,
+   done in 3-D so a tilted phone is handled).
+3. **Tilt-compensated compass** in the same levelled frame: ``m_n = R(q) m`` and the yaw of
+   magnetic north in the gyro frame ``ψ_m = atan2(m_n,y, m_n,x)``. The offset that takes the
+   gyro frame to ENU (true north) is
+
+       δ = π/2 − D − ψ_m                                   (D: declination, east positive)
+
+   because magnetic north lies at true bearing ``D``, i.e. at ENU yaw ``π/2 − D``.
+   A gyro-only ``ψ_g`` plus ``δ`` is the compass heading of ``f``, without the sway of the
+   hand (δ does not change when the phone turns; only when the field or the gyro are wrong).
+   Field norm ``|m|`` and inclination ``I = atan2(−m_n,z, |m_n,xy|)`` are kept too.
+4. **Disturbance.** Per epoch of ``epoch`` seconds the compass offset is the circular mean of δ,
+   its spread ``s = √(−2 ln ρ)`` (ρ the mean resultant length) says whether the field was
+   quasi-static along the path (Afzal, Renaudin, Lachapelle, "Magnetic field based heading
+   estimation for pedestrian navigation environments", IPIN 2011: a uniform field rotates
+   with the device exactly as the gyro says, so δ stays constant). The norm and inclination are
+   compared with a reference (``field_norm``/``field_inclination`` in the settings, e.g. the
+   WMM value, else the median over the first ``reference_seconds`` of the stream). The
+   measurement standard deviation is
+
+       σ_m² = σ_mag² + s² + (k_n Δ|m|)² + (k_I ΔI)²,
+
+   and σ_m = ∞ (the epoch is rejected) when ``s``, ``Δ|m|`` or ``ΔI`` pass their gates.
+5. **Fusion:** a scalar Kalman filter on δ (the gyro is the process, the compass the
+   measurement; seed 000 §2.7, eqs. 5.3-5.8 with F = H = 1):
+
+       predict   P ← P + σ_rw² Δt + (k_s Δψ_g)²          (bias random walk, scale-factor error)
+       innovate  ν = wrap(δ_m − δ),  S = P + σ_m²
+       gate      reject when ν² > n_σ² S
+       update    K = P / S,  δ ← δ + K ν,  P ← (1 − K) P
+
+   The filter starts from the first epoch's compass offset (only the initial position is
+   given, so the initial heading is the compass's) with ``P = σ_init²``.
+
+Per step ``k`` spanning ``(t_{k−1}, t_k]`` (at most ``max_step_duration`` long) the outputs are
+
+* ``device_heading`` ψ̄_k: circular mean of ψ_g over the step plus δ̂ — averaging over the
+  step removes the hand's sway;
+* ``heading = device_heading + walking_offset`` (the offset from :mod:`pdr.walking_direction`,
+  0 unless one is supplied), ``heading_sigma = √(P + σ_offset²)``;
+* ``heading_change = ψ̄_g,k − ψ̄_g,k−1`` with σ² = σ_arw² Δt + (σ_b Δt)² + (k_s Δψ)²;
+* ``mag_heading`` = ψ̄_g,k + circular mean of δ over the step (NaN when that step's field
+  failed the gates) and its σ_m (∞ when disturbed) — for a fusion that wants to weigh the
+  compass itself.
+
+Streaming: the state is the AHRS, the bias, the samples of the last window and of the
+unfinished epoch, the filter and the last step; epochs sit on a grid anchored at the first
+sample, so any batching gives the same numbers as one batch. A step is answered once samples
+up to its time have arrived (earlier steps wait in a queue).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from pdr import quaternion as quat
+from pdr.ahrs import make_filter
+
+TWO_PI = 2.0 * math.pi
+
+
+def wrap(a):
+    """Angle(s) wrapped to (-π, π]."""
+    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), TWO_PI)
+
+
+@dataclasses.dataclass(frozen=True)
+class HeadingSettings:
+    """Every number with its unit. Defaults: see the module's evaluation notes (IPIN 2023 set)."""
+
+    # orientation basis
+    ahrs: str = "fscf"  # magnetometer-free AHRS used for levelling and gyro heading
+    gain_acc: float = 0.2  # rad/s, its accelerometer (tilt) correction rate
+    forward_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # body axis taken as "forward"
+    declination: float = 0.0  # rad, east positive (Nuremberg 2023: +3.6° = 0.0628 rad)
+    # gyro bias at standstill
+    estimate_bias: bool = True
+    still_window: float = 1.5  # s
+    still_gyr_std: float = 0.02  # rad/s, per-axis standard deviation inside the window
+    still_gyr_max: float = 0.05  # rad/s, norm of the window mean (a larger mean is motion, not bias)
+    still_acc_std: float = 0.15  # m/s², std of the specific-force norm inside the window
+    # compass and disturbance
+    use_mag: bool = True
+    epoch: float = 0.5  # s, compass epochs of the heading filter
+    sigma_mag: float = math.radians(8.0)  # rad, compass noise of a clean epoch while walking
+    spread_gate: float = math.radians(6.0)  # rad, reject epochs whose δ varies more
+    field_norm: float = math.nan  # µT, expected |B|; NaN: learn from the first reference_seconds
+    field_inclination: float = math.nan  # rad, expected dip (positive down); NaN: learn
+    reference_seconds: float = 60.0  # s
+    norm_gate: float = math.inf  # µT, reject when ||B| − ref| exceeds it
+    inclination_gate: float = math.inf  # rad, reject when |I − ref| exceeds it
+    norm_weight: float = math.radians(1.0)  # rad per µT of norm deviation (k_n)
+    inclination_weight: float = 0.5  # rad per rad of inclination deviation (k_I)
+    # heading filter
+    sigma_init: float = math.radians(30.0)  # rad, P0 around the first compass epoch
+    sigma_rw: float = math.radians(0.3)  # rad/√s, random walk of δ (residual bias)
+    scale_error: float = 0.02  # fraction of each turn (gyro scale factor)
+    gate_sigmas: float = 3.0  # innovation gate, in standard deviations
+    # per-step outputs
+    max_step_duration: float = 1.5  # s, a step never spans more than this
+    sigma_arw: float = math.radians(0.5)  # rad/√s, gyro angle random walk
+    sigma_bias: float = math.radians(0.1)  # rad/s, residual bias after standstill estimation
+
+
+@dataclasses.dataclass(frozen=True)
+class StepHeadings:
+    """Per-step heading outputs (arrays of equal length, radians, ENU yaw CCW from East)."""
+
+    t: np.ndarray  # s
+    heading: np.ndarray
+    heading_sigma: np.ndarray
+    heading_change: np.ndarray
+    heading_change_sigma: np.ndarray
+    mag_heading: np.ndarray  # NaN where the compass looked disturbed
+    mag_heading_sigma: np.ndarray  # inf where disturbed
+    device_heading: np.ndarray  # fused heading of the forward axis, before the walking offset
+    walking_offset: np.ndarray  # walking direction − device heading
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @staticmethod
+    def concatenate(parts: list[StepHeadings]) -> StepHeadings:
+        fields = [f.name for f in dataclasses.fields(StepHeadings)]
+        if not parts:
+            return StepHeadings(*[np.empty(0) for _ in fields])
+        return StepHeadings(*[np.concatenate([getattr(p, n) for p in parts]) for n in fields])
+
+
+class HeadingEstimator:
+    """Streaming heading of travel: ``update(t, acc, gyr, mag, step_times) -> StepHeadings``.
+
+    ``t`` (N,) s, ``acc`` (N, 3) m/s², ``gyr`` (N, 3) rad/s on the same clock, ``mag`` (N, 3) µT
+    or None; ``step_times`` the times of steps detected so far (any that lie beyond the last
+    sample wait for later batches). ``walking_offset`` optionally gives, per step, the angle
+    from the device's forward axis to the walking direction (rad, CCW), e.g. from
+    :class:`pdr.walking_direction.WalkingDirection`.
+
+    After each update ``samples`` holds per-sample diagnostics of the batch (gyro heading,
+    compass offset, norm, inclination, stillness, bias) for plots and tests.
+    """
+
+    def __init__(self, settings: HeadingSettings | None = None):
+        self.settings = s = settings or HeadingSettings()
+        self._ahrs = make_filter(s.ahrs, {"gain_acc": s.gain_acc})
+        self._fwd = np.asarray(s.forward_axis, float) / np.linalg.norm(s.forward_axis)
+        self.bias = np.zeros(3)  # rad/s, current gyro bias estimate
+        self._t0: float | None = None
+        self._tail = {"t": np.empty(0), "g": np.empty((0, 3)), "a": np.empty(0)}
+        self._psi_last: float | None = None  # last unwrapped gyro heading
+        self._epoch = {k: np.empty(0) for k in ("t", "psi", "d", "norm", "inc")}
+        self._ref_norm = s.field_norm
+        self._ref_inc = s.field_inclination
+        self._ref_buf: list[np.ndarray] = []
+        self._delta: float | None = None  # KF state: gyro frame -> ENU yaw offset
+        self._P = s.sigma_init**2
+        self._kf_t = -math.inf  # end time of the last epoch the filter has seen
+        self._kf_psi: float | None = None  # gyro heading at that epoch end
+        self._hist = [(-math.inf, math.nan, math.inf)]  # (epoch end, δ, P) for step lookups
+        self._pending: list[float] = []
+        self._pending_off: list[float] = []
+        self._buf = {k: np.empty(0) for k in ("t", "psi", "d", "norm", "inc")}  # samples for step means
+        self._prev_step: tuple[float, float] | None = None  # (t, mean gyro heading)
+        self._index = 0
+        self.samples: dict[str, np.ndarray] = {}
+
+    # ---------------------------------------------------------------- samples
+    def update(self, t, acc, gyr, mag=None, step_times=(), walking_offset=None) -> StepHeadings:
+        s = self.settings
+        t = np.asarray(t, float).reshape(-1)
+        acc = np.asarray(acc, float).reshape(-1, 3)
+        gyr = np.asarray(gyr, float).reshape(-1, 3)
+        use_mag = s.use_mag and mag is not None
+        offs = np.zeros(len(step_times)) if walking_offset is None else np.asarray(walking_offset, float)
+        self._pending += [float(x) for x in np.asarray(step_times, float).reshape(-1)]
+        self._pending_off += [float(x) for x in offs.reshape(-1)]
+        if len(t) == 0:
+            return self._answer_steps()
+        if self._t0 is None:
+            self._t0 = float(t[0])
+
+        bias = self._bias_per_sample(t, acc, gyr) if s.estimate_bias else np.tile(self.bias, (len(t), 1))
+        q = self._ahrs.update(t, acc, gyr - bias)
+        R = quat.to_matrix(q)
+        f = R @ self._fwd
+        psi = np.unwrap(np.arctan2(f[:, 1], f[:, 0]))
+        if self._psi_last is not None:
+            psi += TWO_PI * np.round((self._psi_last - psi[0]) / TWO_PI)
+        self._psi_last = float(psi[-1])
+        if use_mag:
+            mag = np.asarray(mag, float).reshape(-1, 3)
+            mn = np.einsum("nij,nj->ni", R, mag)
+            d = wrap(0.5 * np.pi - s.declination - np.arctan2(mn[:, 1], mn[:, 0]))
+            norm = np.linalg.norm(mag, axis=1)
+            inc = np.arctan2(-mn[:, 2], np.hypot(mn[:, 0], mn[:, 1]))
+        else:
+            d = norm = inc = np.full(len(t), np.nan)
+        self.samples = {"t": t, "psi_gyro": psi, "delta_mag": d, "norm": norm, "inclination": inc, "bias": bias, "q": q}
+        self._run_epochs(t, psi, d, norm, inc)
+        for k, v in (("t", t), ("psi", psi), ("d", d), ("norm", norm), ("inc", inc)):
+            self._buf[k] = np.concatenate([self._buf[k], v])
+        out = self._answer_steps()
+        keep = self._buf["t"] > (self._buf["t"][-1] - 4 * s.max_step_duration)
+        self._buf = {k: v[keep] for k, v in self._buf.items()}
+        return out
+
+    def _bias_per_sample(self, t, acc, gyr) -> np.ndarray:
+        """Bias used for each sample: the gyro mean of the latest still window ending before it."""
+        s = self.settings
+        T = np.concatenate([self._tail["t"], t])
+        G = np.vstack([self._tail["g"], gyr])
+        A = np.concatenate([self._tail["a"], np.linalg.norm(acc, axis=1)])
+        m = len(self._tail["t"])
+        c1 = np.vstack([np.zeros((1, 4)), np.cumsum(np.c_[G, A], axis=0)])
+        c2 = np.vstack([np.zeros((1, 4)), np.cumsum(np.c_[G, A] ** 2, axis=0)])
+        idx = np.arange(m, len(T))
+        j0 = np.searchsorted(T, T[idx] - s.still_window, side="right")
+        n = (idx + 1 - j0)[:, None]
+        mean = (c1[idx + 1] - c1[j0]) / n
+        var = np.maximum((c2[idx + 1] - c2[j0]) / n - mean**2, 0.0)
+        full = (T[idx] - T[j0]) >= 0.9 * s.still_window
+        std = np.sqrt(var)
+        still = (
+            full
+            & (std[:, :3].max(axis=1) < s.still_gyr_std)
+            & (np.linalg.norm(mean[:, :3], axis=1) < s.still_gyr_max)
+            & (std[:, 3] < s.still_acc_std)
+        )
+        # forward fill: sample i uses the candidate of the latest still sample before i
+        last = np.where(still, np.arange(len(t)), -1)
+        last = np.maximum.accumulate(last)
+        prev = np.r_[-1, last[:-1]]
+        cand = mean[:, :3]
+        bias = np.where(prev[:, None] >= 0, cand[np.maximum(prev, 0)], self.bias)
+        if still.any():
+            self.bias = cand[last[-1]].copy()
+        keep = T > T[-1] - s.still_window - 1e-9
+        self._tail = {"t": T[keep], "g": G[keep], "a": A[keep]}
+        self.samples_still = still
+        return bias
+
+    # ---------------------------------------------------------------- compass epochs + filter
+    def _run_epochs(self, t, psi, d, norm, inc) -> None:
+        s = self.settings
+        E = self._epoch
+        E = {"t": np.r_[E["t"], t], "psi": np.r_[E["psi"], psi], "d": np.r_[E["d"], d], "norm": np.r_[E["norm"], norm], "inc": np.r_[E["inc"], inc]}
+        k = np.floor((E["t"] - self._t0) / s.epoch).astype(np.int64)
+        done = k < k[-1]
+        self._epoch = {n: v[~done] for n, v in E.items()}
+        if not done.any():
+            return
+        kk = k[done]
+        first = np.r_[0, np.flatnonzero(np.diff(kk)) + 1]
+        cnt = np.diff(np.r_[first, len(kk)])
+        dd = E["d"][done]
+        cs = np.add.reduceat(np.cos(dd), first) / cnt
+        sn = np.add.reduceat(np.sin(dd), first) / cnt
+        dm = np.arctan2(sn, cs)
+        rho = np.clip(np.hypot(cs, sn), 1e-12, 1.0)
+        spread = np.sqrt(-2.0 * np.log(rho))
+        nrm = np.add.reduceat(E["norm"][done], first) / cnt
+        inc_m = np.add.reduceat(E["inc"][done], first) / cnt
+        t_end = self._t0 + (kk[first] + 1) * s.epoch
+        last = np.r_[first[1:], len(kk)] - 1
+        psi_end = E["psi"][done][last]
+        self._learn_reference(t_end, nrm, inc_m, spread)
+        sig = self._measurement_sigma(spread, nrm, inc_m)
+        for i in range(len(first)):  # a few epochs per second: a scalar filter loop is cheap
+            self._kf_step(t_end[i], psi_end[i], dm[i], sig[i])
+
+    def _learn_reference(self, t_end, nrm, inc_m, spread) -> None:
+        s = self.settings
+        if np.isfinite(self._ref_norm) and np.isfinite(self._ref_inc):
+            return
+        if self._t0 is None or not np.isfinite(nrm).any():
+            return
+        inwin = t_end <= self._t0 + s.reference_seconds
+        ok = inwin & (spread < s.spread_gate) & np.isfinite(nrm)
+        if ok.any():
+            self._ref_buf.append(np.c_[nrm[ok], inc_m[ok]])
+        if not inwin.all():  # the reference window is over: fix the medians
+            ref = np.vstack(self._ref_buf) if self._ref_buf else np.empty((0, 2))
+            if len(ref):
+                if not np.isfinite(self._ref_norm):
+                    self._ref_norm = float(np.median(ref[:, 0]))
+                if not np.isfinite(self._ref_inc):
+                    self._ref_inc = float(np.median(ref[:, 1]))
+            else:
+                self._ref_norm = self._ref_norm if np.isfinite(self._ref_norm) else math.inf
+                self._ref_inc = self._ref_inc if np.isfinite(self._ref_inc) else math.inf
+
+    @property
+    def field_reference(self) -> tuple[float, float]:
+        """(|B| µT, inclination rad) the disturbance test compares with (NaN while learning)."""
+        return self._ref_norm, self._ref_inc
+
+    def _measurement_sigma(self, spread, nrm, inc_m) -> np.ndarray:
+        s = self.settings
+        var = s.sigma_mag**2 + spread**2
+        bad = ~np.isfinite(spread) | (spread > s.spread_gate) | ~np.isfinite(nrm)
+        if np.isfinite(self._ref_norm):
+            dn = np.abs(nrm - self._ref_norm)
+            var = var + (s.norm_weight * dn) ** 2
+            bad |= dn > s.norm_gate
+        if np.isfinite(self._ref_inc):
+            di = np.abs(inc_m - self._ref_inc)
+            var = var + (s.inclination_weight * di) ** 2
+            bad |= di > s.inclination_gate
+        return np.where(bad, np.inf, np.sqrt(var))
+
+    def _kf_step(self, t_end, psi_end, dm, sig) -> None:
+        s = self.settings
+        if self._delta is None:
+            if np.isfinite(dm):  # initial heading from the compass, whatever its quality
+                self._delta = float(dm)
+                self._P = s.sigma_init**2
+        else:
+            dt = t_end - self._kf_t
+            dpsi = psi_end - self._kf_psi
+            self._P += s.sigma_rw**2 * dt + (s.scale_error * dpsi) ** 2
+            if np.isfinite(sig):
+                nu = float(wrap(dm - self._delta))
+                S = self._P + sig**2
+                if nu * nu <= s.gate_sigmas**2 * S:
+                    K = self._P / S
+                    self._delta = float(wrap(self._delta + K * nu))
+                    self._P *= 1.0 - K
+        self._kf_t, self._kf_psi = t_end, psi_end
+        self._hist.append((t_end, math.nan if self._delta is None else self._delta, self._P))
+        if len(self._hist) > 64:
+            self._hist = self._hist[-64:]
+
+    # ---------------------------------------------------------------- steps
+    def _answer_steps(self) -> StepHeadings:
+        s = self.settings
+        B = self._buf
+        if not len(B["t"]) or not self._pending:
+            return StepHeadings.concatenate([])
+        t_last = B["t"][-1]
+        order = np.argsort(self._pending, kind="stable")
+        ts = np.asarray(self._pending)[order]
+        offs = np.asarray(self._pending_off)[order]
+        ready = ts <= t_last
+        self._pending = list(ts[~ready])
+        self._pending_off = list(offs[~ready])
+        ts, offs = ts[ready], offs[ready]
+        rows = []
+        hist_t = np.array([h[0] for h in self._hist])
+        for tk, off in zip(ts, offs):
+            t_prev = self._prev_step[0] if self._prev_step else -math.inf
+            lo = max(t_prev, tk - s.max_step_duration)
+            sel = (B["t"] > lo) & (B["t"] <= tk)
+            if not sel.any():
+                sel = B["t"] <= tk
+                sel = sel & (np.arange(len(sel)) == np.flatnonzero(sel)[-1])
+            psi_g = float(np.mean(B["psi"][sel]))  # unwrapped: the arithmetic mean is circular
+            h = int(np.searchsorted(hist_t, tk, side="right")) - 1
+            _, delta, P = self._hist[max(h, 0)]
+            if not np.isfinite(delta):  # before the first compass epoch
+                delta = float(B["d"][sel][-1]) if np.isfinite(B["d"][sel][-1]) else 0.0
+                P = math.pi**2
+            P = P + s.sigma_rw**2 * max(tk - self._hist[max(h, 0)][0], 0.0) if np.isfinite(P) else P
+            dev = float(wrap(psi_g + delta))
+            # compass heading of this step on its own
+            dd = B["d"][sel]
+            okd = np.isfinite(dd)
+            if okd.sum() >= 2:
+                c, sn = np.cos(dd[okd]).mean(), np.sin(dd[okd]).mean()
+                spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
+                sig_m = float(self._measurement_sigma(
+                    np.array([spread]), np.array([B["norm"][sel][okd].mean()]), np.array([B["inc"][sel][okd].mean()])
+                )[0])
+                magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if np.isfinite(sig_m) else math.nan
+            else:
+                sig_m, magh = math.inf, math.nan
+            if self._prev_step is None:
+                dch, dsig = 0.0, math.inf
+            else:
+                dt = tk - self._prev_step[0]
+                dch = psi_g - self._prev_step[1]
+                dsig = math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
+            self._prev_step = (tk, psi_g)
+            rows.append((tk, float(wrap(dev + off)), math.sqrt(P), float(wrap(dch)), dsig, magh, sig_m, dev, off))
+        if not rows:
+            return StepHeadings.concatenate([])
+        a = np.array(rows, float)
+        return StepHeadings(*[a[:, i] for i in range(a.shape[1])])

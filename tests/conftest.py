@@ -1,0 +1,27 @@
+"""Shared pytest fixtures.
+
+Real recordings live outside the repository, in ``../shared/data`` next to the project root
+(see that folder's README); tests that need one ask the ``shared_data`` fixture, which skips
+the test with the missing path when the recording is absent.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def shared_data_path(relpath: str | Path) -> Path:
+    """Path of a recording under ../shared/data, or skip the calling test when it is absent."""
+    path = SHARED_DATA / relpath
+    if not path.exists():
+        pytest.skip(f"recording {path} not present")
+    return path
+
+
+@pytest.fixture
+def shared_data():
+    """``shared_data("ipin2023/...")`` -> Path, skipping the test when the recording is absent."""
+    return shared_data_path
