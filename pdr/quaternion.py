@@ -36,6 +36,12 @@ def multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def left_matrix(p: np.ndarray) -> np.ndarray:
+    """4x4 matrix L with ``p ⊗ q = L q``: left multiplication by a fixed ``p`` as one matmul."""
+    w, x, y, z = np.asarray(p, dtype=float)
+    return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
+
+
 def conjugate(q: np.ndarray) -> np.ndarray:
     """``q* = [w, -x, -y, -z]``; the inverse of a unit quaternion (Justa eq. 14)."""
     return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])

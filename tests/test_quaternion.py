@@ -76,3 +76,9 @@ def test_orientation_from_gravity_and_field():
     g = quat.rotate_inverse(q_true, [0, 0, 9.81])
     m = quat.rotate_inverse(q_true, [0, 20.0, -44.0])
     assert np.degrees(quat.angle_between(q_true, quat.from_two_vectors(g, m, north_axis=1))) < 1e-6
+
+
+@settings(max_examples=100, deadline=None)
+@given(vec4, vec4)
+def test_left_matrix_is_left_multiplication(p, q):
+    assert np.allclose(quat.left_matrix(p) @ q, quat.multiply(p, q), atol=1e-12)

@@ -26,6 +26,8 @@ from pdr import quaternion as quat
 
 # q_ENU<-NWU: rotation by +90° about z (NWU x = north becomes ENU y)
 _NWU_TO_ENU = quat.from_yaw(np.pi / 2)
+_TO_ENU_T = quat.left_matrix(_NWU_TO_ENU).T  # row-stacked q: q_enu = q_nwu @ _TO_ENU_T
+_FROM_ENU_T = quat.left_matrix(quat.conjugate(_NWU_TO_ENU)).T
 FRAMES = ("ENU", "NWU")
 
 
@@ -53,10 +55,10 @@ class OrientationFilter:
     # -- frame conversion -------------------------------------------------------------
     def _to_native(self, q: np.ndarray) -> np.ndarray:
         q = quat.normalize(q)
-        return q if self.frame == "NWU" else quat.multiply(quat.conjugate(_NWU_TO_ENU), q)
+        return q if self.frame == "NWU" else q @ _FROM_ENU_T
 
     def _from_native(self, q: np.ndarray) -> np.ndarray:
-        return q if self.frame == "NWU" else quat.multiply(_NWU_TO_ENU, q)
+        return q if self.frame == "NWU" else q @ _TO_ENU_T
 
     @property
     def q(self) -> np.ndarray | None:
