@@ -90,19 +90,19 @@ class HeadingSettings:
 
     # orientation basis
     ahrs: str = "fscf"  # magnetometer-free AHRS used for levelling and gyro heading
-    gain_acc: float = 0.2  # rad/s, its accelerometer (tilt) correction rate
+    ahrs_params: tuple[tuple[str, float], ...] = (("gain_acc", 0.2),)  # its settings (fscf: rad/s)
     forward_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # body axis taken as "forward"
     declination: float = 0.0  # rad, east positive (Nuremberg 2023: +3.6° = 0.0628 rad)
     # gyro bias at standstill
     estimate_bias: bool = True
     still_window: float = 1.5  # s
-    still_gyr_std: float = 0.02  # rad/s, per-axis standard deviation inside the window
-    still_gyr_max: float = 0.05  # rad/s, norm of the window mean (a larger mean is motion, not bias)
+    still_gyr_std: float = 0.005  # rad/s, per-axis standard deviation inside the window
+    still_gyr_max: float = 0.02  # rad/s, norm of the window mean (a larger mean is motion, not bias)
     still_acc_std: float = 0.15  # m/s², std of the specific-force norm inside the window
     # compass and disturbance
     use_mag: bool = True
     epoch: float = 0.5  # s, compass epochs of the heading filter
-    sigma_mag: float = math.radians(8.0)  # rad, compass noise of a clean epoch while walking
+    sigma_mag: float = math.radians(80.0)  # rad, per 0.5 s epoch; indoor errors are spatially correlated, so large
     spread_gate: float = math.radians(6.0)  # rad, reject epochs whose δ varies more
     field_norm: float = math.nan  # µT, expected |B|; NaN: learn from the first reference_seconds
     field_inclination: float = math.nan  # rad, expected dip (positive down); NaN: learn
@@ -162,7 +162,7 @@ class HeadingEstimator:
 
     def __init__(self, settings: HeadingSettings | None = None):
         self.settings = s = settings or HeadingSettings()
-        self._ahrs = make_filter(s.ahrs, {"gain_acc": s.gain_acc})
+        self._ahrs = make_filter(s.ahrs, dict(s.ahrs_params))
         self._fwd = np.asarray(s.forward_axis, float) / np.linalg.norm(s.forward_axis)
         self.bias = np.zeros(3)  # rad/s, current gyro bias estimate
         self._t0: float | None = None
@@ -331,7 +331,7 @@ class HeadingEstimator:
     def _kf_step(self, t_end, psi_end, dm, sig) -> None:
         s = self.settings
         if self._delta is None:
-            if np.isfinite(dm):  # initial heading from the compass, whatever its quality
+            if np.isfinite(sig):  # initial heading: the first compass epoch that passes the gates
                 self._delta = float(dm)
                 self._P = s.sigma_init**2
         else:
