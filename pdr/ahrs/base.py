@@ -23,6 +23,7 @@ from typing import ClassVar
 import numpy as np
 
 from pdr import quaternion as quat
+from pdr.settings import settings_with  # noqa: F401  (re-exported)
 
 # q_ENU<-NWU: rotation by +90° about z (NWU x = north becomes ENU y)
 _NWU_TO_ENU = quat.from_yaw(np.pi / 2)
@@ -106,24 +107,3 @@ def _as_n3(a, name: str, n: int) -> np.ndarray:
     if a.shape != (n, 3):
         raise ValueError(f"{name} must have shape ({n}, 3), got {a.shape}")
     return a
-
-
-def settings_with(settings: FilterSettings, params: dict[str, str | float]) -> FilterSettings:
-    """Settings with some fields replaced from ``name=value`` pairs (``--param`` on the CLI).
-
-    Unknown names and values of the wrong type give a ValueError that lists the valid names.
-    """
-    fields = {f.name: f for f in dataclasses.fields(settings)}
-    changes = {}
-    for key, raw in params.items():
-        if key not in fields:
-            raise ValueError(f"unknown parameter {key!r} for {type(settings).__qualname__}; valid: {', '.join(fields)}")
-        kind = type(getattr(settings, key))
-        try:
-            if kind is bool:
-                changes[key] = raw if isinstance(raw, bool) else str(raw).lower() in ("1", "true", "yes", "on")
-            else:
-                changes[key] = kind(raw)
-        except (TypeError, ValueError):
-            raise ValueError(f"parameter {key}={raw!r} is not a valid {kind.__name__}") from None
-    return dataclasses.replace(settings, **changes)

@@ -10,8 +10,10 @@ Two layouts, both comma-separated without a header, timestamps in nanoseconds si
   ``timestamp_ns, sensor_accuracy, ax, ay, az``. The true step count of each walk is in
   ``optimisation/stats.csv`` (header ``#dir, user, phone, position, surface, duration(s),
   steps``, fields padded with spaces), keyed by the directory name. ``stepcounter.csv.gz``
-  next to it is the phone's own step sensor, whose two 0/1 columns are undocumented; it is
-  not read.
+  next to it has two undocumented 0/1 columns; each toggles about once per step, and the
+  mean of their toggle counts matches ``stats.csv`` within one step on every walk, so it
+  looks like the ground-truth device's trace rather than the phone's sensor. It is not read:
+  ``stats.csv`` is the documented truth.
 * ``validation/<user>_<position>_<unix_ms>.csv.gz`` (or ``stepcounter_<unix_ms>.csv``) with
   rows ``timestamp_ns, ax, ay, az, steps_their_algorithm, steps_ground_truth,
   steps_phone_hardware``; the three counts are running totals.
