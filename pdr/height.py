@@ -64,10 +64,12 @@ from typing import Literal
 import numpy as np
 from numba import njit
 
+from pdr.constants import GRAVITY
+
 # U.S. Standard Atmosphere 1976 constants
 R_GAS = 8.314462618  # J/(mol·K), universal gas constant
 M_AIR = 0.0289644  # kg/mol, molar mass of dry air
-G0 = 9.80665  # m/s², standard gravity
+G0 = GRAVITY  # m/s², standard gravity
 LAPSE_RATE = 0.0065  # K/m, troposphere temperature lapse rate
 T_STANDARD = 288.15  # K, sea-level standard temperature
 P_STANDARD = 1013.25  # hPa, sea-level standard pressure

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pdr import quaternion as quat
+from pdr.constants import GRAVITY
 
-GRAVITY = 9.80665  # m/s²
 # a mid-European field in ENU (µT): 20 north, 44 down (inclination ≈ 65°)
 FIELD_ENU = np.array([0.0, 20.0, -44.0])
 

@@ -24,11 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
+from pdr.constants import GRAVITY
 from pdr.io._common import Notes, common_length, time_order
 from pdr.io._mat import load_mat, matrix, vector
 from pdr.recording import Recording, Series
 
-STANDARD_GRAVITY = 9.80665  # m/s² per g
+STANDARD_GRAVITY = GRAVITY  # m/s² per g
 _UNIT_NORM_TOLERANCE = 0.05  # a magnetometer whose samples are this close to length 1 is normalised
 _QUAT_NORM_TOLERANCE = 0.01  # reference quaternions further than this from unit length are reported
 _FIELDS = ("Accelerometer", "Gyroscope", "Magnetometer", "qViconReference", "time")

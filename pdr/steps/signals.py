@@ -21,8 +21,10 @@ import numpy as np
 from scipy import signal
 
 from pdr import quaternion as quat
+from pdr.constants import GRAVITY
 
-GRAVITY = 9.80665  # m/s², standard gravity
+
+
 GAP_FACTOR = 2.5  # an interval longer than this many median intervals is a gap, not jitter
 
 
@@ -32,7 +34,8 @@ def estimate_rate(t: np.ndarray) -> float:
     The median interval says what a gap is (longer than ``GAP_FACTOR`` medians); the
     mean of the remaining positive intervals is the rate. A plain median is biased when
     the jitter is skewed (a Samsung phone in the Oxford set: median 5.0 ms, true mean
-    4.55 ms), and a plain mean is biased by dropped samples.
+    4.55 ms), and a plain mean is biased by dropped samples. (``Series.rate_hz`` reports
+    the median, the nominal rate a person reads.)
     """
     dt = np.diff(np.asarray(t, dtype=float))
     dt = dt[dt > 0]
