@@ -199,6 +199,10 @@ class HeadingEstimator:
         if self._t0 is None:
             self._t0 = float(t[0])
 
+        # filter history old enough that no step can still ask for it leaves (keep one before)
+        old = [i for i, h in enumerate(self._hist) if h[0] < t[0] - 4 * s.max_step_duration - s.epoch]
+        if len(old) > 1:
+            del self._hist[: old[-1]]
         bias = self._bias_per_sample(t, acc, gyr) if s.estimate_bias else np.tile(self.bias, (len(t), 1))
         q = self._ahrs.update(t, acc, gyr - bias)
         R = quat.to_matrix(q)
@@ -217,12 +221,13 @@ class HeadingEstimator:
             d = norm = inc = np.full(len(t), np.nan)
         self.samples = {"t": t, "psi_gyro": psi, "delta_mag": d, "norm": norm, "inclination": inc, "bias": bias, "q": q}
         self._run_epochs(t, psi, d, norm, inc)
+        # older samples leave before the new ones come in, so every sample of this batch
+        # stays until the next one: steps found in it later (update with step_times only)
+        # still find their samples, however large the batch
+        keep = self._buf["t"] > (t[-1] - 4 * s.max_step_duration)
         for k, v in (("t", t), ("psi", psi), ("d", d), ("norm", norm), ("inc", inc)):
-            self._buf[k] = np.concatenate([self._buf[k], v])
-        out = self._answer_steps()
-        keep = self._buf["t"] > (self._buf["t"][-1] - 4 * s.max_step_duration)
-        self._buf = {k: v[keep] for k, v in self._buf.items()}
-        return out
+            self._buf[k] = np.concatenate([self._buf[k][keep], v])
+        return self._answer_steps()
 
     def _bias_per_sample(self, t, acc, gyr) -> np.ndarray:
         """Bias used for each sample: the gyro mean of the latest still window ending before it."""
@@ -284,7 +289,7 @@ class HeadingEstimator:
         last = np.r_[first[1:], len(kk)] - 1
         psi_end = E["psi"][done][last]
         self._learn_reference(t_end, nrm, inc_m, spread)
-        sig = self._measurement_sigma(spread, nrm, inc_m)
+        sig = self._measurement_sigma(spread, nrm, inc_m, t_end)
         for i in range(len(first)):  # a few epochs per second: a scalar filter loop is cheap
             self._kf_step(t_end[i], psi_end[i], dm[i], sig[i])
 
@@ -314,16 +319,21 @@ class HeadingEstimator:
         """(|B| µT, inclination rad) the disturbance test compares with (NaN while learning)."""
         return self._ref_norm, self._ref_inc
 
-    def _measurement_sigma(self, spread, nrm, inc_m) -> np.ndarray:
+    def _measurement_sigma(self, spread, nrm, inc_m, t) -> np.ndarray:
+        """σ_m per epoch (or step) ending at ``t``. A learned field reference only counts from
+        the end of its window on — an earlier epoch is judged as it was when it happened,
+        so one large batch and many small ones agree."""
         s = self.settings
         var = s.sigma_mag**2 + spread**2
         bad = ~np.isfinite(spread) | (spread > s.spread_gate) | ~np.isfinite(nrm)
+        learned_by = -math.inf if self._t0 is None else self._t0 + s.reference_seconds
+        known = np.asarray(t) > learned_by
         if np.isfinite(self._ref_norm):
-            dn = np.abs(nrm - self._ref_norm)
+            dn = np.where(np.isfinite(s.field_norm) | known, np.abs(nrm - self._ref_norm), 0.0)
             var = var + (s.norm_weight * dn) ** 2
             bad |= dn > s.norm_gate
         if np.isfinite(self._ref_inc):
-            di = np.abs(inc_m - self._ref_inc)
+            di = np.where(np.isfinite(s.field_inclination) | known, np.abs(inc_m - self._ref_inc), 0.0)
             var = var + (s.inclination_weight * di) ** 2
             bad |= di > s.inclination_gate
         return np.where(bad, np.inf, np.sqrt(var))
@@ -347,8 +357,6 @@ class HeadingEstimator:
                     self._P *= 1.0 - K
         self._kf_t, self._kf_psi = t_end, psi_end
         self._hist.append((t_end, math.nan if self._delta is None else self._delta, self._P))
-        if len(self._hist) > 64:
-            self._hist = self._hist[-64:]
 
     # ---------------------------------------------------------------- steps
     def _answer_steps(self) -> StepHeadings:
@@ -379,7 +387,8 @@ class HeadingEstimator:
             if not np.isfinite(delta):  # before the first compass epoch
                 delta = float(B["d"][sel][-1]) if np.isfinite(B["d"][sel][-1]) else 0.0
                 P = math.pi**2
-            P = P + s.sigma_rw**2 * max(tk - self._hist[max(h, 0)][0], 0.0) if np.isfinite(P) else P
+            elapsed = tk - self._hist[max(h, 0)][0]
+            P = P + s.sigma_rw**2 * elapsed if np.isfinite(P) and np.isfinite(elapsed) else P
             dev = float(wrap(psi_g + delta))
             # compass heading of this step on its own
             dd = B["d"][sel]
@@ -388,7 +397,8 @@ class HeadingEstimator:
                 c, sn = np.cos(dd[okd]).mean(), np.sin(dd[okd]).mean()
                 spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
                 sig_m = float(self._measurement_sigma(
-                    np.array([spread]), np.array([B["norm"][sel][okd].mean()]), np.array([B["inc"][sel][okd].mean()])
+                    np.array([spread]), np.array([B["norm"][sel][okd].mean()]), np.array([B["inc"][sel][okd].mean()]),
+                    np.array([tk]),
                 )[0])
                 magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if np.isfinite(sig_m) else math.nan
             else:

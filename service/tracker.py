@@ -1,0 +1,202 @@
+"""One responder in the service: raw frames and fixes in, poses and motion changes out.
+
+:class:`ResponderTracker` joins the pure dead reckoning (:class:`pdr.pipeline.PdrPipeline`)
+with the track estimate — the gtsam fusion (:class:`service.fusion.TrackFusion`), or dead
+reckoning alone (:class:`pdr.dead_reckoning.DeadReckoning`) as the baseline — and applies
+fixes at their own time. The live service, replays, ``firetrack reprocess`` and
+``firetrack eval ipin`` all drive this class the same way, so they give the same poses.
+
+Placement. A responder has no position until the first checkpoint fix (an operator at the
+door, a tag reader, the IPIN initial landmark) or, when the incident configures an entry
+point, until the first step. Steps before placement are counted (Status) but make no pose.
+
+Fix timing. A fix stamped later than the newest step waits until a step passes its time,
+then attaches there (so an IPIN landmark reached after the last step before it attaches to
+that step's pose, as it would live). A fix stamped in the past goes to the fusion at once,
+which attaches it to the pose of its time and corrects the history after it.
+"""
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pdr.dead_reckoning import DeadReckoning
+from pdr.events import MotionEvent, StepEvent
+from pdr.floors import FloorElevations
+from pdr.pipeline import ImuFrame, PdrPipeline, PipelineSettings
+
+
+@dataclass(frozen=True)
+class CheckpointFix:
+    t: float
+    x: float
+    y: float
+    floor: int | None = None
+    sigma: float = 0.5
+    name: str | None = None
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """What the service publishes after a step (or a fix): the live estimate."""
+
+    t: float
+    x: float
+    y: float
+    heading: float  # rad, ENU yaw
+    cov: np.ndarray  # (2, 2) m², ENU
+    floor: int
+    steps: int
+    source: str  # "pdr" (dead reckoning only) or "fused" (a fix has been applied)
+
+
+@dataclass
+class TrackerSettings:
+    pipeline: PipelineSettings = field(default_factory=PipelineSettings)
+    engine: str = "fusion"  # "fusion" (gtsam) or "dr" (dead reckoning alone)
+    fusion: object | None = None  # service.fusion.FusionSettings, None = defaults
+
+
+def _fusion_module():
+    try:
+        from service import fusion
+    except ImportError:  # pragma: no cover - only while the fusion is not installed
+        return None
+    return fusion
+
+
+class ResponderTracker:
+    def __init__(self, responder: str, floors: FloorElevations, start_floor: int = 0,
+                 settings: TrackerSettings | None = None, entry: CheckpointFix | None = None):
+        self.responder = responder
+        self.settings = s = settings or TrackerSettings()
+        self.pipeline = PdrPipeline(s.pipeline, floors, start_floor)
+        self.floors = floors
+        self._entry = entry
+        self._placed_at: CheckpointFix | None = None
+        self._pending_fixes: list[tuple[float, int, object]] = []  # (t, order, fix) waiting for a step
+        self._order = 0
+        fusion = _fusion_module() if s.engine == "fusion" else None
+        if s.engine == "fusion" and fusion is None:
+            raise RuntimeError("the gtsam fusion is not available; use engine='dr'")
+        self._fusion_mod = fusion
+        self.engine = None  # TrackFusion or DeadReckoning once placed
+        self.dr = DeadReckoning()  # the dead-reckoning baseline, always kept (cheap)
+        self.pdr_track: list[tuple[float, float, float, int]] = []  # (t, x, y, floor)
+        self.live: PoseEstimate | None = None
+        self.last_step: StepEvent | None = None
+        self.fixes_applied = 0
+        self.fixes_rejected = 0
+        self._first_step_after_placement = True
+
+    # ------------------------------------------------------------------ inputs
+    def on_frame(self, frame: ImuFrame) -> list[PoseEstimate | MotionEvent]:
+        return self._consume(self.pipeline.update(frame))
+
+    def finish(self) -> list[PoseEstimate | MotionEvent]:
+        out = self._consume(self.pipeline.finish())
+        # fixes after the last step attach to it
+        while self._pending_fixes:
+            _, _, fix = self._pending_fixes.pop(0)
+            p = self._apply_fix(fix)
+            if p is not None:
+                out.append(p)
+        return out
+
+    def on_fix(self, fix) -> PoseEstimate | None:
+        """Apply a fix now if its time is covered by the steps so far, else when a step passes it."""
+        last_t = self.last_step.t if self.last_step else -math.inf
+        if fix.t <= last_t and (self.engine is not None or not isinstance(fix, CheckpointFix)):
+            return self._apply_fix(fix)
+        self._order += 1
+        bisect.insort(self._pending_fixes, (fix.t, self._order, fix), key=lambda r: (r[0], r[1]))
+        return None
+
+    # ------------------------------------------------------------------ internals
+    def _consume(self, events) -> list[PoseEstimate | MotionEvent]:
+        out: list[PoseEstimate | MotionEvent] = []
+        for ev in events:
+            if isinstance(ev, MotionEvent):
+                out.append(ev)
+                continue
+            while self._pending_fixes and self._pending_fixes[0][0] < ev.t:
+                _, _, fix = self._pending_fixes.pop(0)
+                p = self._apply_fix(fix)
+                if p is not None:
+                    out.append(p)
+            p = self._step(ev)
+            if p is not None:
+                out.append(p)
+        return out
+
+    def _place(self, fix: CheckpointFix) -> None:
+        self._placed_at = fix
+        if fix.floor is not None:
+            self.pipeline.anchor_floor(fix.floor)
+        self.dr.start(fix.t, fix.x, fix.y, fix.floor if fix.floor is not None else self.pipeline.floor, fix.sigma)
+        self.pdr_track.append((fix.t, fix.x, fix.y, self.dr.point.floor))
+        self._first_step_after_placement = True
+
+    def _step(self, ev: StepEvent) -> PoseEstimate | None:
+        self.last_step = ev
+        if self._placed_at is None:
+            if self._entry is None:
+                return None
+            self._place(dataclasses.replace(self._entry, t=ev.t - 1e-6))
+        first = self._first_step_after_placement
+        self._first_step_after_placement = False
+        if first:  # the heading before the first placed step is the step's own
+            ev = dataclasses.replace(ev, heading_change=0.0)
+        pt = self.dr.add_step(ev)
+        self.pdr_track.append((pt.t, pt.x, pt.y, pt.floor))
+        if self.settings.engine == "dr":
+            self.live = PoseEstimate(pt.t, pt.x, pt.y, pt.heading, pt.cov, pt.floor, ev.index,
+                                     "fused" if self.fixes_applied > 1 else "pdr")
+            return self.live
+        if self.engine is None:
+            p0 = self._placed_at
+            self.engine = self._fusion_mod.TrackFusion(self.settings.fusion)
+            self.engine.start(p0.t, p0.x, p0.y, ev.heading, ev.heading_sigma, p0.sigma,
+                              p0.floor if p0.floor is not None else ev.floor)
+        fp = self.engine.add_step(ev)
+        self.live = self._from_fused(fp, ev.index)
+        return self.live
+
+    def _from_fused(self, fp, steps: int) -> PoseEstimate:
+        return PoseEstimate(fp.t, fp.x, fp.y, fp.heading, np.asarray(fp.cov), fp.floor, steps,
+                            "fused" if self.fixes_applied > 1 else "pdr")
+
+    def _apply_fix(self, fix) -> PoseEstimate | None:
+        if isinstance(fix, CheckpointFix) and self._placed_at is None:
+            self._place(fix)
+            self.fixes_applied += 1
+            return None
+        if isinstance(fix, CheckpointFix) and fix.floor is not None:
+            self.pipeline.anchor_floor(fix.floor)
+        if self.settings.engine == "dr" or self.engine is None:
+            if isinstance(fix, CheckpointFix) and self.dr.point is not None:
+                self.dr.move_to(fix.x, fix.y, fix.sigma)
+                self.fixes_applied += 1
+            return None
+        fp = self.engine.add_fix(self._fusion_fix(fix))
+        if fp is None:
+            self.fixes_rejected += 1
+            return None
+        self.fixes_applied += 1
+        self.live = self._from_fused(fp, self.live.steps if self.live else 0)
+        return self.live
+
+    def _fusion_fix(self, fix):
+        f = self._fusion_mod
+        if isinstance(fix, CheckpointFix):
+            return f.CheckpointFix(t=fix.t, x=fix.x, y=fix.y, floor=fix.floor, sigma=fix.sigma, name=fix.name)
+        return fix  # GnssFix / UwbRange of service.fusion already
+
+    def smoothed_track(self) -> dict[str, np.ndarray] | None:
+        if self.engine is None or self.settings.engine == "dr":
+            return None
+        return self.engine.smoothed_track()
