@@ -1,12 +1,13 @@
-"""The ``firetrack`` command: one entry point for evaluation, tuning, benchmarks and the service.
+"""The ``firetrack`` command: one entry point for the service, wearables, tools, evaluation and benchmarks.
 
-Each sub-command lives in its own small module and is registered here.
+Each sub-command lives in its own small module and is registered here. Modules that need
+zenoh or gtsam import them inside the command, so ``firetrack --help`` stays fast.
 """
 from __future__ import annotations
 
 import typer
 
-from service import bench_cli, eval_cli, tune_cli
+from service import bench_cli, eval_cli, record_cli, schema_cli, serve_cli, tune_cli
 
 app = typer.Typer(
     name="firetrack",
@@ -15,6 +16,11 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
+app.command("serve")(serve_cli.serve_command)
+app.command("wearable")(serve_cli.wearable_command)
+app.command("record")(record_cli.record_command)
+app.command("replay")(record_cli.replay_command)
+app.command("schema")(schema_cli.schema_command)
 app.add_typer(eval_cli.app, name="eval")
 app.add_typer(tune_cli.app, name="tune")
 app.add_typer(bench_cli.app, name="bench")

@@ -58,3 +58,28 @@ def parse_params(pairs: list[str] | None) -> dict[str, str]:
             raise ValueError(f"--param expects name=value, got {pair!r}")
         params[key.strip()] = value.strip()
     return params
+
+
+class progress_bar:
+    """``with progress_bar("replaying") as update: update(done, total)`` — a bar on stderr
+    when it is a terminal, nothing otherwise (logs and CI stay clean)."""
+
+    def __init__(self, description: str):
+        self._bar = Progress(
+            TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+            console=err, transient=True, disable=not sys.stderr.isatty(),
+        )
+        self._description = description
+        self._task = None
+
+    def __enter__(self):
+        self._bar.__enter__()
+        self._task = self._bar.add_task(self._description, total=None)
+
+        def update(done: int, total: int) -> None:
+            self._bar.update(self._task, completed=done, total=total)
+
+        return update
+
+    def __exit__(self, *exc):
+        return self._bar.__exit__(*exc)

@@ -1,0 +1,159 @@
+"""``firetrack serve`` and ``firetrack wearable``: the live service and a replaying wearable."""
+from __future__ import annotations
+
+import logging
+import math
+import signal
+import threading
+from pathlib import Path
+
+import typer
+
+from service.console_io import err, fail, out
+from service.zenoh_config import DEFAULT_ENDPOINT
+
+
+def _incident(config: Path | None, incident_id: str | None):
+    from service.incident import IncidentConfigError, default_incident, load_incident
+
+    try:
+        cfg = load_incident(config) if config else default_incident()
+    except IncidentConfigError as e:
+        fail(str(e))
+        raise typer.Exit(2)
+    if incident_id and incident_id != cfg.id:
+        cfg = cfg.model_copy(update={"id": incident_id})
+    return cfg
+
+
+def stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM (Ctrl-C, systemd stop, docker stop)."""
+    stop = threading.Event()
+
+    def handler(signum, frame):
+        if stop.is_set():  # a second Ctrl-C: the user means it
+            raise KeyboardInterrupt
+        err.print(f"\n{signal.Signals(signum).name}: shutting down ...")
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return stop
+
+
+def _logging(verbose: bool) -> None:
+    from rich.logging import RichHandler
+
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
+                        handlers=[RichHandler(console=err, show_path=False)])
+
+
+def serve_command(
+    listen: list[str] = typer.Option(None, "--listen", help=f"endpoint(s) to listen on (default {DEFAULT_ENDPOINT}: an in-process router)"),
+    connect: list[str] = typer.Option(None, "--connect", help="join a standalone zenoh router instead (e.g. tcp/10.0.0.2:7447)"),
+    incident_id: str = typer.Option(None, "--incident", help="incident id (default: the config's, 'demo' for the demo)"),
+    config: Path = typer.Option(None, "--config", help="incident config (JSON or TOML); default: the IPIN museum demo"),
+    record: Path = typer.Option(None, "--record", help="record every message of the incident to this MCAP file"),
+    console: bool = typer.Option(True, "--console/--no-console", help="also serve the web console"),
+    port: int = typer.Option(8080, "--port", help="web console port"),
+    seconds: float = typer.Option(math.inf, "--seconds", help="stop after this long (default: until Ctrl-C)"),
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="log every responder, fix and reject"),
+):
+    """Run the service for one incident: one pipeline per responder, poses and status out."""
+    _logging(verbose)
+    cfg = _incident(config, incident_id)
+    stop = stop_on_signals()
+    with running_service(cfg, listen, connect, record, console, port) as (svc, where):
+        out.print(f"[bold]firetrack[/] serving incident [bold]{cfg.id}[/] ({cfg.name}) on {where}")
+        if console:
+            out.print(f"console: http://127.0.0.1:{port}/")
+        stop.wait(None if math.isinf(seconds) else seconds)
+    out.print(f"stopped; {len(svc.responders)} responder(s), {svc.frames_processed} frames processed")
+
+
+class running_service:
+    """Context manager: session (router or client), service, optional recorder and console."""
+
+    def __init__(self, cfg, listen=None, connect=None, record: Path | None = None, console: bool = False,
+                 port: int = 8080, settings=None):
+        self.cfg, self.listen, self.connect = cfg, listen, connect
+        self.record, self.console, self.port, self.settings = record, console, port, settings
+        self._closers: list = []
+
+    def __enter__(self):
+        from service.server import IncidentService
+        from service.zenoh_config import open_session
+
+        try:
+            session = open_session(self.listen, self.connect)
+        except ConnectionError as e:
+            fail(str(e))
+            raise typer.Exit(1)
+        self._closers.append(session.close)
+        recorder = None
+        if self.record is not None:
+            from service.recorder import IncidentRecorder
+
+            recorder = IncidentRecorder(self.record, self.cfg.id).__enter__()
+            self._closers.append(lambda: recorder.__exit__(None, None, None))
+        svc = IncidentService(session, self.cfg, self.settings, recorder=recorder).start()
+        self._closers.append(svc.close)
+        if self.console:
+            try:
+                from client.console.server import start_console
+            except ImportError:
+                err.print("[yellow]warning:[/] the web console is not installed; serving without it")
+            else:
+                handle = start_console(session, self.cfg, port=self.port)
+                self._closers.append(handle.close)
+        where = ", ".join(self.connect) if self.connect else ", ".join(self.listen or [DEFAULT_ENDPOINT])
+        self.service = svc
+        return svc, where
+
+    def __exit__(self, *exc):
+        for close in reversed(self._closers):
+            try:
+                close()
+            except Exception as e:  # shutting down: report, go on closing the rest
+                err.print(f"[yellow]warning:[/] while shutting down: {e}")
+        return False
+
+
+def wearable_command(
+    responder: str = typer.Option(..., "--responder", help="responder id (letters, digits, _ . -)"),
+    replay_file: Path = typer.Option(..., "--replay", help="recording to publish (IPIN, Oxford, PyShoe, ...)"),
+    speed: float = typer.Option(1.0, "--speed", help="times real time (0: as fast as possible)"),
+    connect: str = typer.Option(DEFAULT_ENDPOINT, "--connect", help="router endpoint"),
+    incident_id: str = typer.Option(None, "--incident", help="incident id (default: the config's)"),
+    config: Path = typer.Option(None, "--config", help="incident config, for the landmarks' local coordinates"),
+    landmark_every: int = typer.Option(0, "--landmark-every", help="also send every K-th landmark as a checkpoint fix (the first is always sent)"),
+    gnss: bool = typer.Option(True, "--gnss/--no-gnss", help="send the recording's GNSS fixes"),
+):
+    """Publish a real recording as a wearable would: IMU frames (10 per second), landmarks and GNSS as fixes."""
+    import zenoh
+
+    from client.wearable import replay
+    from pdr.io.errors import RecordingFormatError
+    from service import wire
+    from service.console_io import progress_bar
+    from service.zenoh_config import client_config
+
+    if not wire.is_valid_id(responder):
+        fail(f"--responder {responder!r}: use 1-64 letters, digits, '_', '.' or '-'")
+        raise typer.Exit(2)
+    cfg = _incident(config, incident_id)
+    stop = stop_on_signals()
+    try:
+        session = zenoh.open(client_config(connect))
+    except Exception as e:
+        fail(f"could not connect to {connect}: {e}")
+        raise typer.Exit(1)
+    try:
+        with progress_bar(f"{responder} ← {replay_file.name}") as update:
+            sent = replay(replay_file, responder, session, cfg, speed, landmark_every, gnss, stop, update)
+    except (RecordingFormatError, OSError, ValueError) as e:
+        fail(str(e))
+        raise typer.Exit(1)
+    finally:
+        session.close()
+    out.print(f"{responder}: sent {sent['imu']} frames and {sent['fix']} fixes")

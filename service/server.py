@@ -1,0 +1,406 @@
+"""The live service of one incident: zenoh in, one tracker per responder, poses and status out.
+
+Data flow (keys from :mod:`service.wire`)::
+
+    firetrack/{incident}/*/imu  ──► decode ─► FrameGate (order, duplicates, gaps) ─► ResponderTracker ─► .../pose
+    firetrack/{incident}/*/fix  ──► decode ─► to local ENU (incident config) ──────────┘                  .../status (1 Hz)
+    firetrack/{incident}/*/track  (queryable: the smoothed track so far)
+    firetrack/{incident}/*/presence  (liveliness tokens of the wearables)
+
+Threads. Zenoh delivers samples on its own threads; the callbacks only stamp the receive
+time and queue the payload. One worker thread decodes and processes everything in arrival
+order (the work is numpy and gtsam under the GIL, so more threads would not go faster), and
+a timer thread publishes each responder's Status once a second. A bad payload is counted
+against its responder with a reason, logged, and dropped; nothing a wearable sends can stop
+the worker or reach another responder's state.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import msgpack
+import numpy as np
+import zenoh
+
+from pdr.events import MotionEvent, MotionState, bearing_deg
+from pdr.pipeline import ImuFrame
+from service import wire
+from service.incident import IncidentConfig, UnknownCheckpointError
+from service.ingest import FrameGate
+from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings
+
+log = logging.getLogger("firetrack.service")
+
+ALARM_MAN_DOWN = "man_down"
+ALARM_LOST_CONTACT = "lost_contact"
+ALARM_REJECTED = "rejected_frames"
+ALARM_DISCONNECTED = "disconnected"
+
+
+@dataclass
+class ServiceSettings:
+    tracker: TrackerSettings = field(default_factory=TrackerSettings)
+    status_period_s: float = 1.0  # s between Status messages
+    lost_contact_s: float = 10.0  # s without a frame -> lost-contact alarm
+    rejected_window_s: float = 10.0  # s
+    rejected_burst: int = 5  # rejects within the window -> alarm
+    reorder_window: int = 4  # frames a late frame may be overtaken by
+    entry_sigma_m: float = 50.0  # s: responders not yet placed by a checkpoint start at the origin with this σ
+    max_queue: int = 200_000  # samples waiting for the worker (beyond: the callbacks block: back-pressure)
+    log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
+
+
+@dataclass
+class Responder:
+    id: str
+    gate: FrameGate
+    tracker: ResponderTracker
+    first_heard: float
+    publisher_pose: object
+    publisher_status: object
+    seq: int = -1  # seq of the frame being processed
+    poses: int = 0
+    rejects: deque = field(default_factory=lambda: deque(maxlen=1024))  # receive times of rejects
+    fixes_rejected: dict = field(default_factory=dict)
+    present: bool | None = None  # liveliness: None unknown, True token alive, False token gone
+    logged: deque = field(default_factory=lambda: deque(maxlen=64))
+
+
+class IncidentService:
+    """The service of one incident on an open zenoh session: ``start()``, ``close()``."""
+
+    def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
+                 recorder=None, clock=time.time):
+        self.session = session
+        self.incident = incident
+        self.id = incident.id
+        self.settings = settings or ServiceSettings()
+        self.recorder = recorder
+        self.clock = clock
+        self.responders: dict[str, Responder] = {}
+        self.unattributed: dict[str, int] = {}  # rejects whose key names no valid responder
+        self._queue: queue.Queue = queue.Queue(maxsize=self.settings.max_queue)
+        self._stop = threading.Event()
+        self._lock = threading.Lock()  # responders dict between the worker and the status/queryable threads
+        self._threads: list[threading.Thread] = []
+        self._decl: list = []
+        self.frames_processed = 0
+        self.received = {"imu": 0, "fix": 0}  # payloads taken by the worker, good or bad
+        self.errors = 0
+        self.recorder_error: str | None = None
+        self._pending_presence: dict[str, bool] = {}  # liveliness seen before the first frame
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> IncidentService:
+        s = self.session
+        self._decl += [
+            s.declare_subscriber(wire.key_all(self.id, "imu"), self._enqueue("imu")),
+            s.declare_subscriber(wire.key_all(self.id, "fix"), self._enqueue("fix")),
+            s.declare_queryable(wire.key_all(self.id, "track"), self._on_track_query),
+            s.liveliness().declare_subscriber(wire.key_all(self.id, "presence"), self._on_presence, history=True),
+        ]
+        for target, name in ((self._work, "worker"), (self._status_loop, "status")):
+            th = threading.Thread(target=target, name=f"firetrack-{name}", daemon=True)
+            th.start()
+            self._threads.append(th)
+        log.info("service for incident %r started", self.id)
+        return self
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Stop taking input, finish what is queued, stop the threads, undeclare everything."""
+        for d in self._decl:
+            try:
+                d.undeclare()
+            except Exception:  # already gone with a closed session
+                pass
+        self._decl.clear()
+        self._queue.put(None)
+        self._stop.set()
+        for th in self._threads:
+            th.join(timeout)
+        self._threads.clear()
+
+    def wait_idle(self, timeout: float = 10.0) -> bool:
+        """Block until everything received so far is processed (tests, benchmarks)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self._queue.unfinished_tasks == 0:
+                return True
+            time.sleep(0.01)
+        return False
+
+    # ------------------------------------------------------------------ zenoh callbacks
+    def _enqueue(self, kind: str):
+        def callback(sample: zenoh.Sample) -> None:
+            now = self.clock()
+            payload = sample.payload.to_bytes()
+            key = str(sample.key_expr)
+            if self.recorder is not None:
+                self._record(key, payload, now)
+            self._queue.put((kind, key, payload, now))
+        return callback
+
+    def _on_presence(self, sample: zenoh.Sample) -> None:
+        try:
+            _, rid, _ = wire.parse_key(str(sample.key_expr))
+        except ValueError:
+            return
+        alive = sample.kind == zenoh.SampleKind.PUT
+        with self._lock:
+            r = self.responders.get(rid)
+            if r is not None:
+                r.present = alive
+        self._pending_presence[rid] = alive
+        log.info("wearable of %s %s", rid, "connected" if alive else "disconnected")
+
+    # ------------------------------------------------------------------ worker
+    def _work(self) -> None:
+        while True:
+            item = self._queue.get()
+            try:
+                if item is None:
+                    return
+                kind, key, payload, now = item
+                if kind in self.received:
+                    self.received[kind] += 1
+                if kind == "imu":
+                    self._handle_imu(key, payload, now)
+                elif kind == "tick":
+                    self._expire(now)
+                else:
+                    self._handle_fix(key, payload, now)
+            except Exception:  # a bug must not kill the service: log it, count it, go on
+                self.errors += 1
+                log.exception("error while processing %s", item[1] if item else "?")
+            finally:
+                self._queue.task_done()
+
+    def _responder_of(self, key: str, now: float, reason_on_fail: str) -> Responder | None:
+        try:
+            _, rid, _ = wire.parse_key(key)
+        except ValueError as e:
+            self.unattributed[reason_on_fail] = self.unattributed.get(reason_on_fail, 0) + 1
+            log.warning("rejected a sample on %r: %s", key, e)
+            return None
+        r = self.responders.get(rid)
+        if r is None:
+            r = self._new_responder(rid, now)
+        return r
+
+    def _new_responder(self, rid: str, now: float) -> Responder:
+        cfg = self.incident
+        s = self.settings
+        entry = CheckpointFix(-math.inf, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)")
+        tracker = ResponderTracker(rid, cfg.floor_elevations(), cfg.start_floor, s.tracker, entry=entry)
+        r = Responder(
+            id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=tracker, first_heard=now,
+            publisher_pose=self.session.declare_publisher(wire.key(self.id, rid, "pose")),
+            publisher_status=self.session.declare_publisher(wire.key(self.id, rid, "status")),
+            present=self._pending_presence.get(rid),
+        )
+        with self._lock:
+            self.responders[rid] = r
+        log.info("responder %s appeared", rid)
+        return r
+
+    def _reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
+        r.gate.count(reason, detail, now)
+        r.rejects.append(now)
+        while r.logged and now - r.logged[0] > self.settings.rejected_window_s:
+            r.logged.popleft()
+        if len(r.logged) < self.settings.log_rejects_per_window:
+            r.logged.append(now)
+            log.warning("%s: rejected a frame (%s): %s", r.id, reason, detail)
+
+    def _handle_imu(self, key: str, payload: bytes, now: float) -> None:
+        r = self._responder_of(key, now, "bad_key")
+        if r is None:
+            return
+        try:
+            batch = wire.decode(payload, expect=wire.ImuBatch)
+        except wire.WireError as e:
+            self._reject(r, e.reason, e.detail, now)
+            return
+        if batch.responder != r.id:
+            self._reject(r, "schema", f"responder {batch.responder!r} in a frame on the key of {r.id!r}", now)
+            return
+        before = dict(r.gate.counts)
+        released = r.gate.offer(batch, now)
+        after = r.gate.counts
+        for reason, n in after.items():
+            if n > before.get(reason, 0):
+                r.rejects.append(now)
+                if len(r.logged) < self.settings.log_rejects_per_window:
+                    r.logged.append(now)
+                    log.warning("%s: frame %d rejected (%s)", r.id, batch.seq, reason)
+        for b in released:
+            self._process(r, b)
+
+    def _process(self, r: Responder, b: wire.ImuBatch) -> None:
+        r.seq = b.seq
+        frame = ImuFrame(b.t, b.acc, b.gyr, b.mag, b.pressure_t, b.pressure)
+        try:
+            outputs = r.tracker.on_frame(frame)
+        except ValueError as e:  # e.g. a frame the gate let through that the pipeline cannot take
+            self._reject(r, "pipeline", str(e), self.clock())
+            return
+        self.frames_processed += 1
+        for o in outputs:
+            if isinstance(o, PoseEstimate):
+                self._publish_pose(r, o)
+            elif isinstance(o, MotionEvent):
+                log.info("%s is %s since device time %.1f", r.id, o.state.value, o.since)
+
+    def _handle_fix(self, key: str, payload: bytes, now: float) -> None:
+        r = self._responder_of(key, now, "bad_key")
+        if r is None:
+            return
+        try:
+            fix = wire.decode(payload, expect=wire.Fix)
+            domain = self._to_domain(fix)
+        except wire.WireError as e:
+            self._count_fix_reject(r, e.reason, e.detail)
+            return
+        except (UnknownCheckpointError, KeyError, ValueError) as e:
+            self._count_fix_reject(r, "unknown_reference", str(e))
+            return
+        if fix.responder != r.id:
+            self._count_fix_reject(r, "schema", f"responder {fix.responder!r} in a fix on the key of {r.id!r}")
+            return
+        pose = r.tracker.on_fix(domain)
+        log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
+        if pose is not None:
+            self._publish_pose(r, pose)
+
+    def _count_fix_reject(self, r: Responder, reason: str, detail: str) -> None:
+        r.fixes_rejected[reason] = r.fixes_rejected.get(reason, 0) + 1
+        log.warning("%s: fix rejected (%s): %s", r.id, reason, detail)
+
+    def _to_domain(self, fix: wire.Fix):
+        cfg = self.incident
+        if fix.source == "checkpoint":
+            if fix.name is not None:
+                cp = cfg.checkpoint(fix.name)
+                floor = fix.floor if fix.floor is not None else cp.floor
+                return CheckpointFix(fix.t, cp.x, cp.y, floor, fix.sigma or cp.sigma_m, cp.name)
+            return CheckpointFix(fix.t, fix.x, fix.y, fix.floor, fix.sigma or 0.5, None)
+        from service.fusion import GnssFix, UwbRange
+
+        if fix.source == "gnss":
+            x, y, _ = cfg.to_enu(fix.lat, fix.lon)
+            return GnssFix(t=fix.t, x=float(x), y=float(y), accuracy=fix.accuracy)
+        anchor = next((a for a in cfg.uwb_anchors if a.id == fix.anchor), None)
+        if anchor is None:
+            known = ", ".join(a.id for a in cfg.uwb_anchors) or "none configured"
+            raise KeyError(f"UWB anchor {fix.anchor!r} is not in the incident config (known: {known})")
+        return UwbRange(t=fix.t, anchor_x=anchor.x, anchor_y=anchor.y, range=fix.range, sigma=fix.sigma, anchor=anchor.id)
+
+    # ------------------------------------------------------------------ output
+    def _publish_pose(self, r: Responder, p: PoseEstimate) -> None:
+        lat, lon, _ = self.incident.to_geodetic(p.x, p.y)
+        cov = np.asarray(p.cov, float)
+        cov = 0.5 * (cov + cov.T)
+        msg = wire.Pose(
+            responder=r.id, t=p.t, x=p.x, y=p.y, floor=int(p.floor), lat=float(lat), lon=float(lon),
+            heading_deg=bearing_deg(p.heading) if math.isfinite(p.heading) else 0.0, cov=cov, steps=p.steps,
+            source=p.source, seq=max(r.seq, 0), published_at=self.clock(),
+        )
+        payload = wire.encode(msg)
+        r.publisher_pose.put(payload)
+        r.poses += 1
+        if self.recorder is not None:
+            self._record(wire.key(self.id, r.id, "pose"), payload, msg.published_at)
+
+    def status_of(self, r: Responder, now: float) -> wire.Status:
+        s = self.settings
+        pl = r.tracker.pipeline
+        alarms = []
+        if pl.state is MotionState.NO_MOTION:
+            alarms.append(ALARM_MAN_DOWN)
+        heard = r.gate.last_heard if r.gate.last_heard is not None else r.first_heard
+        if now - heard > s.lost_contact_s:
+            alarms.append(ALARM_LOST_CONTACT)
+        if sum(1 for t in r.rejects if now - t <= s.rejected_window_s) >= s.rejected_burst:
+            alarms.append(ALARM_REJECTED)
+        if r.present is False:
+            alarms.append(ALARM_DISCONNECTED)
+        t_dev = pl.last_time if math.isfinite(pl.last_time) else 0.0
+        since = pl.state_since if math.isfinite(pl.state_since) else t_dev
+        rejected = dict(r.gate.counts)
+        for reason, n in r.fixes_rejected.items():
+            rejected[f"fix_{reason}"] = n
+        return wire.Status(
+            responder=r.id, t=t_dev, motion=pl.state.value, motion_since=since, alarms=alarms,
+            rejected=rejected, frames=r.gate.accepted, gaps=r.gate.gaps, last_heard=heard, steps=pl.steps,
+        )
+
+    def _status_loop(self) -> None:
+        period = self.settings.status_period_s
+        while not self._stop.wait(period):
+            now = self.clock()
+            with self._lock:
+                responders = list(self.responders.values())
+            for r in responders:
+                try:
+                    msg = self.status_of(r, now)
+                    payload = wire.encode(msg)
+                    r.publisher_status.put(payload)
+                    if self.recorder is not None:
+                        self._record(wire.key(self.id, r.id, "status"), payload, now)
+                except Exception:
+                    log.exception("status of %s", r.id)
+            # frames held back for a missing seq longer than the gate allows: the worker releases them
+            self._queue.put(("tick", "", b"", now))
+
+    def _expire(self, now: float) -> None:
+        for r in list(self.responders.values()):
+            for b in r.gate.expire(now):
+                self._process(r, b)
+
+    # ------------------------------------------------------------------ track queryable
+    def track_of(self, r: Responder) -> dict:
+        sm = r.tracker.smoothed_track()
+        if sm is None or len(sm["t"]) == 0:
+            pts = r.tracker.pdr_track
+            arr = np.array(pts, float).reshape(-1, 4)
+            sm = {"t": arr[:, 0], "x": arr[:, 1], "y": arr[:, 2], "floor": arr[:, 3],
+                  "heading": np.full(arr.shape[0], np.nan)}
+            smoothed = False
+        else:
+            smoothed = True
+        return {"v": wire.SCHEMA_VERSION, "kind": "track", "responder": r.id, "smoothed": smoothed,
+                **{k: np.asarray(sm[k], "<f8").tobytes() for k in ("t", "x", "y", "floor", "heading")}}
+
+    def _on_track_query(self, query: zenoh.Query) -> None:
+        with self._lock:
+            responders = list(self.responders.values())
+        for r in responders:
+            k = wire.key(self.id, r.id, "track")
+            if not zenoh.KeyExpr(k).intersects(query.key_expr):
+                continue
+            try:
+                query.reply(k, msgpack.packb(self.track_of(r), use_bin_type=True))
+            except Exception:
+                log.exception("track query for %s", r.id)
+
+    def _record(self, key: str, payload: bytes, now: float) -> None:
+        try:
+            self.recorder.write(key, payload, now)
+        except Exception as e:  # a full disk must be loud, not silent
+            self.recorder_error = str(e)
+            log.error("recording failed: %s", e)
+
+
+def decode_track(payload: bytes) -> dict[str, np.ndarray | str | bool]:
+    """The reply of a ``.../track`` query as numpy arrays."""
+    d = msgpack.unpackb(payload, raw=False)
+    out = {k: d[k] for k in ("responder", "smoothed")}
+    for k in ("t", "x", "y", "floor", "heading"):
+        out[k] = np.frombuffer(d[k], "<f8")
+    return out

@@ -1,0 +1,54 @@
+"""Zenoh session configurations used by every firetrack process.
+
+* The **service** by default *is* the router: one process, an in-process zenoh router
+  listening on ``tcp/127.0.0.1:7447`` (``firetrack serve`` with no arguments). With
+  ``--connect`` it joins a standalone ``zenohd`` instead (deploy/), as a client.
+* **Wearables, the console and tools** are clients that connect to an endpoint.
+
+Multicast scouting is off everywhere: at an incident the router's address is known, and a
+laptop must not start talking to whatever else is on the fire service's network.
+"""
+from __future__ import annotations
+
+import json
+
+import zenoh
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def _base(mode: str) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def router_config(listen: list[str] | None = None) -> zenoh.Config:
+    """An in-process router listening on ``listen`` (default the local demo endpoint)."""
+    conf = _base("router")
+    conf.insert_json5("listen/endpoints", json.dumps(listen or [DEFAULT_ENDPOINT]))
+    return conf
+
+
+def client_config(connect: list[str] | str | None = None) -> zenoh.Config:
+    """A client session connected to ``connect`` (default the local demo endpoint)."""
+    eps = [connect] if isinstance(connect, str) else (connect or [DEFAULT_ENDPOINT])
+    conf = _base("client")
+    conf.insert_json5("connect/endpoints", json.dumps(eps))
+    return conf
+
+
+def open_session(listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Session:
+    """The service's session: a router on ``listen`` unless ``connect`` names one to join."""
+    if connect:
+        conf = client_config(connect)
+        if listen:
+            conf.insert_json5("listen/endpoints", json.dumps(listen))
+    else:
+        conf = router_config(listen)
+    try:
+        return zenoh.open(conf)
+    except Exception as e:  # zenoh raises its own ZError; say what could not be opened
+        where = f"connect to {', '.join(connect)}" if connect else f"listen on {', '.join(listen or [DEFAULT_ENDPOINT])}"
+        raise ConnectionError(f"could not open a zenoh session to {where}: {e}") from None

@@ -1,0 +1,210 @@
+"""The live service on a real zenoh router on loopback: equivalence with the offline path,
+several responders, fixes, status, the track queryable and bad input at the edge."""
+from __future__ import annotations
+
+import math
+import threading
+import time
+import warnings
+
+import msgpack
+import numpy as np
+import pytest
+
+from client.wearable import Wearable, paced, recording_messages
+from pdr.synthetic import static_imu
+from service import wire
+from service.incident import default_incident
+from service.server import IncidentService, ServiceSettings, decode_track
+from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker
+from tests.zenoh_util import client, router, wait_until
+
+IPIN_TRIAL52 = "ipin2023/IPIN2023_T3_TrainingTrial52_repetition01.txt.gz"
+
+
+@pytest.fixture
+def live():
+    """A router on a free port with the service of the demo incident on it, and a client session."""
+    session, endpoint = router()
+    cfg = default_incident()
+    svc = IncidentService(session, cfg, ServiceSettings()).start()
+    cl = client(endpoint)
+    yield svc, cl, cfg
+    cl.close()
+    svc.close()
+    session.close()
+
+
+class Collector:
+    def __init__(self, session, key):
+        self.items: list[tuple[str, bytes]] = []
+        self._lock = threading.Lock()
+        self.sub = session.declare_subscriber(key, self._on)
+
+    def _on(self, sample):
+        with self._lock:
+            self.items.append((str(sample.key_expr), sample.payload.to_bytes()))
+
+    def decoded(self, responder=None):
+        with self._lock:
+            items = list(self.items)
+        msgs = [wire.decode(p) for _, p in items]
+        return [m for m in msgs if responder is None or m.responder == responder]
+
+
+def offline_poses(cfg, msgs, responder):
+    """The same messages through a ResponderTracker without any network: the reference."""
+    s = ServiceSettings()
+    tracker = ResponderTracker(responder, cfg.floor_elevations(), cfg.start_floor, s.tracker,
+                               entry=CheckpointFix(-math.inf, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m))
+    from pdr.pipeline import ImuFrame
+
+    poses = []
+    for m in msgs:
+        if m.kind == "imu":
+            b = m.msg
+            out = tracker.on_frame(ImuFrame(b.t, b.acc, b.gyr, b.mag, b.pressure_t, b.pressure))
+        else:
+            f = m.msg
+            p = tracker.on_fix(CheckpointFix(f.t, f.x, f.y, f.floor, f.sigma))
+            out = [p] if p is not None else []
+        poses += [o for o in out if isinstance(o, PoseEstimate)]
+    return poses
+
+
+@pytest.mark.recording
+def test_replay_through_zenoh_equals_the_offline_pipeline(live, shared_data):
+    svc, cl, cfg = live
+    from pdr.io import load
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = load(shared_data(IPIN_TRIAL52))
+    msgs = recording_messages(rec, "r52", incident=cfg, landmark_every=3, gnss=False)
+    msgs = [m for m in msgs if m.t <= msgs[0].t + 150.0]  # 150 s of the walk keeps the test short
+    expected = offline_poses(cfg, msgs, "r52")
+    assert len(expected) > 100
+    poses = Collector(cl, wire.key(cfg.id, "r52", "pose"))
+    w = Wearable(cl, cfg.id, "r52")
+    sent = {"imu": 0, "fix": 0}
+    for m in paced(msgs, speed=0):
+        if m.kind == "fix":  # zenoh orders per key, not across keys: let the frames before a fix land first
+            assert wait_until(lambda: svc.received["imu"] >= sent["imu"], 30)
+        w.send(m.kind, m.msg)
+        sent[m.kind] += 1
+        if m.kind == "fix":
+            assert wait_until(lambda: svc.received["fix"] >= sent["fix"], 30)
+    n_frames = sum(m.kind == "imu" for m in msgs)
+    assert wait_until(lambda: svc.frames_processed >= n_frames, 60)
+    assert wait_until(lambda: len(poses.items) >= len(expected), 10)
+    got = poses.decoded("r52")
+    w.close()
+    assert len(got) == len(expected)
+    for g, e in zip(got, expected):
+        assert g.t == e.t and g.steps == e.steps and g.floor == e.floor and g.source == e.source
+        assert g.x == pytest.approx(e.x, abs=1e-9) and g.y == pytest.approx(e.y, abs=1e-9)
+        assert np.allclose(g.cov, e.cov, atol=1e-9)
+    assert got[-1].source == "fused"
+
+
+def _walker_frames(responder, seconds=40.0, rate=50.0, seed=0, still=False):
+    from pdr.synthetic import static_imu as _static
+
+    imu = _static(seconds=seconds, rate_hz=rate, seed=seed)
+    acc = imu.acc.copy()
+    if not still:  # a bounce at 1.8 Hz on the vertical: steps for the norm detector
+        acc[:, 2] += 2.5 * np.sin(2 * np.pi * 1.8 * imu.t)
+    return list(wire.imu_batches_from_arrays(responder, f"dev-{responder}", imu.t + 1000.0, acc, imu.gyr, imu.mag,
+                                             per_batch=5))
+
+
+def test_several_responders_each_get_their_poses_and_status(live):
+    svc, cl, cfg = live
+    poses = Collector(cl, wire.key_all(cfg.id, "pose"))
+    status = Collector(cl, wire.key_all(cfg.id, "status"))
+    ids = ["alpha", "bravo", "charlie"]
+    frames = {r: _walker_frames(r, seed=i, still=(r == "charlie")) for i, r in enumerate(ids)}
+    wearables = {r: Wearable(cl, cfg.id, r) for r in ids}
+    for k in range(len(frames["alpha"])):  # interleaved, as live
+        for r in ids:
+            wearables[r].send("imu", frames[r][k])
+    assert wait_until(lambda: svc.frames_processed >= 3 * len(frames["alpha"]), 30)
+    assert wait_until(lambda: {s.responder for s in status.decoded()} >= set(ids), 5)
+    by = {r: poses.decoded(r) for r in ids}
+    assert len(by["alpha"]) > 40 and len(by["bravo"]) > 40
+    assert by["charlie"] == []  # standing still: no steps, no poses
+    for r in ("alpha", "bravo"):
+        steps = [p.steps for p in by[r]]
+        assert steps == sorted(steps) and steps[-1] == svc.responders[r].tracker.pipeline.steps
+    st = {s.responder: s for s in status.decoded()}
+    assert st["charlie"].motion in ("still", "no_motion") and st["alpha"].frames > 0
+    # the track queryable answers per responder
+    replies = list(cl.get(wire.key(cfg.id, "alpha", "track"), timeout=5.0))
+    tracks = [decode_track(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
+    assert len(tracks) == 1 and tracks[0]["responder"] == "alpha" and tracks[0]["t"].size >= len(by["alpha"])
+    for w in wearables.values():
+        w.close()
+
+
+def test_bad_frames_are_counted_and_harm_no_one(live):
+    svc, cl, cfg = live
+    good = _walker_frames("good", seconds=20.0)
+    bad_frames = _walker_frames("bad", seconds=20.0)
+    wg, wb = Wearable(cl, cfg.id, "good"), Wearable(cl, cfg.id, "bad")
+    nan_batch = bad_frames[3].to_wire()
+    acc = np.frombuffer(nan_batch["acc"], "<f8").copy()
+    acc[4] = np.nan
+    nan_batch["acc"] = acc.tobytes()
+    attacks = [
+        b"\xc1not msgpack",  # malformed
+        msgpack.packb({"v": 1, "kind": "imu", "responder": "bad"}),  # schema violation
+        msgpack.packb(nan_batch, use_bin_type=True),  # NaN
+        b"\x00" * (wire.MAX_PAYLOAD_BYTES + 1),  # oversized
+    ]
+    for k in range(len(good)):
+        wg.send("imu", good[k])
+        if k < 10:
+            wb.send("imu", bad_frames[k])
+        elif k < 10 + len(attacks):
+            wb.send("imu", attacks[k - 10])
+        elif k == 20:
+            wb.send("imu", bad_frames[5])  # a duplicate seq
+        elif k > 20:
+            wb.send("imu", bad_frames[k])
+    assert wait_until(lambda: svc.frames_processed >= len(good) + len(bad_frames) - 12, 30)
+    time.sleep(0.3)
+    counts = svc.responders["bad"].gate.counts
+    for reason in ("msgpack", "schema", "nonfinite", "oversize"):
+        assert counts.get(reason, 0) == 1, (reason, counts)
+    assert counts.get("duplicate", 0) + counts.get("late", 0) == 1
+    assert svc.responders["good"].gate.counts == {}
+    assert svc.responders["good"].gate.accepted == len(good)
+    st = svc.status_of(svc.responders["bad"], time.time())
+    assert "rejected_frames" in st.alarms and st.rejected["msgpack"] == 1
+    assert svc.errors == 0
+    wg.close()
+    wb.close()
+
+
+def test_unknown_checkpoint_is_rejected_with_its_name(live):
+    svc, cl, cfg = live
+    w = Wearable(cl, cfg.id, "delta")
+    for b in _walker_frames("delta", seconds=5.0):
+        w.send("imu", b)
+    w.send("fix", wire.Fix.checkpoint("delta", 1003.0, name="no-such-door"))
+    w.send("fix", wire.Fix.checkpoint("delta", 1003.0, name=cfg.checkpoints[0].name))
+    assert wait_until(lambda: svc.responders.get("delta") is not None
+                      and svc.responders["delta"].fixes_rejected.get("unknown_reference") == 1, 10)
+    w.close()
+
+
+def test_motionless_responder_raises_man_down(live):
+    svc, cl, cfg = live
+    imu = static_imu(seconds=40.0, rate_hz=25.0)
+    w = Wearable(cl, cfg.id, "echo")
+    for b in wire.imu_batches_from_arrays("echo", "dev", imu.t, imu.acc, imu.gyr, imu.mag, per_batch=5):
+        w.send("imu", b)
+    assert wait_until(lambda: "echo" in svc.responders and svc.responders["echo"].gate.accepted == 200, 20)
+    st = svc.status_of(svc.responders["echo"], time.time())
+    assert st.motion == "no_motion" and "man_down" in st.alarms
+    w.close()

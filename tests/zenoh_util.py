@@ -1,0 +1,34 @@
+"""Helpers for tests on a real zenoh router on loopback (free ports, bounded waits)."""
+from __future__ import annotations
+
+import socket
+import time
+
+import zenoh
+
+from service.zenoh_config import client_config, router_config
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def router(port: int | None = None) -> tuple[zenoh.Session, str]:
+    """An in-process router on a free loopback port, and its endpoint."""
+    endpoint = f"tcp/127.0.0.1:{port or free_port()}"
+    return zenoh.open(router_config([endpoint])), endpoint
+
+
+def client(endpoint: str) -> zenoh.Session:
+    return zenoh.open(client_config(endpoint))
+
+
+def wait_until(predicate, timeout: float = 10.0, step: float = 0.02) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(step)
+    return predicate()
