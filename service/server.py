@@ -65,6 +65,7 @@ class Responder:
     publisher_pose: object
     publisher_status: object
     seq: int = -1  # seq of the frame being processed
+    epoch: int = 0  # the gate's stream epoch the tracker belongs to
     poses: int = 0
     rejects: deque = field(default_factory=lambda: deque(maxlen=1024))  # receive times of rejects
     fixes_rejected: dict = field(default_factory=dict)
@@ -196,10 +197,8 @@ class IncidentService:
     def _new_responder(self, rid: str, now: float) -> Responder:
         cfg = self.incident
         s = self.settings
-        entry = CheckpointFix(-math.inf, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)")
-        tracker = ResponderTracker(rid, cfg.floor_elevations(), cfg.start_floor, s.tracker, entry=entry)
         r = Responder(
-            id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=tracker, first_heard=now,
+            id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=self._tracker(rid), first_heard=now,
             publisher_pose=self.session.declare_publisher(wire.key(self.id, rid, "pose")),
             publisher_status=self.session.declare_publisher(wire.key(self.id, rid, "status")),
             present=self._pending_presence.get(rid),
@@ -208,6 +207,13 @@ class IncidentService:
             self.responders[rid] = r
         log.info("responder %s appeared", rid)
         return r
+
+    def _tracker(self, rid: str = "") -> ResponderTracker:
+        """A fresh tracker; not yet placed, it starts at the incident origin with a wide σ
+        until a checkpoint fix says where the responder is."""
+        cfg, s = self.incident, self.settings
+        entry = CheckpointFix(-math.inf, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)")
+        return ResponderTracker(rid, cfg.floor_elevations(), cfg.start_floor, s.tracker, entry=entry)
 
     def _reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
         r.gate.count(reason, detail, now)
@@ -243,6 +249,10 @@ class IncidentService:
             self._process(r, b)
 
     def _process(self, r: Responder, b: wire.ImuBatch) -> None:
+        if r.gate.epoch != r.epoch:  # a new stream (rebooted wearable, another device): a fresh pipeline
+            log.warning("%s: new stream (device %s); the track restarts", r.id, b.device)
+            r.epoch = r.gate.epoch
+            r.tracker = self._tracker(r.id)
         r.seq = b.seq
         frame = ImuFrame(b.t, b.acc, b.gyr, b.mag, b.pressure_t, b.pressure)
         try:

@@ -1,0 +1,398 @@
+"""Factor-graph fusion (service/fusion) on synthetic walks whose truth is known. Real gtsam, no mocks."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pdr.events import StepEvent
+from service.fusion import CheckpointFix, FusedPose, FusionSettings, GnssFix, TrackFusion, UwbRange
+from service.fusion.noise import step_covariance
+from service.fusion_bench import bench_fusion
+
+DEG = math.pi / 180.0
+STEP_DT = 0.5  # s between steps (2 steps/s)
+
+
+def walk(headings, length=0.8, turn_bias=0.0, turn_sigma=0.01, mag=None, mag_sigma=5 * DEG, floors=None,
+         start_heading=None, t0=0.0, index0=1):
+    """StepEvents for true step headings ``headings`` (rad) and the true positions (n+1, 2) from (0, 0).
+
+    The PDR's turn per step is the true turn plus ``turn_bias`` (a gyro drift); ``mag`` is the
+    compass reading per step (None: disturbed everywhere, NaN).
+    """
+    h = np.asarray(headings, dtype=float)
+    n = len(h)
+    h_prev = np.r_[h[0] if start_heading is None else start_heading, h[:-1]]
+    steps = length * np.c_[np.cos(h), np.sin(h)]
+    truth = np.vstack([[0.0, 0.0], np.cumsum(steps, axis=0)])
+    mag = np.full(n, np.nan) if mag is None else np.asarray(mag, dtype=float)
+    floors = np.zeros(n, dtype=int) if floors is None else np.asarray(floors)
+    events = [
+        StepEvent(t=t0 + (k + 1) * STEP_DT, index=index0 + k, length=length, length_sigma=0.03, heading=float(h[k]),
+                  heading_sigma=0.1, heading_change=float(h[k] - h_prev[k] + turn_bias), heading_change_sigma=turn_sigma,
+                  dz=0.0, dz_sigma=0.1, floor=int(floors[k]), on_stairs=False, mag_heading=float(mag[k]),
+                  mag_heading_sigma=mag_sigma if math.isfinite(mag[k]) else math.inf)
+        for k in range(n)
+    ]
+    return events, truth
+
+
+def square(side_steps=25):
+    return np.repeat([0.0, math.pi / 2, math.pi, -math.pi / 2], side_steps)
+
+
+def no_mag(**kw) -> FusionSettings:
+    return FusionSettings(use_mag_heading=False, **kw)
+
+
+def err(pose: FusedPose, xy) -> float:
+    return math.hypot(pose.x - xy[0], pose.y - xy[1])
+
+
+def track_err(track, truth, rows) -> np.ndarray:
+    return np.hypot(track["x"][rows] - truth[rows, 0], track["y"][rows] - truth[rows, 1])
+
+
+# ------------------------------------------------------------------ steps
+
+
+def test_exact_steps_reproduce_dead_reckoning():
+    events, truth = walk(square())
+    f = TrackFusion(no_mag())
+    first = f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+    assert first.source == "pdr" and first.index == 0 and first.steps == 0
+    poses = [f.add_step(ev) for ev in events]
+    xy = np.array([[p.x, p.y] for p in poses])
+    np.testing.assert_allclose(xy, truth[1:], atol=1e-6)
+    assert poses[-1].steps == len(events) and poses[-1].index == events[-1].index
+    assert all(p.source == "pdr" for p in poses)
+    np.testing.assert_allclose(poses[30].heading, math.pi / 2, atol=1e-6)
+
+
+def test_step_covariance_correlates_turn_and_across_track():
+    cov = step_covariance(0.8, 0.05, 0.02, 0.05)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    # a turn error δθ moves the step sideways by L·δθ: the across/rotation correlation is near 1
+    rho = cov[1, 2] / math.sqrt(cov[1, 1] * cov[2, 2])
+    assert 0.2 < rho < 1.0
+
+
+def test_published_covariance_is_in_enu():
+    """Walking north with an uncertain start heading: the big uncertainty is across track = east."""
+    events, _ = walk(np.full(40, math.pi / 2))
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, math.pi / 2, heading_sigma=10 * DEG, position_sigma=0.1)
+    p = [f.add_step(ev) for ev in events][-1]
+    assert p.cov.shape == (2, 2)
+    assert p.cov[0, 0] > 10 * p.cov[1, 1]  # east (across) >> north (along)
+    assert math.sqrt(p.cov[0, 0]) == pytest.approx(32 * 10 * DEG, rel=0.25)  # ≈ distance × heading sigma
+
+
+def test_unknown_first_turn_uses_absolute_heading():
+    """First step with heading_change_sigma = inf: the turn comes loosely from the PDR heading."""
+    events, truth = walk(np.full(10, math.pi / 2), start_heading=0.0)
+    e0 = events[0]
+    events[0] = StepEvent(**{**e0.__dict__, "heading_change": math.nan, "heading_change_sigma": math.inf})
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+    poses = [f.add_step(ev) for ev in events]
+    assert err(poses[-1], truth[-1]) < 0.05
+    assert poses[0].heading_sigma > 0.5  # the first turn really is uncertain
+
+
+# ------------------------------------------------------------------ checkpoints
+
+
+def test_checkpoint_corrects_heading_bias_and_the_past():
+    """Square walk, PDR rotated by +8° (a wrong start heading); a checkpoint at the second corner."""
+    events, truth = walk(square())
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, heading=8 * DEG, heading_sigma=15 * DEG, position_sigma=0.3)
+    for ev in events[:50]:
+        before = f.add_step(ev)
+    corner1 = 25
+    track_before = f.smoothed_track()
+    err_corner1_before = track_err(track_before, truth, corner1)
+    assert err(before, truth[50]) > 3.0  # the bias really hurts: 2·sin(4°)·28 m ≈ 3.9 m
+    after = f.add_fix(CheckpointFix(t=events[49].t, x=truth[50, 0], y=truth[50, 1], sigma=0.3, name="corner 2"))
+    assert after is not None and after.source == "fused"
+    assert err(after, truth[50]) < 0.3
+    track_after = f.smoothed_track()
+    assert track_err(track_after, truth, corner1) < 0.3 * err_corner1_before  # the history moved toward the truth
+    assert np.all(track_err(track_after, truth, np.arange(51)) <= track_err(track_before, truth, np.arange(51)) + 0.05)
+    # heading corrected too: the rest of the square is walked right
+    for ev in events[50:]:
+        last = f.add_step(ev)
+    assert err(last, truth[-1]) < 1.0
+    assert abs(last.heading - (-math.pi / 2)) < 2 * DEG
+
+
+@pytest.mark.parametrize("bias_deg", [20.0, 40.0])
+def test_large_correction_converges_within_the_fix(bias_deg):
+    """iSAM2 takes one Gauss-Newton step per update: a fix that rotates 60 m of track needs the extra iterations."""
+    events, truth = walk(square(40))
+    results = {}
+    for extra in (0, FusionSettings().fix_extra_updates):
+        f = TrackFusion(no_mag(fix_extra_updates=extra))
+        f.start(0.0, 0.0, 0.0, bias_deg * DEG, heading_sigma=1.5 * bias_deg * DEG, position_sigma=0.3)
+        for ev in events[:80]:
+            f.add_step(ev)
+        results[extra] = f.add_fix(CheckpointFix(t=events[79].t, x=truth[80, 0], y=truth[80, 1], sigma=0.3))
+    assert err(results[0], truth[80]) > 1.0  # one iteration is not enough ...
+    assert err(results[FusionSettings().fix_extra_updates], truth[80]) < 0.05  # ... the defaults converge
+
+
+def test_checkpoint_between_steps_inflates_by_the_distance_walked():
+    events, truth = walk(np.zeros(20))
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+    for ev in events:
+        f.add_step(ev)
+    # stamped a quarter of a step after pose 10: attaches to pose 10, sigma grows by 0.2 m
+    f.add_fix(CheckpointFix(t=events[9].t + 0.25 * STEP_DT, x=truth[10, 0] + 0.2, y=truth[10, 1], sigma=0.1))
+    ev = f.events[-1]
+    assert ev.kind == "accepted" and ev.values["row"] == 10
+    assert ev.values["slip_m"] == pytest.approx(0.25 * 0.8)
+
+
+def test_checkpoint_floor_relabels_from_its_pose_on():
+    events, _ = walk(np.zeros(30), floors=np.full(30, 1))
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05, floor=1)
+    for ev in events[:20]:
+        f.add_step(ev)
+    pose = f.add_fix(CheckpointFix(t=events[9].t, x=8.0, y=0.0, floor=3))
+    assert pose.floor == 3  # the PDR said 1: the offset (+2) carries to the live pose
+    assert f.add_step(events[20]).floor == 3
+    floors = f.smoothed_track()["floor"]
+    assert np.all(floors[:10] == 1) and np.all(floors[10:] == 3)
+
+
+# ------------------------------------------------------------------ UWB
+
+
+def test_uwb_range_pulls_toward_the_circle():
+    events, truth = walk(np.zeros(40))
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, heading=10 * DEG, heading_sigma=15 * DEG, position_sigma=0.3)
+    for ev in events:
+        before = f.add_step(ev)
+    anchor = np.array([32.0, -10.0])
+    r = float(np.hypot(*(truth[-1] - anchor)))
+    miss_before = abs(math.hypot(before.x - anchor[0], before.y - anchor[1]) - r)
+    assert miss_before > 3.0
+    after = f.add_fix(UwbRange(t=events[-1].t, anchor_x=anchor[0], anchor_y=anchor[1], range=r, sigma=0.2, anchor="A1"))
+    miss_after = abs(math.hypot(after.x - anchor[0], after.y - anchor[1]) - r)
+    assert miss_after < 0.5
+    assert err(after, truth[-1]) < 0.5 * err(before, truth[-1])
+    # a second range to the same anchor reuses its variable
+    n_vars = f.window_variables
+    f.add_fix(UwbRange(t=events[-2].t, anchor_x=anchor[0], anchor_y=anchor[1], range=float(np.hypot(*(truth[-2] - anchor))),
+                       sigma=0.2, anchor="A1"))
+    assert f.window_variables == n_vars
+
+
+def test_uwb_gate_is_optional():
+    events, truth = walk(np.zeros(20))
+    gated = TrackFusion(no_mag(uwb_gate_probability=0.999))
+    plain = TrackFusion(no_mag())
+    bad = UwbRange(t=events[-1].t, anchor_x=16.0, anchor_y=5.0, range=35.0, sigma=0.2)  # true range 5 m
+    for f in (gated, plain):
+        f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+        for ev in events:
+            f.add_step(ev)
+    assert gated.add_fix(bad) is None and gated.rejected["uwb_gate"] == 1
+    assert plain.add_fix(bad) is not None
+
+
+# ------------------------------------------------------------------ GNSS
+
+
+def test_gnss_outlier_rejected_consistent_fix_accepted():
+    events, truth = walk(np.zeros(60))
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, heading=5 * DEG, heading_sigma=10 * DEG, position_sigma=1.0)
+    for ev in events:
+        live = f.add_step(ev)
+    t = events[-1].t
+    assert f.add_fix(GnssFix(t=t, x=truth[-1, 0] + 80.0, y=truth[-1, 1], accuracy=5.0)) is None
+    assert f.rejected["gnss_gate"] == 1
+    assert f.live is live  # a rejected fix changes nothing
+    assert f.add_fix(GnssFix(t=t, x=truth[-1, 0], y=truth[-1, 1], accuracy=80.0)) is None
+    assert f.rejected["gnss_accuracy"] == 1
+    good = f.add_fix(GnssFix(t=t, x=truth[-1, 0] + 1.0, y=truth[-1, 1] - 1.0, accuracy=3.0))
+    assert good is not None and good.source == "fused"
+    assert err(good, truth[-1]) < err(live, truth[-1])
+    assert [e.kind for e in f.events][-3:] == ["rejected", "rejected", "accepted"]
+
+
+# ------------------------------------------------------------------ time
+
+
+def test_late_fix_changes_the_past_not_published_poses():
+    events, truth = walk(np.zeros(60))
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, heading=8 * DEG, heading_sigma=15 * DEG, position_sigma=0.3)
+    published = [f.add_step(ev) for ev in events]
+    snapshot = [(p.t, p.x, p.y, p.heading, p.cov.copy(), p.floor, p.source) for p in published]
+    past_before = f.smoothed_track()
+    live = f.add_fix(CheckpointFix(t=events[29].t, x=truth[30, 0], y=truth[30, 1], sigma=0.2))
+    past_after = f.smoothed_track()
+    assert track_err(past_after, truth, 30) < 0.3 < track_err(past_before, truth, 30)
+    assert err(live, truth[-1]) < err(published[-1], truth[-1])
+    for p, (t, x, y, h, cov, floor, source) in zip(published, snapshot):
+        assert (p.t, p.x, p.y, p.heading, p.floor, p.source) == (t, x, y, h, floor, source)
+        np.testing.assert_array_equal(p.cov, cov)
+    with pytest.raises(ValueError):
+        published[-1].cov[0, 0] = 0.0  # read-only: nobody can change a published pose
+
+
+def test_fix_older_than_the_window_is_rejected():
+    events, truth = walk(np.zeros(200))  # 100 s of walking
+    f = TrackFusion(no_mag(lag_s=30.0))
+    f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+    for ev in events:
+        f.add_step(ev)
+    assert f.add_fix(CheckpointFix(t=events[10].t, x=truth[11, 0], y=truth[11, 1])) is None
+    assert f.rejected["too_old"] == 1
+    assert f.add_fix(CheckpointFix(t=-60.0, x=0.0, y=0.0)) is None
+    assert f.rejected["before_start"] == 1
+    assert f.add_fix(CheckpointFix(t=events[-20].t, x=truth[-20, 0], y=truth[-20, 1])) is not None
+    # newer than the latest step: attaches to the latest pose
+    assert f.add_fix(CheckpointFix(t=events[-1].t + 5.0, x=truth[-1, 0], y=truth[-1, 1])) is not None
+    assert f.events[-1].values["row"] == len(events)
+
+
+def test_marginalisation_keeps_the_state_bounded():
+    n = 5000
+    rng = np.random.default_rng(7)
+    turns = np.zeros(n)
+    turns[rng.integers(0, n, 200)] = math.pi / 2
+    events, truth = walk(np.cumsum(turns), turn_bias=0.05 * DEG)
+    settings = no_mag(lag_s=30.0)
+    f = TrackFusion(settings)
+    f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+    bound = settings.lag_s / STEP_DT + 5  # poses in the window (+ slack for fix variables)
+    worst = 0
+    for k, ev in enumerate(events):
+        f.add_step(ev)
+        if (k + 1) % 40 == 0:  # every 20 s: a pose is fixed on both sides before it leaves the 30 s window
+            f.add_fix(CheckpointFix(t=ev.t, x=truth[k + 1, 0], y=truth[k + 1, 1], sigma=0.3))
+            f.add_fix(UwbRange(t=ev.t, anchor_x=truth[k + 1, 0] + 5.0, anchor_y=truth[k + 1, 1], range=5.0, sigma=0.2,
+                               anchor=f"A{k // 400}"))
+        if k % 250 == 0:
+            worst = max(worst, f.window_variables)
+    assert worst <= bound
+    track = f.smoothed_track()
+    assert len(track["t"]) == n + 1
+    np.testing.assert_array_equal(track["index"], np.arange(n + 1))
+    assert np.all(np.isfinite(track["x"])) and np.all(np.isfinite(track["y"]))
+    assert np.max(track_err(track, truth, np.arange(n + 1))) < 1.0  # frozen poses are smoothed, not raw PDR
+
+
+# ------------------------------------------------------------------ compass factor (why it is on by default)
+
+
+def test_compass_factor_bounds_gyro_drift():
+    """Gyro drift of 0.3°/step over 400 steps (120°): the compass keeps the heading; without it the track is lost."""
+    rng = np.random.default_rng(1)
+    h = np.repeat([0.0, math.pi / 2, math.pi, -math.pi / 2], 100)
+    mag = h + rng.normal(0.0, 5 * DEG, len(h))
+    events, truth = walk(h, turn_bias=0.3 * DEG, mag=mag)
+    errors = {}
+    for on in (True, False):
+        f = TrackFusion(FusionSettings(use_mag_heading=on))
+        f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+        for ev in events:
+            last = f.add_step(ev)
+        errors[on] = err(last, truth[-1])
+    assert errors[True] < 3.0
+    assert errors[False] > 5 * errors[True]
+
+
+def test_robust_compass_kernel_limits_an_undetected_disturbance():
+    """40 steps where the compass reads 50° off but claims 5° (missed by the PDR's disturbance gate):
+    Cauchy (the default) bends the track far less than Huber or plain least squares."""
+    rng = np.random.default_rng(2)
+    h = np.repeat([0.0, math.pi / 2, 0.0], [60, 40, 60])
+    mag = h + rng.normal(0.0, 3 * DEG, len(h))
+    mag[60:100] += 50 * DEG
+    events, truth = walk(h, mag=mag)
+    errors = {}
+    for kernel in ("cauchy", "huber", "gaussian"):
+        f = TrackFusion(FusionSettings(mag_kernel=kernel))
+        f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+        for ev in events:
+            last = f.add_step(ev)
+        errors[kernel] = np.max(track_err(f.smoothed_track(), truth, np.arange(len(h) + 1)))
+    assert FusionSettings().mag_kernel == "cauchy"
+    assert errors["cauchy"] < 0.3 * errors["gaussian"]
+    assert errors["cauchy"] < 0.3 * errors["huber"]
+
+
+def test_compass_recovers_the_heading_after_a_gap():
+    """The compass is missing for 150 steps while the gyro drifts 0.3°/step (45°): once it returns, the
+    (redescending) default kernel must still pull the heading back rather than distrust it for good."""
+    rng = np.random.default_rng(3)
+    h = np.repeat([0.0, math.pi / 2, math.pi, -math.pi / 2], 100)
+    mag = h + rng.normal(0.0, 5 * DEG, len(h))
+    mag[100:250] = np.nan
+    events, truth = walk(h, turn_bias=0.3 * DEG, mag=mag)
+    f = TrackFusion()
+    f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+    for ev in events:
+        last = f.add_step(ev)
+    assert abs(math.remainder(last.heading - h[-1], 2 * math.pi)) < 5 * DEG
+    assert np.max(track_err(f.smoothed_track(), truth, np.arange(len(h) + 1))) < 5.0
+
+
+# ------------------------------------------------------------------ bad input
+
+
+def test_bad_input_is_reported_clearly():
+    with pytest.raises(ValueError, match="GnssFix.x"):
+        GnssFix(t=0.0, x=math.nan, y=0.0, accuracy=3.0)
+    with pytest.raises(ValueError, match="UwbRange.sigma"):
+        UwbRange(t=0.0, anchor_x=0.0, anchor_y=0.0, range=1.0, sigma=0.0)
+    with pytest.raises(ValueError, match="FusionSettings.gnss_kernel"):
+        FusionSettings(gnss_kernel="l1")
+    f = TrackFusion()
+    with pytest.raises(RuntimeError, match="start"):
+        f.add_fix(CheckpointFix(t=0.0, x=0.0, y=0.0))
+    events, _ = walk(np.zeros(3))
+    f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.1)
+    f.add_step(events[1])
+    with pytest.raises(ValueError, match="not after the previous pose"):
+        f.add_step(events[0])
+    with pytest.raises(TypeError):
+        f.add_fix((1.0, 2.0))
+    f.add_step(events[2])
+    assert f.live.steps == 2
+
+
+def test_bench_fusion_runs_and_converges():
+    report = bench_fusion(steps=400, fix_every=100, seed=1)
+    assert report["steps"] == 400
+    assert report["final_error_m"] < 1.5  # the last step is a checkpoint step
+    assert report["smoothed_rmse_m"] < 3.0
+
+
+def test_fusion_command_prints_json():
+    import json
+
+    import typer
+    from typer.testing import CliRunner
+
+    from service.fusion_bench import fusion_command
+
+    app = typer.Typer()
+    app.command("fusion")(fusion_command)
+    result = CliRunner().invoke(app, ["--steps", "200", "--fix-every", "50", "--json"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    assert report["steps"] == 200 and report["fix_every"] == 50
+    for key in ("median_update_ms", "p99_update_ms", "first_1000_median_ms", "last_1000_median_ms",
+                "ratio_last_first", "total_s", "final_error_m"):
+        assert math.isfinite(report[key])
