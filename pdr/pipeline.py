@@ -227,7 +227,7 @@ class PdrPipeline:
         det, self._pending = self._pending[:n], self._pending[n:]
         L = np.clip(step_lengths(step_arrays(det), s.profile), s.min_step_length_m, s.max_step_length_m)
         h = self._height_before(hd.t)
-        h_prev = np.r_[self._last_step[1] if self._last_step else np.nan, h[:-1]]
+        h_prev = np.concatenate(([self._last_step[1] if self._last_step else np.nan], h[:-1]))
         dz = np.where(np.isfinite(h) & np.isfinite(h_prev), h - h_prev, 0.0)
         dz_sigma = np.where(np.isfinite(h) & np.isfinite(h_prev), s.dz_sigma_m, math.inf)
         stairs = self._stairs.update(dz)
@@ -256,8 +256,8 @@ class PdrPipeline:
         A = np.concatenate([self._motion_tail["a"], np.linalg.norm(acc, axis=1)])
         G = np.concatenate([self._motion_tail["g"], np.linalg.norm(gyr, axis=1)])
         m = self._motion_tail["t"].size
-        c1 = np.r_[0.0, np.cumsum(A)]
-        c2 = np.r_[0.0, np.cumsum(A * A)]
+        c1 = np.concatenate(([0.0], np.cumsum(A)))
+        c2 = np.concatenate(([0.0], np.cumsum(A * A)))
         idx = np.arange(m, T.size)
         j0 = np.searchsorted(T, T[idx] - s.motionless_window_s, side="right")
         n = idx + 1 - j0
@@ -277,7 +277,7 @@ class PdrPipeline:
             self._first_sample = float(t[0])
         # time of the latest moving sample at or before each sample
         moving_t = np.where(~still, t, -np.inf)
-        last_moving = np.maximum.accumulate(np.r_[self._last_moving, moving_t])[1:]
+        last_moving = np.maximum.accumulate(np.concatenate(([self._last_moving], moving_t)))[1:]
         self._last_moving = float(last_moving[-1])
         self._lm_t = np.concatenate([getattr(self, "_lm_t", np.empty(0)), t])
         self._lm_v = np.concatenate([getattr(self, "_lm_v", np.empty(0)), last_moving])
@@ -292,7 +292,7 @@ class PdrPipeline:
             lm = np.where(i >= 0, self._lm_v[np.maximum(i, 0)], -np.inf)
             lm = np.where(np.isfinite(lm), lm, self._first_sample)
             j = np.searchsorted(self._step_times, g, side="right") - 1
-            known = np.r_[-np.inf, self._step_times]
+            known = np.concatenate(([-np.inf], self._step_times))
             last_step = known[j + 1]
             walking = g - last_step < s.still_after_s
             no_motion = ~walking & (g - lm >= s.no_motion_after_s)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 import typer
@@ -11,8 +12,32 @@ from pdr.ahrs import FILTERS, make_filter
 from pdr.ahrs.reference import scf_reference
 from pdr.synthetic import rotating_imu
 from service.console_io import err, print_json
+from service.fusion_bench import fusion_command
 
-app = typer.Typer(help="Benchmarks: each prints JSON figures.", no_args_is_help=True)
+app = typer.Typer(help="Benchmarks: each prints JSON figures. Without a sub-command: the live service under load.",
+                  invoke_without_command=True)
+
+
+@app.callback()
+def bench_service_command(
+    ctx: typer.Context,
+    responders: int = typer.Option(200, "--responders", "-n", help="simulated wearables"),
+    seconds: float = typer.Option(30.0, "--seconds", help="length of the run, s"),
+    rate: float = typer.Option(100.0, "--rate", help="IMU rate of each wearable, Hz"),
+    as_json: bool = typer.Option(False, "--json", help="print JSON only"),
+    profile: Path = typer.Option(None, "--profile", help="profile the service's worker; write the top functions here"),
+    workers: int = typer.Option(2, "--workers", help="service worker processes (one per core)"),
+):
+    """N simulated wearables through a real zenoh router against the service (see service/load_bench.py)."""
+    if ctx.invoked_subcommand is not None:
+        return
+    from service.load_bench import bench_service
+
+    result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers)
+    print_json(result)
+
+
+app.command("fusion")(fusion_command)
 
 
 def _cpu_seconds(fn) -> float:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import typer
 
-from service import bench_cli, eval_cli, record_cli, schema_cli, serve_cli, tune_cli
+from service import bench_cli, eval_cli, record_cli, review_cli, schema_cli, serve_cli, tune_cli
 
 app = typer.Typer(
     name="firetrack",
@@ -16,10 +16,14 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
+app.command("demo")(serve_cli.demo_command)
 app.command("serve")(serve_cli.serve_command)
+app.command("simulate")(serve_cli.simulate_command)
 app.command("wearable")(serve_cli.wearable_command)
 app.command("record")(record_cli.record_command)
 app.command("replay")(record_cli.replay_command)
+app.command("reprocess")(review_cli.reprocess_command)
+app.command("exercise")(review_cli.exercise_command)
 app.command("schema")(schema_cli.schema_command)
 app.add_typer(eval_cli.app, name="eval")
 app.add_typer(tune_cli.app, name="tune")

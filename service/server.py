@@ -21,6 +21,7 @@ import math
 import queue
 import threading
 import time
+import zlib
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -41,6 +42,17 @@ ALARM_MAN_DOWN = "man_down"
 ALARM_LOST_CONTACT = "lost_contact"
 ALARM_REJECTED = "rejected_frames"
 ALARM_DISCONNECTED = "disconnected"
+ALARM_RECORDING = "recording_failed"
+
+
+class _Sink:
+    """A publisher that keeps what it is given (the service without a session: reprocessing)."""
+
+    def __init__(self, key: str, into: list):
+        self.key, self._into = key, into
+
+    def put(self, payload: bytes) -> None:
+        self._into.append((self.key, payload))
 
 
 @dataclass
@@ -77,8 +89,9 @@ class IncidentService:
     """The service of one incident on an open zenoh session: ``start()``, ``close()``."""
 
     def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
-                 recorder=None, clock=time.time):
+                 recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1)):
         self.session = session
+        self.shard = shard  # (k, K): this worker serves the responders with in_shard(id, k, K)
         self.incident = incident
         self.id = incident.id
         self.settings = settings or ServiceSettings()
@@ -95,6 +108,12 @@ class IncidentService:
         self.received = {"imu": 0, "fix": 0}  # payloads taken by the worker, good or bad
         self.errors = 0
         self.recorder_error: str | None = None
+        self.published: list[tuple[str, bytes]] = []  # offline only: (key, payload) in order
+        self._rec_lock = threading.Lock()
+        self._in_lock = threading.Lock()
+        self.busy_s = 0.0  # wall time the worker spent on items (the benchmark's capacity figure)
+        self.pose_hook = None  # callable(responder_id, Pose) after each publication (benchmarks)
+        self.profiler = None  # a cProfile.Profile the worker runs under, when set before start()
         self._pending_presence: dict[str, bool] = {}  # liveliness seen before the first frame
 
     # ------------------------------------------------------------------ lifecycle
@@ -139,12 +158,15 @@ class IncidentService:
     # ------------------------------------------------------------------ zenoh callbacks
     def _enqueue(self, kind: str):
         def callback(sample: zenoh.Sample) -> None:
-            now = self.clock()
-            payload = sample.payload.to_bytes()
             key = str(sample.key_expr)
-            if self.recorder is not None:
-                self._record(key, payload, now)
-            self._queue.put((kind, key, payload, now))
+            if self.shard[1] > 1 and not in_shard(key, *self.shard):
+                return  # another worker's responder
+            payload = sample.payload.to_bytes()
+            # zenoh may run callbacks of different keys on different threads: stamping and queueing
+            # under one lock makes the processing order the receive-time order, which is the
+            # order a recording is read back in (so ``reprocess`` sees what the worker saw)
+            with self._in_lock:
+                self._queue.put((kind, key, payload, self.clock()))
         return callback
 
     def _on_presence(self, sample: zenoh.Sample) -> None:
@@ -162,25 +184,42 @@ class IncidentService:
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:
+        if self.profiler is not None:
+            self.profiler.enable()
+        try:
+            self._work_loop()
+        finally:
+            if self.profiler is not None:
+                self.profiler.disable()
+
+    def _work_loop(self) -> None:
         while True:
             item = self._queue.get()
+            started = time.perf_counter()
             try:
                 if item is None:
                     return
-                kind, key, payload, now = item
-                if kind in self.received:
-                    self.received[kind] += 1
-                if kind == "imu":
-                    self._handle_imu(key, payload, now)
-                elif kind == "tick":
-                    self._expire(now)
-                else:
-                    self._handle_fix(key, payload, now)
+                if self.recorder is not None and item[0] in ("imu", "fix"):
+                    self._record(item[1], item[2], item[3])
+                self.feed(*item)
             except Exception:  # a bug must not kill the service: log it, count it, go on
                 self.errors += 1
                 log.exception("error while processing %s", item[1] if item else "?")
             finally:
+                self.busy_s += time.perf_counter() - started
                 self._queue.task_done()
+
+    def feed(self, kind: str, key: str, payload: bytes, now: float) -> None:
+        """Process one received message (``kind`` imu, fix or tick) synchronously: the worker's
+        body, and what ``firetrack reprocess`` calls for each recorded message."""
+        if kind in self.received:
+            self.received[kind] += 1
+        if kind == "imu":
+            self._handle_imu(key, payload, now)
+        elif kind == "fix":
+            self._handle_fix(key, payload, now)
+        elif kind == "tick":
+            self._expire(now)
 
     def _responder_of(self, key: str, now: float, reason_on_fail: str) -> Responder | None:
         try:
@@ -199,14 +238,19 @@ class IncidentService:
         s = self.settings
         r = Responder(
             id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=self._tracker(rid), first_heard=now,
-            publisher_pose=self.session.declare_publisher(wire.key(self.id, rid, "pose")),
-            publisher_status=self.session.declare_publisher(wire.key(self.id, rid, "status")),
+            publisher_pose=self._publisher(wire.key(self.id, rid, "pose")),
+            publisher_status=self._publisher(wire.key(self.id, rid, "status")),
             present=self._pending_presence.get(rid),
         )
         with self._lock:
             self.responders[rid] = r
         log.info("responder %s appeared", rid)
         return r
+
+    def _publisher(self, key: str):
+        if self.session is None:  # offline (reprocess): keep what would have been published
+            return _Sink(key, self.published)
+        return self.session.declare_publisher(key)
 
     def _tracker(self, rid: str = "") -> ResponderTracker:
         """A fresh tracker; not yet placed, it starts at the incident origin with a wide σ
@@ -324,6 +368,8 @@ class IncidentService:
         payload = wire.encode(msg)
         r.publisher_pose.put(payload)
         r.poses += 1
+        if self.pose_hook is not None:
+            self.pose_hook(r.id, msg)
         if self.recorder is not None:
             self._record(wire.key(self.id, r.id, "pose"), payload, msg.published_at)
 
@@ -340,6 +386,8 @@ class IncidentService:
             alarms.append(ALARM_REJECTED)
         if r.present is False:
             alarms.append(ALARM_DISCONNECTED)
+        if self.recorder_error is not None:
+            alarms.append(ALARM_RECORDING)
         t_dev = pl.last_time if math.isfinite(pl.last_time) else 0.0
         since = pl.state_since if math.isfinite(pl.state_since) else t_dev
         rejected = dict(r.gate.counts)
@@ -390,7 +438,7 @@ class IncidentService:
     def _on_track_query(self, query: zenoh.Query) -> None:
         with self._lock:
             responders = list(self.responders.values())
-        for r in responders:
+        for r in responders:  # each worker answers for its own responders; zenoh merges the replies
             k = wire.key(self.id, r.id, "track")
             if not zenoh.KeyExpr(k).intersects(query.key_expr):
                 continue
@@ -400,11 +448,23 @@ class IncidentService:
                 log.exception("track query for %s", r.id)
 
     def _record(self, key: str, payload: bytes, now: float) -> None:
+        if self.recorder_error is not None:
+            return  # reported once, and in every Status since
         try:
-            self.recorder.write(key, payload, now)
+            with self._rec_lock:  # zenoh callbacks, the worker and the status thread all record
+                self.recorder.write(key, payload, now)
+                self.recorder.flush_if_due(now)
         except Exception as e:  # a full disk must be loud, not silent
             self.recorder_error = str(e)
-            log.error("recording failed: %s", e)
+            log.error("recording failed, the incident is no longer being recorded: %s", e)
+
+
+def in_shard(key_or_id: str, k: int, n: int) -> bool:
+    """Does the responder of this key (or id) belong to worker ``k`` of ``n``? A stable hash
+    of the responder id (CRC-32), so every worker agrees without talking to the others."""
+    parts = key_or_id.split("/")
+    rid = parts[2] if len(parts) == 4 else key_or_id
+    return zlib.crc32(rid.encode()) % n == k
 
 
 def decode_track(payload: bytes) -> dict[str, np.ndarray | str | bool]:

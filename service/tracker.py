@@ -193,7 +193,9 @@ class ResponderTracker:
     def _fusion_fix(self, fix):
         f = self._fusion_mod
         if isinstance(fix, CheckpointFix):
-            return f.CheckpointFix(t=fix.t, x=fix.x, y=fix.y, floor=fix.floor, sigma=fix.sigma, name=fix.name)
+            # the floor is the pipeline's business (anchor_floor above): the graph gets x, y only,
+            # or the floor would be corrected twice
+            return f.CheckpointFix(t=fix.t, x=fix.x, y=fix.y, floor=None, sigma=fix.sigma, name=fix.name)
         return fix  # GnssFix / UwbRange of service.fusion already
 
     def smoothed_track(self) -> dict[str, np.ndarray] | None:

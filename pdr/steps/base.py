@@ -197,6 +197,6 @@ def extrema(y: np.ndarray, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
 def ordered_extrema(y: np.ndarray, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
     """All extrema among ``lo..hi`` in time order: indices and whether each is a maximum."""
     maxima, minima = extrema(y, lo, hi)
-    idx = np.r_[maxima, minima]
+    idx = np.concatenate((maxima, minima))
     order = np.argsort(idx, kind="stable")
-    return idx[order], np.r_[np.ones(maxima.size, bool), np.zeros(minima.size, bool)][order]
+    return idx[order], np.concatenate((np.ones(maxima.size, bool), np.zeros(minima.size, bool)))[order]

@@ -1,0 +1,109 @@
+"""Simulated responders on the wire: ``firetrack simulate --responders N [--seconds S] [--rate HZ]``.
+
+A :class:`pdr.simulation.WalkerFleet` walks N responders through the incident's building;
+every ``1/frames_per_s`` of wall time each walker's new samples leave as one
+:class:`service.wire.ImuBatch` on ``.../imu``, and its true position as a small msgpack map
+on ``.../truth`` (``{"t", "x", "y", "floor", "heading", "steps"}`` — for scoring and the
+console, never read by the service). Each walker first sends a checkpoint fix at its start
+point: the door it came in by.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import msgpack
+import numpy as np
+import zenoh
+
+from client.wearable import Wearable
+from pdr.simulation import WalkerFleet, WalkerSettings
+from service import wire
+
+FRAMES_PER_SECOND = 10.0
+
+
+def building_bounds(incident, margin: float = 5.0) -> tuple[float, float, float, float]:
+    """Where simulated walkers roam: around the incident's checkpoints (or 40 x 20 m at the origin)."""
+    if incident is not None and incident.checkpoints:
+        x = np.array([c.x for c in incident.checkpoints])
+        y = np.array([c.y for c in incident.checkpoints])
+        x0, x1, y0, y1 = x.min() - margin, x.max() + margin, y.min() - margin, y.max() + margin
+        if x1 - x0 >= 10 and y1 - y0 >= 10:
+            return float(x0), float(x1), float(y0), float(y1)
+    return (-20.0, 20.0, -10.0, 10.0)
+
+
+class SimulationPublisher:
+    """N simulated wearables on one zenoh session, advanced one frame at a time."""
+
+    def __init__(self, session: zenoh.Session, incident_id: str, n: int, rate_hz: float = 100.0, seed: int = 0,
+                 bounds=None, floors=(0, 0), prefix: str = "sim", truth: bool = True, start_t: float = 1000.0):
+        self.session = session
+        self.incident_id = incident_id
+        self.rate_hz = rate_hz
+        self.names = [f"{prefix}-{i:03d}" for i in range(n)]
+        settings = WalkerSettings(rate_hz=rate_hz)
+        kw = {} if bounds is None else {"bounds": bounds}
+        self.fleet = WalkerFleet(n, settings, seed, responders=self.names, floors=floors, start_t=start_t,
+                                 attitude=False, **kw)
+        self.wearables = [Wearable(session, incident_id, r) for r in self.names]
+        self.seq = np.zeros(n, dtype=np.int64)
+        self.truth = truth
+        self.started = False
+
+    def step(self, samples: int, on_frame: Callable[[int, int, float], None] | None = None) -> int:
+        """Publish the next ``samples`` samples of every walker; returns the frames sent."""
+        batches = self.fleet.next_batches(samples)
+        for i, (w, b) in enumerate(zip(self.wearables, batches)):
+            if not self.started:  # the door it came in by
+                w.send("fix", wire.Fix.checkpoint(w.responder, float(b.t[0]), x=float(b.x[0]), y=float(b.y[0]),
+                                                  floor=int(b.floor[0]), sigma=0.3, operator="simulator"))
+            p_t = b.pressure_t if len(b.pressure_t) else None
+            p_v = b.pressure if len(b.pressure_t) else None
+            msg = wire.ImuBatch(responder=w.responder, device=f"sim:{w.responder}", seq=int(self.seq[i]), t=b.t,
+                                acc=b.acc, gyr=b.gyr, mag=b.mag, pressure_t=p_t, pressure=p_v, carry="handheld")
+            w.send("imu", msg)
+            if on_frame is not None:
+                on_frame(i, int(self.seq[i]), time.time())
+            self.seq[i] += 1
+            if self.truth:
+                w.send("truth", msgpack.packb({"t": float(b.t[-1]), "x": float(b.x[-1]), "y": float(b.y[-1]),
+                                               "floor": int(b.floor[-1]), "heading": float(b.heading[-1]),
+                                               "steps": int(b.step_count[-1])}))
+        self.started = True
+        return len(batches)
+
+    def stand_still(self, i: int, seconds: float) -> None:
+        self.fleet.stand_still(i, seconds)
+
+    def collapse(self, i: int) -> None:
+        self.fleet.collapse(i)
+
+    def run(self, seconds: float, stop: threading.Event | None = None, frames_per_s: float = FRAMES_PER_SECOND,
+            on_frame=None, on_tick: Callable[[float], None] | None = None) -> int:
+        """Publish in real time for ``seconds`` (device time advances with the wall clock)."""
+        per = max(1, int(round(self.rate_hz / frames_per_s)))
+        period = per / self.rate_hz
+        ticks = int(round(seconds / period))
+        start = time.monotonic()
+        sent = 0
+        for k in range(ticks):
+            if stop is not None and stop.is_set():
+                break
+            sent += self.step(per, on_frame)
+            if on_tick is not None:
+                on_tick((k + 1) * period)
+            wait = start + (k + 1) * period - time.monotonic()
+            if wait > 0:
+                if stop is not None:
+                    if stop.wait(wait):
+                        break
+                else:
+                    time.sleep(wait)
+        return sent
+
+    def close(self) -> None:
+        for w in self.wearables:
+            w.close()

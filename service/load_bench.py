@@ -1,0 +1,158 @@
+"""``firetrack bench --responders N --seconds S [--rate HZ] --json``: the service under load.
+
+N simulated wearables (:class:`client.simulate.SimulationPublisher`, in a separate process so
+they do not share the service's interpreter) publish 10 frames a second each through a real
+zenoh router on loopback — the service's own in-process router, as deployed by default —
+with reliable, blocking congestion control. The service runs as in production. Figures:
+
+* ``samples_per_s`` — IMU samples the service processed per second of the run;
+* ``realtime_factor`` — samples processed per second of the worker's busy time, over the
+  samples the wearables produce per second (N·rate): above 1 the service keeps up, and by
+  how much (2 = it could take twice the load);
+* ``latency_p50_ms``/``latency_p99_ms`` — from a frame's publication (wall clock in the
+  publisher) to the publication of the pose that reflects it (``Pose.seq``), same machine;
+* ``frames_sent``/``frames_processed``/``frames_lost`` — lost = sent but never processed;
+* ``rss_mb`` — peak resident memory of the service process (router included).
+"""
+from __future__ import annotations
+
+import cProfile
+import io
+import multiprocessing as mp
+import pstats
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from service.server import in_shard
+from service.workers import WorkerPool
+
+
+def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float, seed: int, out: str,
+               ready, go) -> None:  # pragma: no cover - runs in the child process
+    import zenoh
+
+    from client.simulate import SimulationPublisher
+    from service.zenoh_config import client_config
+
+    session = zenoh.open(client_config(endpoint))
+    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False)
+    frames = int(seconds * 10) + 20
+    send_t = np.full((n, frames), np.nan)
+
+    def on_frame(i, seq, t):
+        if seq < frames:
+            send_t[i, seq] = t
+
+    pub.step(1)  # the first (door) fixes and one frame: declarations settle before timing starts
+    ready.set()
+    go.wait(60)
+    cpu0 = time.process_time()
+    sent = 1 + pub.run(seconds, on_frame=lambda i, s, t: on_frame(i, s, t)) // max(n, 1)
+    np.savez(out, send_t=send_t, frames_per_walker=sent, cpu=time.process_time() - cpu0)
+    pub.close()
+    session.close()
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
+                  profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2) -> dict:
+    import zenoh
+
+    from service.incident import default_incident
+    from service.server import IncidentService, ServiceSettings
+    from service.zenoh_config import router_config
+
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    session = zenoh.open(router_config([endpoint]))
+    cfg = default_incident()
+    svc = IncidentService(session, cfg, ServiceSettings(), shard=(0, workers))
+    poses: list[tuple[str, int, float]] = []
+    svc.pose_hook = lambda rid, msg: poses.append((rid, msg.seq, msg.published_at))
+    prof = cProfile.Profile() if profile is not None else None
+    svc.profiler = prof
+    svc.start()
+    stats_dir = tempfile.mkdtemp(prefix="firetrack-bench-")
+    pool = WorkerPool(endpoint, cfg, workers, stats_dir, log_poses=True)
+    if not pool.wait_ready(120):
+        raise RuntimeError("the service workers did not start within 120 s")
+    ctx = mp.get_context("spawn")
+    ready, go = ctx.Event(), ctx.Event()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = str(Path(tmp) / "sent.npz")
+        child = ctx.Process(target=_publisher, args=(endpoint, cfg.id, responders, seconds, rate, seed, out, ready, go))
+        child.start()
+        try:
+            if not ready.wait(120):
+                raise RuntimeError("the simulated wearables did not start within 120 s")
+            log(f"{responders} wearables connected; running {seconds:g} s at {rate:g} Hz ...")
+            busy0, frames0, t0 = svc.busy_s, svc.frames_processed, time.monotonic()
+            go.set()
+            child.join(seconds + 120)
+            if child.exitcode != 0:
+                raise RuntimeError(f"the publisher process failed (exit code {child.exitcode})")
+            sent = np.load(out)
+            send_t, per_walker = sent["send_t"], int(sent["frames_per_walker"])
+        finally:
+            if child.is_alive():
+                child.kill()
+        frames_sent = per_walker * responders
+        share0 = sum(in_shard(f"sim-{i:03d}", 0, workers) for i in range(responders))
+        deadline = time.monotonic() + drain_s
+        while svc.frames_processed < per_walker * share0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        svc.wait_idle(5.0)
+        others = pool.close()
+        wall = time.monotonic() - t0
+    per_sample = rate / 10.0
+    shards = [{"frames_processed": svc.frames_processed - frames0, "busy_s": svc.busy_s - busy0,
+               "responders": share0}] + others
+    processed = sum(s["frames_processed"] for s in shards)
+    samples = processed * per_sample
+    capacity = [(s["frames_processed"] * per_sample / s["busy_s"]) / (s["responders"] * rate)
+                for s in shards if s["busy_s"] > 0 and s["responders"]]
+    for s in others:
+        poses += [tuple(p) for p in s["poses"]]
+    lat = []
+    index = {f"sim-{i:03d}": i for i in range(responders)}
+    for rid, seq, pub in poses:
+        i = index.get(rid)
+        if i is not None and seq < send_t.shape[1] and np.isfinite(send_t[i, seq]):
+            lat.append(pub - send_t[i, seq])
+    lat = np.array(lat) * 1e3
+    svc.close()
+    session.close()
+    result = {
+        "responders": responders,
+        "rate_hz": rate,
+        "seconds": seconds,
+        "samples_per_s": samples / wall,
+        "realtime_factor": min(capacity) if capacity else None,
+        "latency_p50_ms": float(np.percentile(lat, 50)) if lat.size else None,
+        "latency_p99_ms": float(np.percentile(lat, 99)) if lat.size else None,
+        "frames_sent": frames_sent,
+        "frames_processed": processed,
+        "frames_lost": frames_sent - processed,
+        "poses": len(poses),
+        "workers": workers,
+        "worker_busy_fraction": [round(s["busy_s"] / wall, 3) for s in shards],
+        "publisher_cpu_s": float(sent["cpu"]),
+        "rss_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+                   + resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0,
+    }
+    if prof is not None:
+        buf = io.StringIO()
+        pstats.Stats(prof, stream=buf).sort_stats("cumulative").print_stats(30)
+        Path(profile).write_text(buf.getvalue())
+        result["profile"] = str(profile)
+    return result

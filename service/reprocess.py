@@ -1,0 +1,143 @@
+"""After-action review: an incident recording run through the service again, offline.
+
+``reprocess`` feeds every recorded input (imu and fix messages, in the order and with the
+receive times they were recorded with) to an :class:`service.server.IncidentService` that has
+no network session — the same object the live service runs, calling the same ``feed`` — and
+compares the poses it publishes with the poses recorded live, pose by pose. Frames held by
+the reorder gate are released on the recorded receive times, as live; a live run whose
+frames waited for the once-a-second timer (a frame lost for good) may differ there.
+
+``exercise`` turns single-person recordings (IPIN logs, PyShoe walks, ...) into one
+multi-person exercise: each becomes a responder's messages, their start times aligned.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from service import wire
+from service.recorder import IncidentRecorder, read_recording
+
+
+@dataclass
+class ResponderReview:
+    steps: int = 0
+    distance_m: float = 0.0
+    poses: int = 0
+    recorded_poses: int = 0
+    max_deviation_m: float | None = None
+    xy: list = field(default_factory=list)
+
+
+def reprocess(path: Path, incident_cfg, progress=None) -> dict:
+    from service.server import IncidentService
+
+    svc = IncidentService(None, incident_cfg)
+    recorded: dict[str, list[tuple[float, float, float]]] = {}
+    n_inputs = 0
+    device_s: dict[str, list[float]] = {}
+    cpu0 = time.process_time()
+    for m in read_recording(path):
+        if m.incident != incident_cfg.id:
+            svc = _retarget(svc, incident_cfg, m.incident)
+        if m.kind in ("imu", "fix"):
+            svc.feed(m.kind, m.key, m.payload, m.receive_time)
+            n_inputs += 1
+            if progress is not None and n_inputs % 2000 == 0:
+                progress(n_inputs)
+        elif m.kind == "pose":
+            p = wire.decode(m.payload, expect=wire.Pose)
+            recorded.setdefault(p.responder, []).append((p.t, p.x, p.y))
+    cpu = time.process_time() - cpu0
+    out: dict[str, ResponderReview] = {}
+    for key, payload in svc.published:
+        _, rid, kind = wire.parse_key(key)
+        if kind != "pose":
+            continue
+        p = wire.decode(payload, expect=wire.Pose)
+        r = out.setdefault(rid, ResponderReview())
+        if r.xy:
+            r.distance_m += math.hypot(p.x - r.xy[-1][1], p.y - r.xy[-1][2])
+        r.xy.append((p.t, p.x, p.y))
+        r.steps = max(r.steps, p.steps)
+    for rid, resp in svc.responders.items():
+        r = out.setdefault(rid, ResponderReview())
+        r.steps = max(r.steps, resp.tracker.pipeline.steps)
+        t = resp.tracker.pipeline.last_time
+        device_s[rid] = [t]
+    worst = None
+    for rid, r in out.items():
+        r.poses = len(r.xy)
+        live = recorded.get(rid)
+        if live is None:
+            continue
+        r.recorded_poses = len(live)
+        if len(live) != len(r.xy):
+            r.max_deviation_m = math.inf
+        else:
+            a, b = np.array(live), np.array(r.xy)
+            r.max_deviation_m = float(np.max(np.hypot(a[:, 1] - b[:, 1], a[:, 2] - b[:, 2]))) if len(a) else 0.0
+        worst = r.max_deviation_m if worst is None else max(worst, r.max_deviation_m)
+    duration = _duration(path)
+    tracks = {}
+    for rid, resp in svc.responders.items():
+        tr = resp.tracker.smoothed_track()
+        if tr is not None and len(tr["t"]):
+            tracks[rid] = {k: np.asarray(tr[k]) for k in ("t", "x", "y", "floor", "heading")}
+    return {
+        "tracks": tracks,
+        "responders": {rid: {"steps": r.steps, "distance_m": r.distance_m, "poses": r.poses,
+                             "recorded_poses": r.recorded_poses, "max_deviation_m": r.max_deviation_m}
+                       for rid, r in sorted(out.items())},
+        "max_deviation_m": worst,
+        "inputs": n_inputs,
+        "cpu_s": cpu,
+        "recording_s": duration,
+        "realtime_factor": duration / cpu if cpu > 0 and duration else None,
+    }
+
+
+def _duration(path: Path) -> float | None:
+    from service.recorder import recording_summary
+
+    s = recording_summary(path)
+    return s.get("duration_s") or s.get("duration")
+
+
+def _retarget(svc, cfg, incident: str):
+    """A recording of another incident id: serve it under that id (same building config)."""
+    from service.server import IncidentService
+
+    if svc.responders:
+        raise ValueError(f"the recording mixes incidents ({cfg.id!r} and {incident!r})")
+    return IncidentService(None, cfg.model_copy(update={"id": incident}))
+
+
+def build_exercise(members: list[tuple[str, Path]], out: Path, incident_cfg, start: float | None = None,
+                   landmark_every: int = 0, gnss: bool = True, overwrite: bool = False) -> dict:
+    """One exercise file from single-person recordings: responder ``rid`` walks ``path``; all
+    start together at ``start`` (unix s, default now); messages are stamped as received then."""
+    from client.wearable import recording_messages
+    from pdr.io import load
+
+    start = time.time() if start is None else start
+    streams = []
+    for rid, path in members:
+        if not wire.is_valid_id(rid):
+            raise ValueError(f"responder id {rid!r}: use 1-64 letters, digits, '_', '.' or '-'")
+        msgs = recording_messages(load(path), rid, incident=incident_cfg, landmark_every=landmark_every, gnss=gnss)
+        if not msgs:
+            raise ValueError(f"{path}: no IMU samples")
+        t0 = msgs[0].t
+        streams += [(start + (m.t - t0), rid, m) for m in msgs]
+    streams.sort(key=lambda s: (s[0], s[1], s[2].kind != "imu"))
+    counts: dict[str, int] = {}
+    with IncidentRecorder(out, incident_cfg.id, overwrite=overwrite) as rec:
+        for when, rid, m in streams:
+            rec.write(wire.key(incident_cfg.id, rid, m.kind), wire.encode(m.msg), when)
+            counts[rid] = counts.get(rid, 0) + 1
+    return {"file": str(out), "responders": counts, "duration_s": streams[-1][0] - start if streams else 0.0}

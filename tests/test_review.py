@@ -1,0 +1,80 @@
+"""Recording a live multi-person exercise and reprocessing it offline: the same poses."""
+from __future__ import annotations
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from client.simulate import SimulationPublisher
+from service.incident import default_incident
+from service.recorder import IncidentRecorder, read_recording, recording_summary
+from service.reprocess import reprocess
+from service.server import IncidentService, ServiceSettings
+from tests.zenoh_util import client, router, wait_until
+
+
+def test_four_person_exercise_recorded_live_then_reprocessed_gives_identical_poses(tmp_path):
+    cfg = default_incident()
+    session, endpoint = router()
+    path = tmp_path / "live.mcap"
+    recorder = IncidentRecorder(path, cfg.id)
+    svc = IncidentService(session, cfg, ServiceSettings(), recorder=recorder).start()
+    cl = client(endpoint)
+    # the service's own poses go into the recording, as with serve --record
+    pub = SimulationPublisher(cl, cfg.id, 4, rate_hz=50.0, seed=3, truth=False)
+    frames = 0
+    for _ in range(300):  # 30 s of walking each, sent as fast as the service takes it
+        frames += pub.step(5)
+    assert wait_until(lambda: svc.frames_processed >= frames, 60)
+    svc.wait_idle(10)
+    pub.close()
+    svc.close()
+    recorder.close()
+    cl.close()
+    session.close()
+    summary = recording_summary(path)
+    assert not summary["truncated"]
+    rep = reprocess(path, cfg)
+    assert set(rep["responders"]) == set(pub.names)
+    for rid, r in rep["responders"].items():
+        assert r["steps"] > 30, rid
+        assert r["recorded_poses"] == r["poses"] > 30
+        assert r["max_deviation_m"] <= 1e-9
+    assert rep["max_deviation_m"] <= 1e-9
+    # every pose the service published live is in the recording
+    kinds = [m.kind for m in read_recording(path)]
+    assert kinds.count("pose") == sum(r["poses"] for r in rep["responders"].values())
+
+
+def test_exercise_and_reprocess_commands(tmp_path, shared_data):
+    from service.cli import app
+
+    d = shared_data("ipin2023")
+    files = sorted(d.glob("IPIN2023_T3_TrainingTrial2*_repetition01.txt.gz"))[:2]
+    out = tmp_path / "ex.mcap"
+    args = ["exercise", "--out", str(out), "--landmark-every", "3"]
+    for i, f in enumerate(files):
+        args += ["--responder", f"ff{i}={f}"]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    s = recording_summary(out)
+    assert set(s["responders"]) == {"ff0", "ff1"}
+    r = CliRunner().invoke(app, ["reprocess", str(out), "--json", "--export", str(tmp_path / "exp")])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.stdout)
+    assert rep["max_deviation_m"] is None  # an exercise has no live poses to compare with
+    for rid in ("ff0", "ff1"):
+        assert rep["responders"][rid]["steps"] > 50 and rep["responders"][rid]["distance_m"] > 30
+    geo = json.loads((tmp_path / "exp" / "tracks.geojson").read_text())
+    assert {f["properties"]["responder"] for f in geo["features"]} == {"ff0", "ff1"}
+    assert (tmp_path / "exp" / "ff0.tum").read_text().count("\n") > 50
+
+
+def test_bad_exercise_arguments_are_refused(tmp_path):
+    from service.cli import app
+
+    r = CliRunner().invoke(app, ["exercise", "--out", str(tmp_path / "x.mcap"), "--responder", "nofile"])
+    assert r.exit_code == 2 and "ID=FILE" in r.output
+    r = CliRunner().invoke(app, ["reprocess", str(tmp_path / "missing.mcap")])
+    assert r.exit_code == 2 and "no such recording" in r.output
