@@ -57,13 +57,20 @@ def serve_command(
     console: bool = typer.Option(True, "--console/--no-console", help="also serve the web console"),
     port: int = typer.Option(8080, "--port", help="web console port"),
     seconds: float = typer.Option(math.inf, "--seconds", help="stop after this long (default: until Ctrl-C)"),
+    workers: int = typer.Option(1, "--workers", help="worker processes sharing the responders (one per core)"),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log every responder, fix and reject"),
 ):
     """Run the service for one incident: one pipeline per responder, poses and status out."""
     _logging(verbose)
     cfg = _incident(config, incident_id)
+    if workers < 1:
+        fail(f"--workers must be at least 1, got {workers}")
+        raise typer.Exit(2)
+    if workers > 1 and record is not None:
+        fail("--record records one process's inputs; with --workers > 1 run `firetrack record` beside the service")
+        raise typer.Exit(2)
     stop = stop_on_signals()
-    with running_service(cfg, listen, connect, record, console, port) as (svc, where):
+    with running_service(cfg, listen, connect, record, console, port, workers=workers) as (svc, where):
         out.print(f"[bold]firetrack[/] serving incident [bold]{cfg.id}[/] ({cfg.name}) on {where}")
         if console:
             out.print(f"console: http://127.0.0.1:{port}/")
@@ -75,8 +82,8 @@ class running_service:
     """Context manager: session (router or client), service, optional recorder and console."""
 
     def __init__(self, cfg, listen=None, connect=None, record: Path | None = None, console: bool = False,
-                 port: int = 8080, settings=None):
-        self.cfg, self.listen, self.connect = cfg, listen, connect
+                 port: int = 8080, settings=None, workers: int = 1):
+        self.cfg, self.listen, self.connect, self.workers = cfg, listen, connect, workers
         self.record, self.console, self.port, self.settings = record, console, port, settings
         self._closers: list = []
 
@@ -96,8 +103,16 @@ class running_service:
 
             recorder = IncidentRecorder(self.record, self.cfg.id).__enter__()
             self._closers.append(lambda: recorder.__exit__(None, None, None))
-        svc = IncidentService(session, self.cfg, self.settings, recorder=recorder).start()
+        svc = IncidentService(session, self.cfg, self.settings, recorder=recorder, shard=(0, self.workers)).start()
         self._closers.append(svc.close)
+        if self.workers > 1:
+            from service.workers import WorkerPool
+
+            ep = (self.connect or self.listen or [DEFAULT_ENDPOINT])[0].replace("0.0.0.0", "127.0.0.1")
+            pool = WorkerPool(ep, self.cfg, self.workers)
+            self._closers.append(pool.close)
+            if not pool.wait_ready(60):
+                err.print("[yellow]warning:[/] not every worker process started within 60 s")
         if self.console:
             try:
                 from client.console.server import start_console

@@ -1,0 +1,86 @@
+"""``firetrack serve`` as a process: starts, serves a wearable, and stops cleanly on SIGINT/SIGTERM."""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from typer.testing import CliRunner
+
+from client.wearable import Wearable
+from service import wire
+from tests.zenoh_util import client, free_port, wait_until
+
+
+def _serve(port: int, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "serve", "--no-console", "--listen", f"tcp/127.0.0.1:{port}", *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+
+
+def _wait_for_line(proc: subprocess.Popen, text: str, timeout: float = 30.0) -> str:
+    deadline = time.monotonic() + timeout
+    seen = []
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line and proc.poll() is not None:
+            break
+        seen.append(line)
+        if text in line:
+            return line
+    raise AssertionError(f"{text!r} not printed within {timeout} s; got: {''.join(seen)}")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_serve_stops_cleanly_on_a_signal(sig):
+    port = free_port()
+    proc = _serve(port)
+    try:
+        _wait_for_line(proc, "serving incident demo")
+        cl = client(f"tcp/127.0.0.1:{port}")
+        poses = []
+        sub = cl.declare_subscriber(wire.key_all("demo", "status"), lambda s: poses.append(s))
+        w = Wearable(cl, "demo", "ff1")
+        import numpy as np
+
+        t = 100.0 + np.arange(200) / 50.0
+        acc = np.tile([0.0, 0.0, 9.81], (200, 1)) + np.c_[np.zeros(200), np.zeros(200), 2.5 * np.sin(2 * np.pi * 1.8 * t)]
+        for b in wire.imu_batches_from_arrays("ff1", "d", t, acc, np.zeros((200, 3)), per_batch=5):
+            w.send("imu", b)
+        assert wait_until(lambda: len(poses) > 0, 10), "no Status from the service"
+        w.close()
+        sub.undeclare()
+        cl.close()
+        proc.send_signal(sig)
+        rest, _ = proc.communicate(timeout=20)
+        assert proc.returncode == 0, rest
+        assert "stopped; 1 responder(s)" in rest
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_serve_refuses_a_bad_config(tmp_path):
+    from service.cli import app
+
+    bad = tmp_path / "incident.json"
+    bad.write_text(json.dumps({"id": "x", "origin": {"lat": 200, "lon": 0, "alt_m": 0}}))
+    r = CliRunner().invoke(app, ["serve", "--config", str(bad), "--seconds", "0", "--no-console"])
+    assert r.exit_code == 2
+    assert "incident.json" in r.output and "origin" in r.output
+
+
+def test_schema_command_writes_json_schema(tmp_path):
+    from service.cli import app
+
+    out = tmp_path / "schema.json"
+    r = CliRunner().invoke(app, ["schema", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(out.read_text())
+    text = json.dumps(doc)
+    for kind in ("ImuBatch", "Fix", "Pose", "Status"):
+        assert kind in text
