@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 
-import math
 import time
 from pathlib import Path
 
@@ -11,12 +10,10 @@ import typer
 from rich.table import Table
 
 from pdr.evaluation.ipin import summary
-from pdr.heading import HeadingSettings
-from pdr.pipeline import PipelineSettings
 from service.console_io import err, fail, out, print_json, progress
 from service.eval_cli import app, load_all
 from service.ipin_run import IpinRun, run_ipin
-from service.tracker import TrackerSettings
+from service.tracker import tracker_settings_for
 
 KINDS = ("live", "smoothed", "pdr")
 
@@ -44,9 +41,7 @@ def eval_ipin(
         raise typer.Exit(2)
     started = time.process_time()
     recordings, bad = load_all(files)
-    settings = TrackerSettings(
-        pipeline=PipelineSettings(heading=HeadingSettings(declination=math.radians(cfg.declination_deg))), engine=engine,
-    )
+    settings = tracker_settings_for(cfg, engine)
     origin = (cfg.origin.lat, cfg.origin.lon, cfg.origin.alt_m)
     runs: list[IpinRun] = []
     for rec in progress(recordings, "tracking"):

@@ -227,6 +227,8 @@ class IncidentConfig(_Config):
     notes: str | list[str] | None = None
     origin: Origin
     declination_deg: float = Field(0.0, ge=-180.0, le=180.0, description="magnetic declination, East positive")
+    field_inclination_deg: float | None = Field(None, ge=-90.0, le=90.0, description="magnetic dip (down positive), e.g. from the WMM; lets the compass reject fields with the wrong dip")
+    field_norm_ut: float | None = Field(None, gt=0.0, description="magnetic field strength (µT), e.g. from the WMM")
     floor_height_m: float = Field(DEFAULT_FLOOR_HEIGHT_M, gt=0.0, description="default floor spacing")
     floors: list[Floor] = Field(default_factory=lambda: [Floor(number=0, name="Ground floor", elevation_m=0.0)])
     start_floor: int = 0

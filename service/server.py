@@ -16,6 +16,7 @@ the worker or reach another responder's state.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import queue
@@ -34,7 +35,7 @@ from pdr.pipeline import ImuFrame
 from service import wire
 from service.incident import IncidentConfig, UnknownCheckpointError
 from service.ingest import FrameGate
-from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings
+from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings, tracker_settings_for
 
 log = logging.getLogger("firetrack.service")
 
@@ -57,7 +58,7 @@ class _Sink:
 
 @dataclass
 class ServiceSettings:
-    tracker: TrackerSettings = field(default_factory=TrackerSettings)
+    tracker: TrackerSettings | None = None  # None: tracker_settings_for(the incident)
     status_period_s: float = 1.0  # s between Status messages
     lost_contact_s: float = 10.0  # s without a frame -> lost-contact alarm
     rejected_window_s: float = 10.0  # s
@@ -90,6 +91,9 @@ class IncidentService:
 
     def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
                  recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1)):
+        settings = settings or ServiceSettings()
+        if settings.tracker is None:  # the incident's declination and field reach the compass
+            settings = dataclasses.replace(settings, tracker=tracker_settings_for(incident))
         self.session = session
         self.shard = shard  # (k, K): this worker serves the responders with in_shard(id, k, K)
         self.incident = incident

@@ -61,6 +61,21 @@ class TrackerSettings:
     fusion: object | None = None  # service.fusion.FusionSettings, None = defaults
 
 
+def tracker_settings_for(incident, engine: str = "fusion") -> TrackerSettings:
+    """Tracker settings for an incident: its declination (and WMM dip, when configured) reach
+    the compass; everything else is the default."""
+    import math
+
+    from pdr.heading import HeadingSettings
+
+    inc = incident.field_inclination_deg
+    heading = HeadingSettings(
+        declination=math.radians(incident.declination_deg),
+        field_inclination=math.radians(inc) if inc is not None else math.nan,
+    )
+    return TrackerSettings(pipeline=PipelineSettings(heading=heading), engine=engine)
+
+
 def _fusion_module():
     try:
         from service import fusion

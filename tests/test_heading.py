@@ -148,3 +148,45 @@ def test_walking_direction_detects_a_reversed_phone():
     for dev_yaw, expected in ((walk_yaw, 0.0), (walk_yaw + np.pi, np.pi)):
         _, off = WalkingDirection().update(t, a, np.full(n, dev_yaw), steps)
         assert np.allclose(off, expected)
+
+
+def _rotated_field(angle_deg, dip_extra_deg=0.0):
+    """FIELD_ENU turned ``angle_deg`` about the vertical and dipped ``dip_extra_deg`` more."""
+    a, e = math.radians(angle_deg), math.radians(dip_extra_deg)
+    h, z = math.hypot(*FIELD_ENU[:2]), FIELD_ENU[2]
+    norm, dip = math.hypot(h, z), math.atan2(-z, h) + e
+    az = math.atan2(FIELD_ENU[1], FIELD_ENU[0]) + a
+    return np.array([norm * math.cos(dip) * math.cos(az), norm * math.cos(dip) * math.sin(az), -norm * math.sin(dip)])
+
+
+def test_waved_phone_does_not_set_the_heading():
+    # 0-10 s: the phone is waved (yaw ±3 rad/s) where the field points 60° off; then a calm walk
+    # in the clean field. Epochs of fast rotation are not compass measurements.
+    wave = lambda t: np.where(t < 10.0, 3.0 * np.sin(2 * np.pi * 1.0 * t), 0.0)  # noqa: E731
+    bad = _rotated_field(60.0)
+    field = lambda t: np.where((t < 10.0)[:, None], bad, FIELD_ENU)  # noqa: E731
+    t, acc, gyr, mag, truth, steps = walk(wave, 25.0, field=field)
+    after = (steps > 11.0) & (steps < 14.0)
+    gated = HeadingEstimator().update(t, acc, gyr, mag, steps)
+    err = np.abs(deg(wrap(gated.heading - np.interp(gated.t, t, truth))))
+    assert err[after].max() < 5.0
+    open_gate = HeadingEstimator(HeadingSettings(max_rate=math.inf))
+    r = open_gate.update(t, acc, gyr, mag, steps)
+    err_open = np.abs(deg(wrap(r.heading - np.interp(r.t, t, truth))))
+    assert err_open[after].min() > 15.0  # the waved epochs would have set a wrong start
+
+
+def test_inclination_gate_needs_a_configured_reference():
+    # 20-40 s: a field turned 40° and dipping 25° less (steel nearby); the dip is known (WMM)
+    bad = _rotated_field(40.0, -25.0)
+    field = lambda t: np.where(((t > 20.0) & (t < 40.0))[:, None], bad, FIELD_ENU)  # noqa: E731
+    t, acc, gyr, mag, truth, steps = walk(lambda t: 0.0 * t, 50.0, field=field)
+    dip = math.atan2(-FIELD_ENU[2], math.hypot(*FIELD_ENU[:2]))
+    inside = (steps > 21.0) & (steps < 40.0)
+    known = HeadingEstimator(HeadingSettings(field_inclination=dip)).update(t, acc, gyr, mag, steps)
+    assert np.all(np.isinf(known.mag_heading_sigma[inside]))
+    assert np.abs(deg(wrap(known.heading - truth[0]))[steps > 5.0]).max() < 3.0
+    # a reference learned where the walk began is not trusted to gate: the epochs only weigh less
+    learned = HeadingEstimator(HeadingSettings(reference_seconds=10.0)).update(t, acc, gyr, mag, steps)
+    assert np.all(np.isfinite(learned.mag_heading_sigma[inside]))
+    assert np.abs(deg(wrap(learned.heading - truth[0]))[inside]).max() > 5.0

@@ -16,7 +16,7 @@ from pdr.synthetic import static_imu
 from service import wire
 from service.incident import default_incident
 from service.server import IncidentService, ServiceSettings, decode_track
-from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker
+from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker, tracker_settings_for
 from tests.zenoh_util import client, router, wait_until
 
 IPIN_TRIAL52 = "ipin2023/IPIN2023_T3_TrainingTrial52_repetition01.txt.gz"
@@ -55,7 +55,7 @@ class Collector:
 def offline_poses(cfg, msgs, responder):
     """The same messages through a ResponderTracker without any network: the reference."""
     s = ServiceSettings()
-    tracker = ResponderTracker(responder, cfg.floor_elevations(), cfg.start_floor, s.tracker,
+    tracker = ResponderTracker(responder, cfg.floor_elevations(), cfg.start_floor, tracker_settings_for(cfg),
                                entry=CheckpointFix(-math.inf, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m))
     from pdr.pipeline import ImuFrame
 
