@@ -1,6 +1,7 @@
 """Factor-graph fusion (service/fusion) on synthetic walks whose truth is known. Real gtsam, no mocks."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -80,9 +81,12 @@ def test_step_covariance_correlates_turn_and_across_track():
 
 
 def test_published_covariance_is_in_enu():
-    """Walking north with an uncertain start heading: the big uncertainty is across track = east."""
+    """Walking north with an uncertain start heading: the big uncertainty is across track = east.
+
+    The step-length scale is off here (its ±12 % prior would make the along-track sigma large too).
+    """
     events, _ = walk(np.full(40, math.pi / 2))
-    f = TrackFusion(no_mag())
+    f = TrackFusion(no_mag(length_scale_sigma=None))
     f.start(0.0, 0.0, 0.0, math.pi / 2, heading_sigma=10 * DEG, position_sigma=0.1)
     p = [f.add_step(ev) for ev in events][-1]
     assert p.cov.shape == (2, 2)
@@ -127,6 +131,77 @@ def test_checkpoint_corrects_heading_bias_and_the_past():
         last = f.add_step(ev)
     assert err(last, truth[-1]) < 1.0
     assert abs(last.heading - (-math.pi / 2)) < 2 * DEG
+
+
+# ------------------------------------------------------------------ step-length scale
+
+
+def test_scaled_step_factor_jacobians_match_finite_differences():
+    """The hand-written error and Jacobians of the scaled step against gtsam's Pose2 maths."""
+    import gtsam
+
+    from service.fusion.scaled_step import scaled_step_factor
+
+    length, turn = 0.7, 0.3
+    f = scaled_step_factor(1, 2, 3, length, turn, gtsam.noiseModel.Unit.Create(3))
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        a = gtsam.Pose2(*rng.normal(0, 2, 2), rng.uniform(-math.pi, math.pi))
+        b = a.compose(gtsam.Pose2(*rng.normal(0.7, 0.3, 2), rng.normal(0.3, 0.5)))
+        scale = float(rng.uniform(0.8, 1.2))
+        v = gtsam.Values()
+        v.insert(1, a)
+        v.insert(2, b)
+        v.insert(3, scale)
+        z = gtsam.Pose2(scale * length * math.cos(turn), scale * length * math.sin(turn), turn)
+        np.testing.assert_allclose(f.unwhitenedError(v), gtsam.Pose2.Logmap(z.between(a.between(b))), atol=1e-12)
+        jac, _ = f.linearize(v).jacobian()
+        eps, cols = 1e-7, []
+        for key, dim in ((1, 3), (2, 3), (3, 1)):
+            for i in range(dim):
+                v2 = gtsam.Values(v)
+                if dim == 3:
+                    v2.update(key, v.atPose2(key).retract(eps * np.eye(3)[i]))
+                else:
+                    v2.update(key, v.atDouble(key) + eps)
+                cols.append((f.unwhitenedError(v2) - f.unwhitenedError(v)) / eps)
+        np.testing.assert_allclose(jac, np.array(cols).T, atol=1e-5)
+
+
+def test_graph_learns_a_step_length_bias_from_checkpoints():
+    """The PDR's steps are 10 % long; checkpoints every 25 steps teach the graph the factor 1/1.1,
+    and the live track between checkpoints stops accumulating the along-track error."""
+    events, truth = walk(np.zeros(150))  # straight: only the length is wrong
+    events = [dataclasses.replace(ev, length=ev.length * 1.1) for ev in events]
+
+    def run(settings):
+        f = TrackFusion(settings)
+        f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.01, position_sigma=0.05)
+        live_err = []
+        for k, ev in enumerate(events):
+            p = f.add_step(ev)
+            if (k + 1) % 25 == 24:  # one step before the next checkpoint: the worst of the segment
+                live_err.append(err(p, truth[k + 1]))
+            if (k + 1) % 25 == 0:
+                p = f.add_fix(CheckpointFix(t=ev.t, x=truth[k + 1, 0], y=truth[k + 1, 1], sigma=0.1))
+        return p, live_err
+
+    p, live_err = run(no_mag())
+    _, no_scale_err = run(no_mag(length_scale_sigma=None))
+    assert p.length_scale == pytest.approx(1 / 1.1, abs=0.02)
+    assert no_scale_err[-1] > 1.2  # without the scale: ≈ 10 % of the 19 m since the fix, every segment
+    assert live_err[-1] < 0.3 * no_scale_err[-1]
+    assert live_err[-1] < live_err[0]  # the first segment is walked before anything is learned
+
+
+def test_no_fix_keeps_the_scale_at_its_prior():
+    events, truth = walk(square())
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+    poses = [f.add_step(ev) for ev in events]
+    assert poses[-1].length_scale == pytest.approx(1.0, abs=1e-9)
+    np.testing.assert_allclose([[p.x, p.y] for p in poses], truth[1:], atol=1e-6)
+    assert math.isnan(TrackFusion(no_mag(length_scale_sigma=None)).start(0, 0, 0, 0, 0.1).length_scale)
 
 
 @pytest.mark.parametrize("bias_deg", [20.0, 40.0])
@@ -274,7 +349,8 @@ def test_marginalisation_keeps_the_state_bounded():
     settings = no_mag(lag_s=30.0)
     f = TrackFusion(settings)
     f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
-    bound = settings.lag_s / STEP_DT + 5  # poses in the window (+ slack for fix variables)
+    # poses in the window, the step-length scales opened in it, + slack for fix variables
+    bound = settings.lag_s / STEP_DT + settings.lag_s / settings.length_scale_interval_s + 1 + 5
     worst = 0
     for k, ev in enumerate(events):
         f.add_step(ev)

@@ -70,6 +70,7 @@ from pdr.events import StepEvent, bearing_deg
 from service.fusion.fixes import CheckpointFix, GnssFix, UwbRange
 from service.fusion.history import PoseHistory
 from service.fusion.noise import robust, step_covariance
+from service.fusion.scaled_step import scaled_step_factor
 from service.fusion.settings import FusionSettings
 
 
@@ -87,6 +88,11 @@ def A(n: int) -> int:
     return gtsam.symbol("a", n)
 
 
+def S(n: int) -> int:
+    """gtsam key of step-length scale variable ``n``."""
+    return gtsam.symbol("s", n)
+
+
 @dataclass(frozen=True)
 class FusedPose:
     """The fused estimate of one pose as published: immutable (``cov`` is read-only)."""
@@ -101,6 +107,7 @@ class FusedPose:
     steps: int  # steps fused so far
     source: str  # "pdr" before any accepted fix, "fused" after
     heading_sigma: float = math.nan  # rad, marginal 1-sigma of the heading
+    length_scale: float = math.nan  # estimated factor on the PDR's step length (NaN: not estimated)
 
     @property
     def bearing_deg(self) -> float:
@@ -149,6 +156,9 @@ class TrackFusion:
         self._floor_offset = 0
         self._floor_fix_row = -1  # row of the latest checkpoint that set the floor
         self._last_mag_t = -math.inf
+        self._scale_n = -1  # index of the current step-length scale variable (-1: not estimated)
+        self._scale_t0 = -math.inf  # s, when the current scale variable was opened
+        self._scale = 1.0  # its latest estimate
 
     # ---------------------------------------------------------------- inputs
 
@@ -168,6 +178,7 @@ class TrackFusion:
         thresholds = gtsam.ISAM2ThresholdMap()
         thresholds.insert(("x", np.array([s.relinearize_position_m, s.relinearize_position_m, s.relinearize_heading_rad])))
         thresholds.insert(("a", np.array([s.relinearize_position_m, s.relinearize_position_m])))
+        thresholds.insert(("s", np.array([s.relinearize_scale])))
         params.setRelinearizeThreshold(thresholds)
         params.relinearizeSkip = int(s.relinearize_skip)
         params.findUnusedFactorSlots = True  # reuse slots of marginalised factors: bounded memory
@@ -177,7 +188,13 @@ class TrackFusion:
         graph.add(gtsam.PriorFactorPose2(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(
             np.array([position_sigma, position_sigma, heading_sigma]))))
         values.insert(X(0), pose)
-        self._smoother.update(graph, values, {X(0): float(t)})
+        stamps = {X(0): float(t)}
+        if s.length_scale_sigma is not None:
+            self._scale_n, self._scale_t0, self._scale = 0, float(t), 1.0
+            values.insert(S(0), 1.0)
+            graph.add(gtsam.PriorFactorDouble(S(0), 1.0, gtsam.noiseModel.Isotropic.Sigma(1, s.length_scale_sigma)))
+            stamps[S(0)] = float(t)
+        self._smoother.update(graph, values, stamps)
         self._hist.append(t=t, index=0, x=math.nan, y=math.nan, heading=math.nan, floor=floor, pdr_floor=floor,
                           length=0.0, duration=0.0)
         return self._publish()
@@ -210,11 +227,20 @@ class TrackFusion:
         turn_sigma = max(turn_sigma, s.turn_sigma_floor_rad)
         length = ev.length
         cov = step_covariance(length, max(ev.length_sigma, s.length_sigma_floor_m), turn_sigma, s.lateral_sigma_m)
-        z = gtsam.Pose2(length * math.cos(turn), length * math.sin(turn), turn)
         row = prev + 1
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        graph.add(gtsam.BetweenFactorPose2(X(prev), X(row), z, gtsam.noiseModel.Gaussian.Covariance(cov)))
-        values.insert(X(row), self._live_pose.compose(z))
+        stamps = {X(row): float(ev.t)}
+        step_noise = gtsam.noiseModel.Gaussian.Covariance(cov)
+        if self._scale_n >= 0:
+            if ev.t - self._scale_t0 >= s.length_scale_interval_s:
+                self._open_scale(ev.t, graph, values)
+            graph.add(scaled_step_factor(X(prev), X(row), S(self._scale_n), length, turn, step_noise))
+            stamps[S(self._scale_n)] = float(ev.t)  # refresh: the scale stays while steps use it
+            walked = length * self._scale
+        else:
+            graph.add(gtsam.BetweenFactorPose2(X(prev), X(row), gtsam.Pose2(length * math.cos(turn), length * math.sin(turn), turn), step_noise))
+            walked = length
+        values.insert(X(row), self._live_pose.compose(gtsam.Pose2(walked * math.cos(turn), walked * math.sin(turn), turn)))
         if (s.use_mag_heading and math.isfinite(ev.mag_heading) and math.isfinite(ev.mag_heading_sigma)
                 and ev.mag_heading_sigma > 0 and ev.t - self._last_mag_t >= s.mag_min_interval_s):
             sigma = max(ev.mag_heading_sigma, s.mag_sigma_floor_rad)
@@ -222,7 +248,7 @@ class TrackFusion:
             graph.add(gtsam.PoseRotationPrior2D(X(row), gtsam.Rot2(ev.mag_heading), noise))
             self._last_mag_t = ev.t
         self._freeze_before(ev.t - s.lag_s)
-        self._smoother.update(graph, values, {X(row): float(ev.t)})
+        self._smoother.update(graph, values, stamps)
         self._hist.append(t=ev.t, index=ev.index, x=math.nan, y=math.nan, heading=math.nan,
                           floor=ev.floor + self._floor_offset, pdr_floor=ev.floor, length=length,
                           duration=ev.t - t_prev)
@@ -333,10 +359,13 @@ class TrackFusion:
         cov = 0.5 * (cov + cov.T)
         cov.setflags(write=False)
         self._live_pose = pose
+        if self._scale_n >= 0:
+            self._scale = float(self._smoother.calculateEstimateDouble(S(self._scale_n)))
         self._live = FusedPose(
             t=float(self._hist.col("t")[row]), index=int(self._hist.col("index")[row]), x=pose.x(), y=pose.y(),
             heading=_wrap(pose.theta()), cov=cov, floor=int(self._hist.col("floor")[row]), steps=self._steps,
             source="fused" if self._fused else "pdr", heading_sigma=float(math.sqrt(max(marginal[2, 2], 0.0))),
+            length_scale=self._scale if self._scale_n >= 0 else math.nan,
         )
         return self._live
 
@@ -356,6 +385,16 @@ class TrackFusion:
             if math.hypot(now.x() - before.x(), now.y() - before.y()) < s.fix_convergence_m:
                 break
             before = now
+
+    def _open_scale(self, t: float, graph, values) -> None:
+        """A new step-length scale variable, tied to the current one by a random walk σ = q·√Δt."""
+        s = self.settings
+        sigma = s.length_scale_walk * math.sqrt(t - self._scale_t0)
+        old, new = S(self._scale_n), S(self._scale_n + 1)
+        values.insert(new, self._scale)
+        graph.add(gtsam.BetweenFactorDouble(old, new, 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sigma)))
+        self._scale_n += 1
+        self._scale_t0 = t
 
     def _position_marginal(self, key: int) -> tuple[np.ndarray, np.ndarray]:
         """Estimate and ENU 2x2 marginal covariance of a pose's position."""
