@@ -56,7 +56,13 @@ class SimulationPublisher:
     def step(self, samples: int, on_frame: Callable[[int, int, float], None] | None = None) -> int:
         """Publish the next ``samples`` samples of every walker; returns the frames sent."""
         batches = self.fleet.next_batches(samples)
-        for i, (w, b) in enumerate(zip(self.wearables, batches)):
+        self._publish(batches, range(len(batches)), on_frame)
+        self.started = True
+        return len(batches)
+
+    def _publish(self, batches, which, on_frame) -> None:
+        for i in which:
+            w, b = self.wearables[i], batches[i]
             if not self.started:  # the door it came in by
                 w.send("fix", wire.Fix.checkpoint(w.responder, float(b.t[0]), x=float(b.x[0]), y=float(b.y[0]),
                                                   floor=int(b.floor[0]), sigma=0.3, operator="simulator"))
@@ -72,8 +78,6 @@ class SimulationPublisher:
                 w.send("truth", msgpack.packb({"t": float(b.t[-1]), "x": float(b.x[-1]), "y": float(b.y[-1]),
                                                "floor": int(b.floor[-1]), "heading": float(b.heading[-1]),
                                                "steps": int(b.step_count[-1])}))
-        self.started = True
-        return len(batches)
 
     def stand_still(self, i: int, seconds: float) -> None:
         self.fleet.stand_still(i, seconds)
@@ -82,27 +86,42 @@ class SimulationPublisher:
         self.fleet.collapse(i)
 
     def run(self, seconds: float, stop: threading.Event | None = None, frames_per_s: float = FRAMES_PER_SECOND,
-            on_frame=None, on_tick: Callable[[float], None] | None = None) -> int:
-        """Publish in real time for ``seconds`` (device time advances with the wall clock)."""
+            on_frame=None, on_tick: Callable[[float], None] | None = None, slices: int = 10) -> int:
+        """Publish in real time for ``seconds`` (device time advances with the wall clock).
+
+        Real wearables are not synchronised: each sends its frame at its own phase of the frame
+        period. The walkers are therefore published in ``slices`` groups spread evenly over
+        each period rather than all at one instant (``slices=1`` is that worst case).
+        """
         per = max(1, int(round(self.rate_hz / frames_per_s)))
         period = per / self.rate_hz
         ticks = int(round(seconds / period))
+        n = len(self.wearables)
+        groups = [range(j * n // slices, (j + 1) * n // slices) for j in range(max(1, min(slices, n)))]
         start = time.monotonic()
         sent = 0
         for k in range(ticks):
-            if stop is not None and stop.is_set():
-                break
-            sent += self.step(per, on_frame)
+            batches = self.fleet.next_batches(per)
+            for j, group in enumerate(groups):
+                if not self._wait(start + (k + j / len(groups)) * period, stop):
+                    return sent
+                self._publish(batches, group, on_frame)
+            self.started = True
+            sent += len(batches)
             if on_tick is not None:
                 on_tick((k + 1) * period)
-            wait = start + (k + 1) * period - time.monotonic()
-            if wait > 0:
-                if stop is not None:
-                    if stop.wait(wait):
-                        break
-                else:
-                    time.sleep(wait)
+        self._wait(start + ticks * period, stop)
         return sent
+
+    @staticmethod
+    def _wait(until: float, stop: threading.Event | None) -> bool:
+        """Sleep until ``until`` (monotonic); False when asked to stop."""
+        wait = until - time.monotonic()
+        if stop is not None:
+            return not (stop.is_set() or (wait > 0 and stop.wait(wait)))
+        if wait > 0:
+            time.sleep(wait)
+        return True
 
     def close(self) -> None:
         for w in self.wearables:

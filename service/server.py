@@ -17,6 +17,7 @@ the worker or reach another responder's state.
 from __future__ import annotations
 
 import dataclasses
+import gc
 import logging
 import math
 import queue
@@ -129,6 +130,11 @@ class IncidentService:
             s.declare_queryable(wire.key_all(self.id, "track"), self._on_track_query),
             s.liveliness().declare_subscriber(wire.key_all(self.id, "presence"), self._on_presence, history=True),
         ]
+        # the cyclic garbage collector's full passes stall the worker for tens of ms once the
+        # heap holds many trackers; what exists at start-up (modules, config) never dies, so
+        # it leaves the collector's view, and young collections run less often
+        gc.freeze()
+        gc.set_threshold(20_000, 50, 100)
         for target, name in ((self._work, "worker"), (self._status_loop, "status")):
             th = threading.Thread(target=target, name=f"firetrack-{name}", daemon=True)
             th.start()
