@@ -266,7 +266,7 @@ class IncidentService:
         """A fresh tracker; not yet placed, it starts at the incident origin with a wide σ
         until a checkpoint fix says where the responder is."""
         cfg, s = self.incident, self.settings
-        entry = CheckpointFix(-math.inf, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)")
+        entry = CheckpointFix(0.0, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)")
         return ResponderTracker(rid, cfg.floor_elevations(), cfg.start_floor, s.tracker, entry=entry)
 
     def _reject(self, r: Responder, reason: str, detail: str, now: float) -> None:

@@ -28,16 +28,7 @@ from pdr.dead_reckoning import DeadReckoning
 from pdr.events import MotionEvent, StepEvent
 from pdr.floors import FloorElevations
 from pdr.pipeline import ImuFrame, PdrPipeline, PipelineSettings
-
-
-@dataclass(frozen=True)
-class CheckpointFix:
-    t: float
-    x: float
-    y: float
-    floor: int | None = None
-    sigma: float = 0.5
-    name: str | None = None
+from service.fusion.fixes import CheckpointFix  # noqa: F401  (re-exported: the tracker's fix type)
 
 
 @dataclass(frozen=True)
@@ -206,11 +197,10 @@ class ResponderTracker:
         return self.live
 
     def _fusion_fix(self, fix):
-        f = self._fusion_mod
         if isinstance(fix, CheckpointFix):
             # the floor is the pipeline's business (anchor_floor above): the graph gets x, y only,
             # or the floor would be corrected twice
-            return f.CheckpointFix(t=fix.t, x=fix.x, y=fix.y, floor=None, sigma=fix.sigma, name=fix.name)
+            return dataclasses.replace(fix, floor=None)
         return fix  # GnssFix / UwbRange of service.fusion already
 
     def smoothed_track(self) -> dict[str, np.ndarray] | None:

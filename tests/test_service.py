@@ -56,7 +56,7 @@ def offline_poses(cfg, msgs, responder):
     """The same messages through a ResponderTracker without any network: the reference."""
     s = ServiceSettings()
     tracker = ResponderTracker(responder, cfg.floor_elevations(), cfg.start_floor, tracker_settings_for(cfg),
-                               entry=CheckpointFix(-math.inf, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m))
+                               entry=CheckpointFix(0.0, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m))
     from pdr.pipeline import ImuFrame
 
     poses = []
