@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import typer
 
+from client import console_cli
 from service import bench_cli, eval_cli, record_cli, review_cli, schema_cli, serve_cli, tune_cli
 
 app = typer.Typer(
@@ -19,6 +20,7 @@ app = typer.Typer(
 app.command("demo")(serve_cli.demo_command)
 app.command("serve")(serve_cli.serve_command)
 app.command("simulate")(serve_cli.simulate_command)
+app.command("console")(console_cli.console_command)
 app.command("wearable")(serve_cli.wearable_command)
 app.command("record")(record_cli.record_command)
 app.command("replay")(record_cli.replay_command)

@@ -114,13 +114,15 @@ class running_service:
             if not pool.wait_ready(60):
                 err.print("[yellow]warning:[/] not every worker process started within 60 s")
         if self.console:
+            from client.console.server import ConsoleError, start_console
+
             try:
-                from client.console.server import start_console
-            except ImportError:
-                err.print("[yellow]warning:[/] the web console is not installed; serving without it")
-            else:
                 handle = start_console(session, self.cfg, port=self.port)
-                self._closers.append(handle.close)
+            except ConsoleError as e:
+                self.__exit__(None, None, None)  # the service and session already opened
+                fail(str(e))
+                raise typer.Exit(1)
+            self._closers.append(handle.close)
         where = ", ".join(self.connect) if self.connect else ", ".join(self.listen or [DEFAULT_ENDPOINT])
         self.service = svc
         return svc, where

@@ -116,6 +116,7 @@ class IncidentService:
         self.published: list[tuple[str, bytes]] = []  # offline only: (key, payload) in order
         self._rec_lock = threading.Lock()
         self._in_lock = threading.Lock()
+        self._work_lock = threading.Lock()  # held by the worker per item; track queries wait for it
         self.busy_s = 0.0  # wall time the worker spent on items (the benchmark's capacity figure)
         self.pose_hook = None  # callable(responder_id, Pose) after each publication (benchmarks)
         self.profiler = None  # a cProfile.Profile the worker runs under, when set before start()
@@ -211,7 +212,8 @@ class IncidentService:
                     return
                 if self.recorder is not None and item[0] in ("imu", "fix"):
                     self._record(item[1], item[2], item[3])
-                self.feed(*item)
+                with self._work_lock:
+                    self.feed(*item)
             except Exception:  # a bug must not kill the service: log it, count it, go on
                 self.errors += 1
                 log.exception("error while processing %s", item[1] if item else "?")
@@ -453,7 +455,9 @@ class IncidentService:
             if not zenoh.KeyExpr(k).intersects(query.key_expr):
                 continue
             try:
-                query.reply(k, msgpack.packb(self.track_of(r), use_bin_type=True))
+                with self._work_lock:  # the worker changes the smoother; read it between items
+                    track = self.track_of(r)
+                query.reply(k, msgpack.packb(track, use_bin_type=True))
             except Exception:
                 log.exception("track query for %s", r.id)
 

@@ -1,0 +1,510 @@
+"""The console's web server: the page, the incident, live updates over a WebSocket, operator actions.
+
+``start_console(session, cfg, port)`` runs an aiohttp server on its own asyncio loop in a
+background thread and subscribes the given zenoh session to ``firetrack/{incident}/*/pose``
+and ``.../status``. ``handle.close()`` undeclares the subscribers, closes the pages'
+WebSockets and stops the server and its thread, each step bounded in time.
+
+HTTP API (JSON; errors are ``{"error": "..."}`` with a 4xx status naming what is wrong):
+
+======================  =========================================================================
+``GET /``               the page (``static/index.html``); ``/static/*`` its script and style
+``GET /ws``             WebSocket: a ``snapshot`` on connect, then one ``update`` per batch period
+                        (latest pose/status of each changed responder), ``checkpoints`` and ``fix``
+``GET /api/incident``   floors, checkpoints, a plan per floor (image URL, size, pixel -> ENU matrix)
+``GET /plan/{n}.png``   the plan image of floor ``n``, downscaled once (:mod:`client.console.plans`)
+``GET /api/track/{id}`` a responder's smoothed track from the service's ``.../track`` queryable
+``GET /api/tracks``     every responder's track (one wildcard query), for the review slider
+``GET /api/state``      what the console holds now (poses, statuses, trails, reject counts)
+``POST /api/fix``       ``{responder, x, y, floor}`` or ``{responder, name}`` [``sigma``]: publish a
+                        checkpoint :class:`service.wire.Fix` stamped with the responder's latest
+                        device time, ``operator="console"``
+``POST /api/checkpoint``  ``{name, x, y, floor}`` [``sigma_m``, ``note``]: add a named checkpoint
+======================  =========================================================================
+
+POST bodies must be ``application/json``: a page of another site cannot send that type
+without a CORS preflight, which this server never grants, so it cannot place fixes through
+an officer's browser.
+"""
+from __future__ import annotations
+
+import asyncio
+import errno
+import json
+import logging
+import math
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import zenoh
+from aiohttp import WSMsgType, web
+
+from client.console.live import LiveBoard
+from client.console.plans import grid_matrix, plan_png, plan_problem, served_plan
+from service import wire
+from service.incident import IncidentConfig, UnknownCheckpointError
+
+log = logging.getLogger("firetrack.console")
+
+STATIC_DIR = Path(__file__).resolve().parent / "static"
+BATCH_PERIOD_S = 0.15  # one update message per page at most this often
+LOST_CONTACT_S = 10.0  # the page raises lost_contact when nothing is heard of a responder for this long
+TRACK_QUERY_TIMEOUT_S = 5.0
+CLIENT_BACKLOG = 20  # messages queued for a slow page before they are replaced by one snapshot
+START_TIMEOUT_S = 10.0
+STOP_TIMEOUT_S = 5.0
+POST_MAX_BYTES = 64 * 1024
+
+
+class ConsoleError(RuntimeError):
+    """The console cannot start (the port is taken, the address is not this machine's, ...)."""
+
+
+class _HttpError(Exception):
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+
+
+def _error(status: int, message: str) -> web.Response:
+    return web.json_response({"error": message}, status=status)
+
+
+class _Page:
+    """One connected page: a queue its own task drains, so a slow page never holds up the others."""
+
+    def __init__(self, ws: web.WebSocketResponse):
+        self.ws = ws
+        self.queue: asyncio.Queue[str] = asyncio.Queue()
+        self.behind = False  # set when the backlog overflowed: the next message is a fresh snapshot
+
+    def push(self, text: str) -> None:
+        if self.queue.qsize() >= CLIENT_BACKLOG:
+            while not self.queue.empty():
+                self.queue.get_nowait()
+            self.behind = True
+        self.queue.put_nowait(text)
+
+    async def run(self, snapshot) -> None:
+        try:
+            while not self.ws.closed:
+                text = await self.queue.get()
+                if self.behind:
+                    self.behind = False
+                    text = snapshot()
+                await self.ws.send_str(text)
+        except (ConnectionError, RuntimeError) as e:  # the page went away mid-send: its handler cleans up
+            log.info("console: a page stopped listening: %s", e)
+
+
+def _finite_number(body: dict, name: str, required: bool = True) -> float | None:
+    v = body.get(name)
+    if v is None:
+        if required:
+            raise _HttpError(400, f"'{name}' is required")
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise _HttpError(400, f"'{name}' must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _integer(body: dict, name: str) -> int | None:
+    v = body.get(name)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise _HttpError(400, f"'{name}' must be an integer, got {v!r}")
+    return v
+
+
+class ConsoleServer:
+    """The aiohttp application and its loop thread; use :func:`start_console`."""
+
+    def __init__(self, session: zenoh.Session, cfg: IncidentConfig, host: str, port: int,
+                 batch_period_s: float = BATCH_PERIOD_S, lost_contact_s: float = LOST_CONTACT_S,
+                 static_dir: Path = STATIC_DIR):
+        self.session = session
+        self.cfg = cfg
+        self.host = host
+        self.port = port
+        self.batch_period_s = batch_period_s
+        self.lost_contact_s = lost_contact_s
+        self.static_dir = Path(static_dir)
+        self.board = LiveBoard()
+        self.pages: set[_Page] = set()
+        self.fixes_sent = 0
+        self.added_checkpoints: set[str] = set()
+        self._subs: list = []
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._runner: web.AppRunner | None = None
+        self._broadcaster: asyncio.Task | None = None
+        self._closed = False
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> ConsoleServer:
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._run_loop, name="firetrack-console", daemon=True)
+        self._thread.start()
+        try:
+            asyncio.run_coroutine_threadsafe(self._serve(), self._loop).result(START_TIMEOUT_S)
+        except OSError as e:
+            self._stop_loop()
+            why = {errno.EADDRINUSE: "the port is in use by another program (choose another with --port)",
+                   errno.EACCES: "permission denied (ports below 1024 need privileges)",
+                   errno.EADDRNOTAVAIL: f"{self.host} is not an address of this machine"}.get(e.errno, str(e))
+            raise ConsoleError(f"cannot serve the console on http://{self.host}:{self.port}/: {why}") from None
+        except BaseException:
+            self._stop_loop()
+            raise
+        iid = self.cfg.id
+        try:
+            for kind in ("pose", "status"):
+                self._subs.append(self.session.declare_subscriber(
+                    wire.key_all(iid, kind),
+                    lambda s, kind=kind: self.board.on_sample(kind, str(s.key_expr), s.payload.to_bytes())))
+        except Exception as e:  # a closed session: stop the server again, say why
+            self.close()
+            raise ConsoleError(f"cannot subscribe to the poses of incident {iid!r}: {e}") from None
+        log.info("console for incident %r on %s", iid, self.url)
+        return self
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}/"
+
+    def _run_loop(self) -> None:
+        asyncio.set_event_loop(self._loop)
+        try:
+            self._loop.run_forever()
+        finally:
+            self._loop.close()
+
+    def _stop_loop(self) -> None:
+        if self._loop is not None and self._loop.is_running():
+            self._loop.call_soon_threadsafe(self._loop.stop)
+        if self._thread is not None:
+            self._thread.join(STOP_TIMEOUT_S)
+
+    async def _serve(self) -> None:
+        app = web.Application(client_max_size=POST_MAX_BYTES)
+        r = app.router
+        r.add_get("/", self._index)
+        r.add_static("/static/", self.static_dir, show_index=False)
+        r.add_get("/ws", self._websocket)
+        r.add_get("/api/incident", self._incident)
+        r.add_get("/api/state", self._state)
+        r.add_get("/api/tracks", self._tracks)
+        r.add_get("/api/track/{responder}", self._track)
+        r.add_get(r"/plan/{floor:-?\d+}.png", self._plan)
+        r.add_post("/api/fix", self._fix)
+        r.add_post("/api/checkpoint", self._checkpoint)
+        runner = web.AppRunner(app, access_log=None, shutdown_timeout=1.0)
+        await runner.setup()
+        site = web.TCPSite(runner, self.host, self.port)
+        try:
+            await site.start()
+        except BaseException:
+            await runner.cleanup()
+            raise
+        self._runner = runner
+        self.port = int(runner.addresses[0][1])  # the real one when port 0 asked for any free port
+        self._broadcaster = asyncio.get_running_loop().create_task(self._broadcast())
+
+    def close(self) -> None:
+        """Undeclare the subscribers, close every page's WebSocket, stop the server (bounded)."""
+        if self._closed:
+            return
+        self._closed = True
+        for s in self._subs:
+            try:
+                s.undeclare()
+            except Exception:  # the session is closed already: the subscriber went with it
+                pass
+        self._subs.clear()
+        if self._loop is not None and self._loop.is_running():
+            try:
+                asyncio.run_coroutine_threadsafe(self._shutdown(), self._loop).result(STOP_TIMEOUT_S)
+            except Exception as e:  # shutting down: say so, go on stopping the loop
+                log.warning("console shutdown: %s", e)
+        self._stop_loop()
+
+    async def _shutdown(self) -> None:
+        if self._broadcaster is not None:
+            self._broadcaster.cancel()
+        for page in list(self.pages):
+            try:
+                await asyncio.wait_for(page.ws.close(code=1001, message=b"console shutting down"), 1.0)
+            except Exception:
+                pass
+        if self._runner is not None:
+            await self._runner.cleanup()
+        # whatever is left (a request waiting on a track query or a plan image): cancel, wait briefly
+        rest = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+        for t in rest:
+            t.cancel()
+        if rest:
+            await asyncio.wait(rest, timeout=1.0)
+
+    # ------------------------------------------------------------------ live updates
+    def _snapshot_text(self) -> str:
+        return json.dumps({"type": "snapshot", "now": time.time(), **self.board.snapshot()})
+
+    def _send_all(self, message: dict) -> None:
+        text = json.dumps(message)
+        for page in list(self.pages):
+            page.push(text)
+
+    async def _broadcast(self) -> None:
+        while True:
+            await asyncio.sleep(self.batch_period_s)
+            if not self.pages:
+                continue
+            changes = self.board.take_changes()
+            if changes is not None:
+                self._send_all({"type": "update", "now": time.time(), **changes})
+
+    async def _websocket(self, request: web.Request) -> web.StreamResponse:
+        origin = request.headers.get("Origin")
+        if origin is not None and origin.split("://", 1)[-1] != request.host:
+            # browsers let any site open a WebSocket to this machine; only the console's own page may listen
+            return _error(403, f"WebSocket from {origin} refused: open the console at http://{request.host}/")
+        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=POST_MAX_BYTES)
+        await ws.prepare(request)
+        page = _Page(ws)
+        page.push(self._snapshot_text())
+        self.pages.add(page)
+        sender = asyncio.get_running_loop().create_task(page.run(self._snapshot_text))
+        try:
+            async for msg in ws:  # the page only listens; its actions are HTTP requests
+                if msg.type == WSMsgType.ERROR:
+                    break
+        finally:
+            self.pages.discard(page)
+            sender.cancel()
+        return ws
+
+    # ------------------------------------------------------------------ pages and data
+    async def _index(self, request: web.Request) -> web.FileResponse:
+        return web.FileResponse(self.static_dir / "index.html", headers={"Cache-Control": "no-cache"})
+
+    def incident_json(self) -> dict:
+        cfg = self.cfg
+        plans = {}
+        for f in cfg.floors:
+            sp = served_plan(cfg, f.number)
+            plans[str(f.number)] = sp.to_json() if sp is not None else {
+                "floor": f.number, "url": None, "matrix": grid_matrix(), "problem": plan_problem(cfg, f.number)}
+        return {
+            "id": cfg.id, "name": cfg.name, "origin": cfg.origin.model_dump(), "start_floor": cfg.start_floor,
+            "floors": [{"number": f.number, "name": f.name, "elevation_m": f.elevation_m} for f in cfg.floors],
+            "checkpoints": self._checkpoints_json(), "plans": plans,
+            "settings": {"lost_contact_s": self.lost_contact_s, "batch_period_s": self.batch_period_s,
+                         "trail_points": self.board.trail_points},
+        }
+
+    def _checkpoints_json(self) -> list[dict]:
+        return [{"name": c.name, "x": c.x, "y": c.y, "floor": c.floor, "sigma_m": c.sigma_m, "note": c.note}
+                for c in self.cfg.checkpoints]
+
+    async def _incident(self, request: web.Request) -> web.Response:
+        return web.json_response(self.incident_json())
+
+    async def _state(self, request: web.Request) -> web.Response:
+        snap = self.board.snapshot()
+        snap.update(pages=len(self.pages), fixes_sent=self.fixes_sent, received=dict(self.board.received))
+        return web.json_response(snap)
+
+    async def _plan(self, request: web.Request) -> web.Response:
+        floor = int(request.match_info["floor"])
+        numbers = [f.number for f in self.cfg.floors]
+        if floor not in numbers:
+            return _error(404, f"floor {floor} is not configured for incident {self.cfg.id!r}; floors: {numbers}")
+        sp = served_plan(self.cfg, floor)
+        if sp is None:
+            return _error(404, f"floor {floor}: {plan_problem(self.cfg, floor)}")
+        try:
+            png = await asyncio.get_running_loop().run_in_executor(None, plan_png, sp)
+        except Exception as e:  # the file vanished or is corrupt since the config was loaded
+            log.warning("plan image of floor %d: %s", floor, e)
+            return _error(404, f"floor {floor}: plan image {sp.source} unreadable: {e}")
+        return web.Response(body=png, content_type="image/png", headers={"Cache-Control": "max-age=3600"})
+
+    # ------------------------------------------------------------------ tracks
+    def _query_tracks(self, key: str) -> dict[str, dict]:
+        """Blocking zenoh query (run in an executor): responder -> track as JSON-ready lists."""
+        from service.server import decode_track  # the reply format is defined once, beside the queryable
+
+        out = {}
+        for reply in self.session.get(key, timeout=TRACK_QUERY_TIMEOUT_S):
+            if reply.ok is None:
+                log.warning("track query %s: %s", key, reply.err.payload.to_string())
+                continue
+            d = decode_track(reply.ok.payload.to_bytes())
+            yaw = d["heading"]  # ENU yaw, rad (gtsam theta); NaN on dead-reckoning tracks
+            bearing = np.mod(90.0 - np.degrees(yaw), 360.0)
+            out[str(d["responder"])] = {
+                "responder": str(d["responder"]), "smoothed": bool(d["smoothed"]),
+                "t": d["t"].tolist(), "x": np.round(d["x"], 3).tolist(), "y": np.round(d["y"], 3).tolist(),
+                "floor": d["floor"].astype(int).tolist(),
+                "heading_deg": np.where(np.isfinite(bearing), np.round(bearing, 1), None).tolist(),
+            }
+        return out
+
+    async def _track(self, request: web.Request) -> web.Response:
+        rid = request.match_info["responder"]
+        if not wire.is_valid_id(rid):
+            return _error(400, f"responder id {rid!r} must match [A-Za-z0-9_.-]{{1,64}}")
+        tracks = await asyncio.get_running_loop().run_in_executor(
+            None, self._query_tracks, wire.key(self.cfg.id, rid, "track"))
+        if rid not in tracks:
+            return _error(404, f"no track of responder {rid!r}: the service of incident {self.cfg.id!r} "
+                               f"did not answer within {TRACK_QUERY_TIMEOUT_S:g} s or does not know {rid!r}")
+        return web.json_response(tracks[rid])
+
+    async def _tracks(self, request: web.Request) -> web.Response:
+        tracks = await asyncio.get_running_loop().run_in_executor(
+            None, self._query_tracks, wire.key_all(self.cfg.id, "track"))
+        return web.json_response({"tracks": tracks})
+
+    # ------------------------------------------------------------------ operator actions
+    async def _body(self, request: web.Request) -> dict:
+        if request.content_type != "application/json":
+            raise _HttpError(415, f"send the request as application/json, not {request.content_type or 'no type'}")
+        try:
+            body = await request.json()
+        except (ValueError, UnicodeDecodeError) as e:
+            raise _HttpError(400, f"the body is not valid JSON: {e}") from None
+        if not isinstance(body, dict):
+            raise _HttpError(400, f"the body must be a JSON object, got {type(body).__name__}")
+        return body
+
+    def build_fix(self, body: dict) -> wire.Fix:
+        """A checkpoint Fix from a request body, or :class:`_HttpError` saying what is wrong."""
+        rid = body.get("responder")
+        if not isinstance(rid, str) or not wire.is_valid_id(rid):
+            raise _HttpError(400, f"'responder' must be a responder id ([A-Za-z0-9_.-]{{1,64}}), got {rid!r}")
+        t = self.board.device_time(rid)
+        if t is None:
+            raise _HttpError(409, f"responder {rid!r} has not been heard by this console yet: a fix is stamped "
+                                  "with the responder's latest device time, and there is none")
+        sigma = _finite_number(body, "sigma", required=False)
+        if sigma is not None and not sigma > 0:
+            raise _HttpError(400, f"'sigma' must be positive (m), got {sigma}")
+        name = body.get("name")
+        if name is not None:
+            if not isinstance(name, str):
+                raise _HttpError(400, f"'name' must be a checkpoint name, got {name!r}")
+            if "x" in body or "y" in body:
+                raise _HttpError(400, "give a checkpoint 'name' or 'x' and 'y', not both")
+            try:
+                cp = self.cfg.checkpoint(name)
+            except UnknownCheckpointError as e:
+                raise _HttpError(404, str(e)) from None
+            if cp.name not in self.added_checkpoints:  # the service's config file has it: it resolves the name
+                return wire.Fix.checkpoint(rid, t, name=cp.name, sigma=sigma, operator="console")
+            # added in this console: a service in another process may not know it, so send where it is
+            return wire.Fix.checkpoint(rid, t, x=cp.x, y=cp.y, floor=cp.floor, sigma=sigma or cp.sigma_m,
+                                       operator="console")
+        x, y = _finite_number(body, "x"), _finite_number(body, "y")
+        floor = _integer(body, "floor")
+        if floor is None:
+            floor = self.board.floor_of(rid)
+        if floor is None:
+            raise _HttpError(400, f"'floor' is required: responder {rid!r} has no position yet to take it from")
+        numbers = [f.number for f in self.cfg.floors]
+        if floor not in numbers:
+            raise _HttpError(400, f"floor {floor} is not configured for incident {self.cfg.id!r}; floors: {numbers}")
+        return wire.Fix.checkpoint(rid, t, x=x, y=y, floor=floor, sigma=sigma, operator="console")
+
+    async def _fix(self, request: web.Request) -> web.Response:
+        try:
+            fix = self.build_fix(await self._body(request))
+        except _HttpError as e:
+            return _error(e.status, e.args[0])
+        key = wire.key(self.cfg.id, fix.responder, "fix")
+        payload = wire.encode(fix)
+        await asyncio.get_running_loop().run_in_executor(
+            None, lambda: self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK))
+        self.fixes_sent += 1
+        sent = {k: v for k, v in fix.model_dump().items() if v is not None}
+        log.info("console: checkpoint fix for %s sent: %s", fix.responder, sent)
+        self._send_all({"type": "fix", "now": time.time(), "fix": sent})
+        return web.json_response({"sent": sent, "key": key})
+
+    async def _checkpoint(self, request: web.Request) -> web.Response:
+        try:
+            body = await self._body(request)
+            name = body.get("name")
+            if not isinstance(name, str) or not name.strip():
+                raise _HttpError(400, f"'name' must be a non-empty text, got {name!r}")
+            name = name.strip()
+            if any(c.name == name for c in self.cfg.checkpoints):
+                raise _HttpError(409, f"checkpoint {name!r} exists already")
+            x, y = _finite_number(body, "x"), _finite_number(body, "y")
+            floor = _integer(body, "floor")
+            if floor is None:
+                raise _HttpError(400, "'floor' is required")
+            sigma = _finite_number(body, "sigma_m", required=False)
+            note = body.get("note")
+            if note is not None and not isinstance(note, str):
+                raise _HttpError(400, f"'note' must be text, got {note!r}")
+            try:
+                cp = self.cfg.add_checkpoint(name, floor=floor, x=x, y=y, note=note,
+                                             **({"sigma_m": sigma} if sigma is not None else {}))
+            except ValueError as e:  # pydantic's ValidationError is one too: a bad field, an unknown floor
+                raise _HttpError(400, " ".join(str(e).split())) from None
+        except _HttpError as e:
+            return _error(e.status, e.args[0])
+        self.added_checkpoints.add(cp.name)
+        log.info("console: checkpoint %r added at (%.2f, %.2f) floor %d", cp.name, cp.x, cp.y, cp.floor)
+        self._send_all({"type": "checkpoints", "now": time.time(), "checkpoints": self._checkpoints_json()})
+        return web.json_response({"checkpoint": next(c for c in self._checkpoints_json() if c["name"] == cp.name)},
+                                 status=201)
+
+
+class ConsoleHandle:
+    """A running console: ``url``, ``port``, ``board`` (what it knows), ``close()``."""
+
+    def __init__(self, server: ConsoleServer):
+        self._server = server
+
+    @property
+    def url(self) -> str:
+        return self._server.url
+
+    @property
+    def port(self) -> int:
+        return self._server.port
+
+    @property
+    def board(self) -> LiveBoard:
+        return self._server.board
+
+    @property
+    def server(self) -> ConsoleServer:
+        return self._server
+
+    def close(self) -> None:
+        self._server.close()
+
+    def __enter__(self) -> ConsoleHandle:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def start_console(session: zenoh.Session, cfg: IncidentConfig, port: int = 8080, host: str = "127.0.0.1",
+                  batch_period_s: float = BATCH_PERIOD_S, lost_contact_s: float = LOST_CONTACT_S) -> ConsoleHandle:
+    """Serve the console of ``cfg``'s incident on ``http://host:port/`` (port 0: any free port),
+    fed by ``session``: one update message per page every ``batch_period_s``; the page raises
+    lost_contact for a responder not heard for ``lost_contact_s``. Raises :class:`ConsoleError`
+    when the port cannot be bound."""
+    if not 0 <= int(port) <= 65535:
+        raise ConsoleError(f"port {port} is not a TCP port (0-65535)")
+    if not (batch_period_s > 0 and lost_contact_s > 0):
+        raise ConsoleError(f"batch_period_s ({batch_period_s}) and lost_contact_s ({lost_contact_s}) must be positive")
+    return ConsoleHandle(ConsoleServer(session, cfg, host, int(port), batch_period_s, lost_contact_s).start())

@@ -1,0 +1,525 @@
+"""The command console in a real browser (Debian's Chromium through Playwright) against a live
+service on a real zenoh router on loopback: markers appear and move, a click on the map
+places a checkpoint fix the service applies, man-down is raised, acknowledged and raised
+again, the review slider draws the smoothed track, 200 responders keep the page's frame
+time bounded, and a real IPIN recording replayed at 10x drives a marker."""
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import subprocess
+import sys
+import threading
+import time
+import urllib.error
+import urllib.request
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from client.console.server import ConsoleError, start_console
+from client.wearable import Wearable, paced, recording_messages
+from pdr.synthetic import static_imu
+from service import wire
+from service.incident import default_incident, plan_pixel_to_enu
+from service.server import IncidentService, ServiceSettings
+from tests.conftest import shared_data_path
+from tests.zenoh_util import client, free_port, router, wait_until
+
+CHROMIUM = Path(os.environ.get("FIRETRACK_CHROMIUM", "/usr/bin/chromium"))
+IPIN_TRIAL52 = "ipin2023/IPIN2023_T3_TrainingTrial52_repetition01.txt.gz"
+VIEWPORT = {"width": 1400, "height": 850}
+PAGE_TIMEOUT_MS = 15_000
+
+
+# ------------------------------------------------------------------------------------------
+# fixtures
+# ------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def browser():
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e '.[test]')")
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium (.ci/apt-packages.txt) to run the browser tests")
+    pw = sync_api.sync_playwright().start()
+    try:
+        b = pw.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=["--no-sandbox"])
+    except Exception:
+        pw.stop()
+        raise
+    yield b
+    b.close()
+    pw.stop()
+
+
+@pytest.fixture(scope="module")
+def stack():
+    """A router on a free port, the demo incident's service and its console on it, a client session."""
+    session, endpoint = router()
+    cfg = default_incident()
+    svc = IncidentService(session, cfg, ServiceSettings()).start()
+    console = start_console(session, cfg, port=free_port())
+    cl = client(endpoint)
+    yield svc, console, cl, cfg, endpoint
+    console.close()
+    cl.close()
+    svc.close()
+    session.close()
+
+
+class Page:
+    """A browser tab on the console, collecting the page's own errors."""
+
+    def __init__(self, browser, url: str):
+        self.context = browser.new_context(viewport=VIEWPORT)
+        self.page = self.context.new_page()
+        self.errors: list[str] = []
+        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        self.page.goto(url)
+        self.page.wait_for_function("window.__firetrack && window.__firetrack.ready && window.__firetrack.connected",
+                                    timeout=PAGE_TIMEOUT_MS)
+
+    def js(self, expression: str, arg=None):
+        return self.page.evaluate(expression, arg)
+
+    def wait(self, expression: str, arg=None, timeout_ms: int = PAGE_TIMEOUT_MS):
+        return self.page.wait_for_function(expression, arg=arg, timeout=timeout_ms)
+
+    def drawn(self) -> dict:
+        return self.js("window.__firetrack.drawnPositions()")
+
+    def click_map_at(self, x: float, y: float) -> None:
+        """Centre the view on ENU (x, y) (away from the overlays at the edges) and click there."""
+        X, Y = self.js("""([x, y]) => { const S = window.__firetrack;
+            const [X0, Y0] = S.enuToScreen(x, y);
+            S.view.cx += (X0 - S.view.w / 2) / S.view.scale; S.view.cy += (Y0 - S.view.h / 2) / S.view.scale;
+            S.dirtyBg = S.dirtyFg = true; return S.enuToScreen(x, y); }""", [x, y])
+        box = self.page.locator("#fg").bounding_box()
+        assert self.js("([X, Y]) => document.elementFromPoint(X, Y).id", [box["x"] + X, box["y"] + Y]) == "fg"
+        self.page.mouse.click(box["x"] + X, box["y"] + Y)
+
+    def close(self) -> None:
+        self.context.close()
+        assert self.errors == [], f"errors on the page: {self.errors}"
+
+
+class Collector:
+    def __init__(self, session, key):
+        self.items: list[wire.WireMessage] = []
+        self._lock = threading.Lock()
+        self.sub = session.declare_subscriber(key, self._on)
+
+    def _on(self, sample):
+        with self._lock:
+            self.items.append(wire.decode(sample.payload.to_bytes()))
+
+    def all(self):
+        with self._lock:
+            return list(self.items)
+
+
+def imu_frames(responder: str, t0: float, seconds: float, still: bool, seq0: int = 0, seed: int = 0,
+               rate: float = 50.0) -> list[wire.ImuBatch]:
+    """Synthetic frames from device time ``t0``: motionless, or a 1.8 Hz vertical bounce the
+    step detector counts as walking."""
+    imu = static_imu(seconds=seconds, rate_hz=rate, seed=seed)
+    acc = imu.acc.copy()
+    if not still:
+        acc[:, 2] += 2.5 * np.sin(2 * np.pi * 1.8 * imu.t)
+    return list(wire.imu_batches_from_arrays(responder, f"dev-{responder}", imu.t + t0, acc, imu.gyr, imu.mag,
+                                             per_batch=5, seq0=seq0))
+
+
+def send_paced(wearables: dict, frames: dict, speed: float, stop: threading.Event | None = None) -> None:
+    """Interleave the responders' frames at ``speed`` times their device-time pace."""
+    ids = list(frames)
+    n = max(len(f) for f in frames.values())
+    start, t_first = time.monotonic(), frames[ids[0]][0].t[0]
+    for k in range(n):
+        if stop is not None and stop.is_set():
+            return
+        for r in ids:
+            if k < len(frames[r]):
+                wearables[r].send("imu", frames[r][k])
+        wait = start + (frames[ids[0]][min(k, len(frames[ids[0]]) - 1)].t[-1] - t_first) / speed - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+
+
+def http(url: str, body=None, content_type: str = "application/json", timeout: float = 10.0):
+    """(status, parsed JSON or bytes) of a GET, or of a POST when ``body`` is given."""
+    data = None if body is None else (body if isinstance(body, bytes) else json.dumps(body).encode())
+    req = urllib.request.Request(url, data=data, method="GET" if body is None else "POST")
+    if body is not None:
+        req.add_header("Content-Type", content_type)
+    try:
+        with urllib.request.urlopen(req, timeout=timeout) as res:
+            status, raw, ctype = res.status, res.read(), res.headers.get("Content-Type", "")
+    except urllib.error.HTTPError as e:
+        status, raw, ctype = e.code, e.read(), e.headers.get("Content-Type", "")
+    return status, (json.loads(raw) if "json" in ctype else raw)
+
+
+# ------------------------------------------------------------------------------------------
+# tests
+# ------------------------------------------------------------------------------------------
+def test_markers_move_a_map_click_places_a_fix_and_review_scrubs_the_track(stack, browser):
+    svc, console, cl, cfg, endpoint = stack
+    ids = ["alpha", "bravo"]
+    # long enough to still be walking when the fix is sent (it applies at the next step); stopped after
+    frames = {r: imu_frames(r, 1000.0, 150.0, still=False, seed=i) for i, r in enumerate(ids)}
+    wearables = {r: Wearable(cl, cfg.id, r) for r in ids}
+    fixes = Collector(cl, wire.key(cfg.id, "alpha", "fix"))
+    stop = threading.Event()
+    sender = threading.Thread(target=send_paced, args=(wearables, frames, 8.0, stop), daemon=True)
+    page = Page(browser, console.url)
+    sender.start()
+    try:
+        # markers appear and move
+        page.wait("() => { const d = window.__firetrack.drawnPositions(); return d.alpha && d.bravo; }")
+        first = page.drawn()["alpha"]
+        assert wait_until(lambda: math.dist((page.drawn()["alpha"]["x"], page.drawn()["alpha"]["y"]),
+                                            (first["x"], first["y"])) > 2.0, 10)
+        later = page.drawn()["alpha"]
+        assert later["t"] > first["t"]
+        page.wait("() => document.querySelectorAll('#roster tbody tr[data-id=\"alpha\"], "
+                  "#roster tbody tr[data-id=\"bravo\"]').length === 2", timeout_ms=2000)
+        pose = page.js("window.__firetrack.snapshot().alpha.pose")
+        assert pose["responder"] == "alpha" and pose["floor"] == cfg.start_floor
+        # ellipse and heading arrow: the page's maths against numpy through its own ENU -> screen map
+        o, ex, ny = (np.array(page.js("(p) => window.__firetrack.enuToScreen(p[0], p[1])", p))
+                     for p in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)))
+        jac = np.column_stack([ex - o, ny - o])  # screen px per metre East, per metre North
+        cov = np.array([[4.0, 1.5], [1.5, 1.0]])
+        r1, r2, angle = page.js("(c) => window.__firetrack.covToEllipse(c)", [4.0, 1.5, 1.0])
+        lam, vec = np.linalg.eigh(jac @ cov @ jac.T)
+        assert (r1, r2) == pytest.approx(tuple(2.4477 * np.sqrt(lam[::-1])), rel=1e-9)
+        major = vec[:, 1]
+        assert abs(math.sin(angle - math.atan2(major[1], major[0]))) < 1e-9  # same axis (sign free)
+        for bearing, enu in ((0.0, (0.0, 1.0)), (90.0, (1.0, 0.0)), (225.0, (-1.0, -1.0))):
+            want = jac @ np.array(enu)
+            got = page.js("(b) => window.__firetrack.bearingToScreen(b)", bearing)
+            assert got == pytest.approx(list(want / np.linalg.norm(want)), abs=1e-9)
+
+        # select alpha in the roster, click a checkpoint's spot on the map, confirm
+        page.page.locator('#roster tbody tr[data-id="alpha"]').click()
+        assert page.page.locator("#sel-id").inner_text() == "alpha"
+        cp = cfg.checkpoint("t52-lm1")
+        applied_before = svc.responders["alpha"].tracker.fixes_applied
+        page.click_map_at(cp.x, cp.y)
+        page.page.locator("#modal").wait_for(state="visible", timeout=5000)
+        assert "alpha" in page.page.locator("#modal-title").inner_text()
+        metres_per_px = page.js("(() => { const S = window.__firetrack; const a = S.screenToEnu(0, 0), "
+                                "b = S.screenToEnu(1, 0); return Math.hypot(b[0] - a[0], b[1] - a[1]); })()")
+        page.page.locator("#modal-ok").click()
+        assert wait_until(lambda: len(fixes.all()) == 1, 5), "the console published no fix"
+        fix = fixes.all()[0]
+        assert fix.source == "checkpoint" and fix.operator == "console" and fix.floor == cfg.start_floor
+        assert math.dist((fix.x, fix.y), (cp.x, cp.y)) <= 1.5 * metres_per_px  # the click, within a pixel
+        assert fix.t >= later["t"]  # stamped with alpha's latest device time
+        assert wait_until(lambda: svc.responders["alpha"].tracker.fixes_applied > applied_before, 15), \
+            "the service did not apply the console's fix"
+        page.wait("() => [...document.querySelectorAll('.toast.ok')].some(e => e.textContent.includes('alpha'))",
+                  timeout_ms=5000)
+
+        # review: the slider draws alpha on its smoothed track at the scrubbed time
+        page.wait("() => window.__firetrack.snapshot().alpha.pose.steps >= 40")  # a track worth scrubbing
+        stop.set()
+        sender.join(10)
+        assert not sender.is_alive() and svc.wait_idle(20)
+        page.page.locator("#btn-review").click()
+        page.wait("() => window.__firetrack.mode === 'review' && window.__firetrack.review.tracks.has('alpha')")
+        status, track = http(console.url + "api/track/alpha")
+        assert status == 200 and len(track["t"]) >= 20 and track["smoothed"]
+        t = np.array(track["t"])
+        offset = -0.5 * (t[-1] - t[0])
+        page.js("(o) => window.__firetrack.setReviewOffset(o)", offset)
+        page.wait("(o) => { const d = window.__firetrack.drawnPositions().alpha; return d && Math.abs(d.t - %r) < 1e-6; }"
+                  % float(t[-1] + offset))
+        at = page.drawn()["alpha"]
+        te = t[-1] + offset
+        assert at["x"] == pytest.approx(np.interp(te, t, track["x"]), abs=1e-6)
+        assert at["y"] == pytest.approx(np.interp(te, t, track["y"]), abs=1e-6)
+        page.page.locator("#btn-live").click()
+        page.wait("() => window.__firetrack.mode === 'live'")
+    finally:
+        stop.set()
+        sender.join(10)
+        for w in wearables.values():
+            w.close()
+        page.close()
+
+
+def test_a_motionless_responder_raises_man_down_which_is_acknowledged_and_raised_again(stack, browser):
+    svc, console, cl, cfg, endpoint = stack
+    w = Wearable(cl, cfg.id, "echo")
+    page = Page(browser, console.url)
+    alarm = '#alarms .alarm[data-key="echo|man_down"]'
+    try:
+        still = imu_frames("echo", 2000.0, 40.0, still=True, rate=25.0)
+        for b in still:  # device time is what counts: 40 s of stillness sent at once
+            w.send("imu", b)
+        page.page.locator(alarm).wait_for(timeout=PAGE_TIMEOUT_MS)
+        assert "flashing" in page.page.locator(alarm).get_attribute("class")
+        assert "MAN DOWN" in page.page.locator(alarm).inner_text()
+        page.wait("() => document.querySelector('#roster tr[data-id=\"echo\"]')?.classList.contains('alarmed')",
+                  timeout_ms=2000)  # the roster refreshes twice a second
+
+        page.page.locator(alarm + " button.ack").click()
+        cls = page.page.locator(alarm).get_attribute("class")
+        assert "acked" in cls and "flashing" not in cls  # listed, no longer flashing
+        assert page.js("window.__firetrack.alarmList().find(a => a.key === 'echo|man_down').active")
+
+        # echo gets up and walks: the alarm ends and, acknowledged, leaves the list
+        walk = imu_frames("echo", 2040.0, 12.0, still=False, seq0=len(still), rate=25.0)
+        for b in walk:
+            w.send("imu", b)
+        page.page.locator(alarm).wait_for(state="detached", timeout=PAGE_TIMEOUT_MS)
+        # ... and goes down again: a new occurrence flashes again, unacknowledged
+        again = imu_frames("echo", 2052.0, 40.0, still=True, seq0=len(still) + len(walk), seed=3, rate=25.0)
+        for b in again:
+            w.send("imu", b)
+        page.page.locator(alarm).wait_for(timeout=PAGE_TIMEOUT_MS)
+        assert "flashing" in page.page.locator(alarm).get_attribute("class")
+    finally:
+        w.close()
+        page.close()
+
+
+def test_the_page_keeps_up_with_200_responders(browser):
+    """200 simulated walkers (pdr.simulation.WalkerFleet, their true paths) published as Pose
+    and Status at 2 Hz straight onto the keys, so the console alone is loaded."""
+    from pdr.simulation import WalkerFleet
+
+    session, endpoint = router()
+    cfg = default_incident().model_copy(update={"id": "load"})
+    console = start_console(session, cfg, port=free_port())
+    cl = client(endpoint)
+    page = None
+    try:
+        fleet = WalkerFleet(200, seed=7, bounds=(-50.0, 30.0, -25.0, 25.0), floors=(-2, 0), attitude=False)
+        page = Page(browser, console.url)
+        page.js("window.__firetrack.resetPerf()")
+        period, rounds = 0.5, 10
+        start = time.monotonic()
+        for k in range(rounds):
+            b = fleet.next_arrays(int(round(period * fleet.rate_hz)))
+            now = time.time()
+            for i, rid in enumerate(b.responders):
+                var = 0.2 + 0.05 * k + 0.02 * (i % 7)  # a growing, responder-dependent variance (m^2)
+                yaw = float(b.heading[i, -1])
+                pose = wire.Pose(responder=rid, t=float(b.t[i, -1]), x=float(b.x[i, -1]), y=float(b.y[i, -1]),
+                                 floor=int(b.floor[i, -1]), lat=49.46, lon=11.11,
+                                 heading_deg=float(np.mod(90.0 - np.degrees(yaw), 360.0)) % 360.0,
+                                 cov=[[var, 0.1 * var], [0.1 * var, 0.6 * var]], steps=int(b.step_count[i, -1]),
+                                 source="fused", seq=k, published_at=now)
+                cl.put(wire.key(cfg.id, rid, "pose"), wire.encode(pose))
+                status = wire.Status(responder=rid, t=float(b.t[i, -1]), motion="walking", motion_since=0.0,
+                                     alarms=["man_down"] if i % 50 == 0 else [], last_heard=now,
+                                     steps=int(b.step_count[i, -1]), frames=10 * k)
+                cl.put(wire.key(cfg.id, rid, "status"), wire.encode(status))
+            if k == rounds // 2:  # the operator zooms in mid-stream: the plan is redrawn too
+                page.page.locator("#zoom-in").click()
+            time.sleep(max(0.0, start + (k + 1) * period - time.monotonic()))
+        page.wait("() => window.__firetrack.responders.size === 200")
+        page.wait("() => document.querySelectorAll('#roster tbody tr').length === 200", timeout_ms=5000)
+        time.sleep(0.5)
+        stats = page.js("window.__firetrack.perfStats()")
+        print(f"\n200 responders: {json.dumps(stats)}")
+        draw, frame = stats["draw_ms"], stats["frame_interval_ms"]
+        assert draw["n"] >= 10, stats  # the page redrew as batches came in
+        assert draw["p95"] < 100.0, stats
+        assert frame["p95"] < 200.0, stats  # the main thread was never blocked for long
+        assert page.js("window.__firetrack.alarmList().filter(a => a.kind === 'man_down').length") == 4
+        assert wait_until(lambda: console.board.received["pose"] == 200 * rounds, 5)
+    finally:
+        if page is not None:
+            page.close()
+        console.close()
+        cl.close()
+        session.close()
+
+
+def test_silence_raises_lost_contact_in_the_page_itself(browser):
+    """The page's own lost-contact alarm (nothing heard of a responder), here after 1 s, with
+    no service: a cleared alarm stays listed until acknowledged."""
+    session, endpoint = router()
+    cfg = default_incident().model_copy(update={"id": "quiet"})
+    console = start_console(session, cfg, port=free_port(), lost_contact_s=1.0)
+    cl = client(endpoint)
+    page = None
+    alarm = '#alarms .alarm[data-key="ghost|lost_contact"]'
+
+    def heard():
+        now = time.time()
+        cl.put(wire.key(cfg.id, "ghost", "status"), wire.encode(wire.Status(
+            responder="ghost", t=now - 1e9, motion="walking", motion_since=0.0, last_heard=now)))
+
+    try:
+        page = Page(browser, console.url)
+        heard()
+        page.wait("() => window.__firetrack.responders.has('ghost')")
+        assert page.page.locator(alarm).count() == 0
+        page.page.locator(alarm).wait_for(timeout=5000)  # silence
+        assert "LOST CONTACT" in page.page.locator(alarm).inner_text()
+        stop = threading.Event()
+
+        def keep_talking():
+            while not stop.wait(0.25):
+                heard()
+
+        talker = threading.Thread(target=keep_talking, daemon=True)
+        heard()
+        talker.start()
+        try:
+            page.wait("(s) => document.querySelector(s)?.querySelector('.state').textContent === 'CLEARED'",
+                      alarm, timeout_ms=5000)
+            assert "flashing" in page.page.locator(alarm).get_attribute("class")  # not acknowledged yet
+            page.page.locator(alarm + " button.ack").click()
+            assert page.page.locator(alarm).count() == 0
+        finally:
+            stop.set()
+            talker.join(5)
+    finally:
+        if page is not None:
+            page.close()
+        console.close()
+        cl.close()
+        session.close()
+
+
+@pytest.mark.recording
+def test_an_ipin_recording_replayed_at_10x_moves_its_marker(stack, browser):
+    svc, console, cl, cfg, endpoint = stack
+    from pdr.io import load
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = load(shared_data_path(IPIN_TRIAL52))
+    msgs = recording_messages(rec, "ipin52", incident=cfg, landmark_every=0, gnss=False)
+    # the walk reaches its first landmark (t52-lm1) after about a minute: that minute goes at full
+    # speed, then 50 s from the landmark on at 10x, while the page is watched
+    t_fix = next(m.t for m in msgs if m.kind == "fix")
+    head = [m for m in msgs if m.t < t_fix]
+    tail = [m for m in msgs if t_fix <= m.t <= t_fix + 50.0]
+    page = Page(browser, console.url)
+    w = Wearable(cl, cfg.id, "ipin52")
+    seen = []
+    try:
+        for m in head:
+            w.send(m.kind, m.msg)
+        n_head = sum(m.kind == "imu" for m in head)
+        assert wait_until(lambda: "ipin52" in svc.responders and svc.responders["ipin52"].gate.accepted >= n_head, 30)
+        t0 = time.monotonic()
+        for i, m in enumerate(paced(tail, speed=10.0)):
+            w.send(m.kind, m.msg)
+            if i % 10 == 0:
+                d = page.drawn().get("ipin52")
+                if d is not None and d["t"] >= t_fix:
+                    seen.append((d["x"], d["y"], d["t"]))
+        assert time.monotonic() - t0 < 10.0  # 50 s of the walk took about 5 s
+        n_all = n_head + sum(m.kind == "imu" for m in tail)
+        assert wait_until(lambda: svc.responders["ipin52"].gate.accepted >= n_all and svc.wait_idle(0.1), 20)
+        last = svc.responders["ipin52"].tracker.live  # the service's newest pose: the page shows it
+        page.wait("(t) => { const d = window.__firetrack.drawnPositions().ipin52; return d && d.t === t; }",
+                  last.t, timeout_ms=5000)
+        d = page.drawn()["ipin52"]
+        seen.append((d["x"], d["y"], d["t"]))
+        assert len(seen) >= 10, f"the marker was seen {len(seen)} times only"
+        xy = np.array([s[:2] for s in seen])
+        assert np.ptp(xy, axis=0).max() > 5.0, f"the marker did not move: {seen}"
+        assert all(b[2] >= a[2] for a, b in zip(seen, seen[1:]))  # forward in device time
+        lm = cfg.checkpoint("t52-lm1")  # the landmark fix puts the responder there
+        assert min(math.dist(p, (lm.x, lm.y)) for p in xy) < 10.0, f"never near {lm.name}: {seen}"
+        assert svc.responders["ipin52"].tracker.fixes_applied >= 1
+    finally:
+        w.close()
+        page.close()
+
+
+def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
+    svc, console, cl, cfg, endpoint = stack
+    url = console.url
+    status, inc = http(url + "api/incident")
+    assert status == 200 and inc["id"] == cfg.id and [f["number"] for f in inc["floors"]] == [-2, -1, 0]
+    plan = inc["plans"]["0"]
+    if plan["url"] is not None:  # the museum's plan is in ../shared; floor 0 falls back to floor -1's
+        status, png = http(url + plan["url"].lstrip("/"))
+        assert status == 200
+        with Image.open(io.BytesIO(png)) as im:
+            assert im.size == (plan["width"], plan["height"]) and max(im.size) <= 4096
+        full = cfg.floor_plan(plan["plan_floor"])
+        m = np.array(plan["matrix"])
+        for u, v in ((0, 0), (plan["width"], plan["height"]), (123.5, 456.25)):
+            f = plan["factor"]
+            assert np.allclose(m @ [u, v, 1.0], plan_pixel_to_enu(full, f * u, f * v), atol=1e-9)
+    status, body = http(url + "plan/7.png")
+    assert status == 404 and "floor 7" in body["error"]
+
+    def post(path, body, **kw):
+        return http(url + path, body, **kw)
+
+    assert post("api/fix", b"responder=alpha", content_type="text/plain")[0] == 415
+    status, body = post("api/fix", b"{not json")
+    assert status == 400 and "not valid JSON" in body["error"]
+    status, body = post("api/fix", {"responder": "nobody-here", "x": 1.0, "y": 2.0, "floor": 0})
+    assert status == 409 and "nobody-here" in body["error"]
+    status, body = post("api/fix", {"responder": "a/b", "x": 1.0, "y": 2.0})
+    assert status == 400 and "responder" in body["error"]
+    # a responder the console has heard (a Status straight on its key)
+    now = time.time()
+    cl.put(wire.key(cfg.id, "foxtrot", "status"), wire.encode(wire.Status(
+        responder="foxtrot", t=77.5, motion="still", motion_since=70.0, last_heard=now)))
+    assert wait_until(lambda: console.board.device_time("foxtrot") == 77.5, 5)
+    status, body = post("api/fix", {"responder": "foxtrot", "x": "east", "y": 2.0, "floor": 0})
+    assert status == 400 and "'x' must be a finite number" in body["error"]
+    status, body = post("api/fix", {"responder": "foxtrot", "x": 1.0, "y": 2.0, "floor": 7})
+    assert status == 400 and "floor 7" in body["error"] and "[-2, -1, 0]" in body["error"]
+    status, body = post("api/fix", {"responder": "foxtrot", "name": "no-such-door"})
+    assert status == 404 and "no-such-door" in body["error"] and "t01-lm1" in body["error"]
+    fixes = Collector(cl, wire.key(cfg.id, "foxtrot", "fix"))
+    status, body = post("api/fix", {"responder": "foxtrot", "name": "t01-lm2"})
+    assert status == 200 and body["sent"]["name"] == "t01-lm2" and body["sent"]["t"] == 77.5
+    assert wait_until(lambda: len(fixes.all()) == 1, 5)
+    assert fixes.all()[0] == wire.Fix.checkpoint("foxtrot", 77.5, name="t01-lm2", operator="console")
+
+    # checkpoints: added, visible to the page's next load, duplicates and bad floors refused
+    status, body = post("api/checkpoint", {"name": "door-7", "x": 3.5, "y": -4.0, "floor": -1, "note": "side door"})
+    assert status == 201 and body["checkpoint"]["name"] == "door-7"
+    assert any(c["name"] == "door-7" and c["floor"] == -1 for c in http(url + "api/incident")[1]["checkpoints"])
+    assert post("api/checkpoint", {"name": "door-7", "x": 0.0, "y": 0.0, "floor": 0})[0] == 409
+    status, body = post("api/checkpoint", {"name": "door-8", "x": 0.0, "y": 0.0, "floor": 9})
+    assert status == 400 and "floor 9" in body["error"]
+    status, body = post("api/checkpoint", {"name": "", "x": 0.0, "y": 0.0, "floor": 0})
+    assert status == 400 and "'name'" in body["error"]
+    # a fix at a checkpoint added here travels with its coordinates (another service may not know it)
+    status, body = post("api/fix", {"responder": "foxtrot", "name": "door-7"})
+    assert status == 200 and (body["sent"]["x"], body["sent"]["y"], body["sent"]["floor"]) == (3.5, -4.0, -1)
+
+    assert http(url + "api/track/a*b")[0] == 400
+    status, body = http(url + "api/track/nobody-here")
+    assert status == 404 and "nobody-here" in body["error"]
+
+
+def test_a_taken_port_is_a_clear_error_and_close_does_not_hang(stack, browser):
+    svc, console, cl, cfg, endpoint = stack
+    with pytest.raises(ConsoleError, match=f"127.0.0.1:{console.port}.*in use"):
+        start_console(cl, cfg, port=console.port)
+    # the command says the same, without a traceback
+    cmd = ("import typer; from client.console_cli import console_command; typer.run(console_command)")
+    proc = subprocess.run([sys.executable, "-c", cmd, "--connect", endpoint, "--port", str(console.port)],
+                          capture_output=True, text=True, timeout=60, cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 1 and "in use" in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+    # a second console with a page connected closes promptly
+    other = start_console(cl, cfg, port=0)
+    page = Page(browser, other.url)
+    t0 = time.monotonic()
+    other.close()
+    assert time.monotonic() - t0 < 3.0
+    page.wait("() => !window.__firetrack.connected", timeout_ms=5000)
+    assert "NO CONNECTION" in page.page.locator("#conn").inner_text()
+    page.close()
