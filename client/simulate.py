@@ -97,7 +97,8 @@ class SimulationPublisher:
         period = per / self.rate_hz
         ticks = int(round(seconds / period))
         n = len(self.wearables)
-        groups = [range(j * n // slices, (j + 1) * n // slices) for j in range(max(1, min(slices, n)))]
+        g = max(1, min(slices, n))
+        groups = [range(j * n // g, (j + 1) * n // g) for j in range(g)]
         start = time.monotonic()
         sent = 0
         for k in range(ticks):

@@ -78,3 +78,20 @@ def test_bad_exercise_arguments_are_refused(tmp_path):
     assert r.exit_code == 2 and "ID=FILE" in r.output
     r = CliRunner().invoke(app, ["reprocess", str(tmp_path / "missing.mcap")])
     assert r.exit_code == 2 and "no such recording" in r.output
+
+
+def test_simulated_walkers_all_publish_in_real_time():
+    from tests.zenoh_util import client as _client, router as _router
+
+    session, endpoint = _router()
+    cl = _client(endpoint)
+    seen: set[str] = set()
+    sub = cl.declare_subscriber("firetrack/demo/*/imu", lambda s: seen.add(str(s.key_expr).split("/")[2]))
+    pub = SimulationPublisher(_client(endpoint), "demo", 4, rate_hz=50.0, seed=1, truth=False)
+    frames = pub.run(0.5)
+    assert frames == 4 * 5
+    assert wait_until(lambda: seen == set(pub.names), 5), seen
+    pub.close()
+    sub.undeclare()
+    cl.close()
+    session.close()
