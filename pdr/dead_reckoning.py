@@ -61,10 +61,3 @@ class DeadReckoning:
         self.point = TrackPoint(p.t, x, y, p.heading, p.floor, p.steps, np.eye(2) * sigma * sigma)
         return self.point
 
-
-def positions(events: list[StepEvent], x0: float = 0.0, y0: float = 0.0) -> np.ndarray:
-    """(N+1, 2) positions of a whole list of steps from ``(x0, y0)``: a cumulative sum."""
-    L = np.array([e.length for e in events])
-    h = np.array([e.heading for e in events])
-    d = np.c_[L * np.cos(h), L * np.sin(h)] if len(events) else np.empty((0, 2))
-    return np.vstack([[x0, y0], np.array([x0, y0]) + np.cumsum(d, axis=0)])

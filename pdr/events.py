@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import enum
 import math
+
+import numpy as np
 from dataclasses import dataclass
 
 
@@ -76,9 +78,14 @@ class MotionEvent:
     since: float  # s, when the motion (or stillness) began
 
 
-def bearing_deg(yaw: float) -> float:
-    """ENU yaw (CCW from East, rad) -> compass bearing (CW from North, degrees in [0, 360))."""
-    return (90.0 - math.degrees(yaw)) % 360.0
+def bearing_deg(yaw):
+    """ENU yaw (CCW from East, rad) -> compass bearing (CW from North, degrees in [0, 360)).
+
+    A float for a float, an array for an array. A yaw a rounding error past π/2 would come out
+    as 360.0 after the modulo; that is folded to 0 so the result stays in [0, 360)."""
+    b = np.mod(90.0 - np.degrees(yaw), 360.0)
+    b = np.where(b >= 360.0, 0.0, b)
+    return float(b) if b.ndim == 0 else b
 
 
 def yaw_from_bearing(bearing: float) -> float:

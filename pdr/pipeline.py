@@ -132,6 +132,8 @@ class PdrPipeline:
         self._t0: float | None = None
         self._motion_tail = {"t": np.empty(0), "a": np.empty(0), "g": np.empty(0)}
         self._last_moving = -math.inf  # time of the latest sample that was not motionless
+        self._lm_t = np.empty(0)  # recent sample times and, per sample, the time it last moved
+        self._lm_v = np.empty(0)
         self._first_sample = math.nan
         self._grid_next: float | None = None
         self.state = MotionState.STILL
@@ -279,8 +281,8 @@ class PdrPipeline:
         moving_t = np.where(~still, t, -np.inf)
         last_moving = np.maximum.accumulate(np.concatenate(([self._last_moving], moving_t)))[1:]
         self._last_moving = float(last_moving[-1])
-        self._lm_t = np.concatenate([getattr(self, "_lm_t", np.empty(0)), t])
-        self._lm_v = np.concatenate([getattr(self, "_lm_v", np.empty(0)), last_moving])
+        self._lm_t = np.concatenate([self._lm_t, t])
+        self._lm_v = np.concatenate([self._lm_v, last_moving])
         if self._grid_next is None:
             self._grid_next = self._t0 + s.state_grid_s
         horizon = self._t_last - s.state_delay_s

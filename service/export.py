@@ -25,6 +25,7 @@ from typing import NamedTuple
 import numpy as np
 import pymap3d
 
+from pdr.events import bearing_deg
 from pdr.floors import FloorElevations
 
 COORD_DECIMALS = 7  # degrees: 1e-7 deg is ~1.1 cm at the equator, finer than any track here
@@ -40,9 +41,9 @@ class IncidentOrigin(NamedTuple):
 
 def _origin(origin) -> IncidentOrigin:
     if isinstance(origin, Mapping):
-        o = IncidentOrigin(float(origin["lat"]), float(origin["lon"]), float(origin.get("alt", 0.0)))
-    elif hasattr(origin, "lat") and hasattr(origin, "lon"):
-        o = IncidentOrigin(float(origin.lat), float(origin.lon), float(getattr(origin, "alt", 0.0)))
+        o = IncidentOrigin(float(origin["lat"]), float(origin["lon"]), float(origin.get("alt", origin.get("alt_m", 0.0))))
+    elif hasattr(origin, "lat") and hasattr(origin, "lon"):  # IncidentOrigin, or the incident config's Origin (alt_m)
+        o = IncidentOrigin(float(origin.lat), float(origin.lon), float(getattr(origin, "alt", getattr(origin, "alt_m", 0.0))))
     else:
         o = IncidentOrigin(*(float(v) for v in origin))
     if not (-90 <= o.lat <= 90 and -180 <= o.lon <= 180 and math.isfinite(o.alt)):
@@ -81,11 +82,6 @@ def _up(floor: np.ndarray, floors: FloorElevations | None) -> np.ndarray:
     if bad.any():
         raise ValueError(f"floor {int(floor[np.argmax(bad)])} is not configured; floors: {known.tolist()}")
     return floors.heights[idx]
-
-
-def bearing_deg(yaw: np.ndarray) -> np.ndarray:
-    """ENU yaw (rad, CCW from East) -> compass bearing (deg, CW from North) in [0, 360)."""
-    return np.mod(90.0 - np.degrees(yaw), 360.0)
 
 
 def _geodetic(c: dict, origin: IncidentOrigin, floors) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -17,7 +17,6 @@ import typer
 
 from pdr.events import StepEvent
 from service.console_io import out, print_json
-from service.fusion import CheckpointFix, FusionSettings, TrackFusion
 
 
 @dataclass(frozen=True)
@@ -75,7 +74,7 @@ def synthetic_walk(steps: int, seed: int = 0, cadence_hz: float = 1.9, gyro_drif
 
 
 def bench_fusion(steps: int = 14000, fix_every: int = 100, seed: int = 0,
-                 settings: FusionSettings | None = None) -> dict:
+                 settings=None) -> dict:
     """Run the synthetic walk through :class:`TrackFusion`, timing every ``add_step`` and ``add_fix``.
 
     Times are CPU time of the calling thread (``*_ms``; the wall-clock median is reported too),
@@ -84,6 +83,8 @@ def bench_fusion(steps: int = 14000, fix_every: int = 100, seed: int = 0,
     when ``steps`` is a multiple of ``fix_every``); ``smoothed_rmse_m`` scores the whole
     smoothed track, frozen poses included.
     """
+    from service.fusion import CheckpointFix, TrackFusion  # gtsam: only when the benchmark runs
+
     walk = synthetic_walk(steps, seed)
     rng = np.random.default_rng(seed + 1)
     fusion = TrackFusion(settings)

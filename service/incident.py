@@ -44,7 +44,7 @@ import pymap3d
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo, model_validator
 from pydantic_core import PydanticCustomError
 
-from service.wire import ID_PATTERN
+from service.wire import ID_PATTERN, error_location
 
 DEFAULT_INCIDENT_PATH = Path(__file__).resolve().parents[1] / "deploy" / "incidents" / "ipin-museum.json"
 DEFAULT_FLOOR_HEIGHT_M = 3.0
@@ -460,17 +460,10 @@ def enu_to_plan_pixel(plan: FloorPlan, x, y):
 # ------------------------------------------------------------------------------------------
 # Loading
 # ------------------------------------------------------------------------------------------
-def _loc(loc: tuple) -> str:
-    out = ""
-    for part in loc:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
-    return out
-
-
 def _describe(exc: ValidationError) -> str:
     parts = []
     for e in exc.errors(include_url=False):
-        where = _loc(e["loc"])
+        where = error_location(e["loc"])
         msg = e["msg"]
         if e["type"] not in ("incident", "missing") and not isinstance(e.get("input"), (dict, list)):
             msg += f" (got {e.get('input')!r})"

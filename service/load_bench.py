@@ -31,6 +31,7 @@ import numpy as np
 
 from service.server import in_shard
 from service.workers import WorkerPool
+from service.zenoh_config import free_local_port
 
 
 def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float, seed: int, out: str,
@@ -62,14 +63,6 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
 WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers and graphs are built
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
                   profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2) -> dict:
     import zenoh
@@ -78,7 +71,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
     from service.server import IncidentService, ServiceSettings
     from service.zenoh_config import router_config
 
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_local_port()}"
     session = zenoh.open(router_config([endpoint]))
     cfg = default_incident()
     svc = IncidentService(session, cfg, ServiceSettings(), shard=(0, workers))

@@ -17,7 +17,6 @@ zenoh encoding of each original sample is not stored.
 """
 from __future__ import annotations
 
-import json
 import math
 import queue
 import signal
@@ -36,24 +35,12 @@ from service.recorder import (
     INPUT_KINDS, KEY_ROOT, IncidentRecorder, RecordingWriteError, check_segment, read_recording,
     recording_summary,
 )
+from service.zenoh_config import DEFAULT_ENDPOINT, client_config
 
-DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+DEFAULT_CONNECT = DEFAULT_ENDPOINT
 POLL_S = 0.05  # how often the writer thread wakes without traffic: stop requests, timed chunk flushes
 DRAIN_BATCH = 2000  # samples written between those checks under load (~10 ms of writing)
 MSGPACK = "application/msgpack"
-
-
-def client_config(connect: str) -> zenoh.Config:
-    """A zenoh client configuration for one router endpoint, without multicast scouting."""
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", _json_list([connect]))
-    config.insert_json5("scouting/multicast/enabled", "false")  # talk to the given router only
-    return config
-
-
-def _json_list(items: Iterable[str]) -> str:
-    return json.dumps(list(items))
 
 
 def open_client(connect: str) -> zenoh.Session:

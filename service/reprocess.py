@@ -39,10 +39,9 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
     svc = IncidentService(None, incident_cfg)
     recorded: dict[str, list[tuple[float, float, float]]] = {}
     n_inputs = 0
-    device_s: dict[str, list[float]] = {}
     cpu0 = time.process_time()
     for m in read_recording(path):
-        if m.incident != incident_cfg.id:
+        if m.incident != svc.id:
             svc = _retarget(svc, incident_cfg, m.incident)
         if m.kind in ("imu", "fix"):
             svc.feed(m.kind, m.key, m.payload, m.receive_time)
@@ -67,8 +66,6 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
     for rid, resp in svc.responders.items():
         r = out.setdefault(rid, ResponderReview())
         r.steps = max(r.steps, resp.tracker.pipeline.steps)
-        t = resp.tracker.pipeline.last_time
-        device_s[rid] = [t]
     worst = None
     for rid, r in out.items():
         r.poses = len(r.xy)
@@ -104,8 +101,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
 def _duration(path: Path) -> float | None:
     from service.recorder import recording_summary
 
-    s = recording_summary(path)
-    return s.get("duration_s") or s.get("duration")
+    return recording_summary(path)["duration"]
 
 
 def _retarget(svc, cfg, incident: str):

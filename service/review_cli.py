@@ -28,7 +28,6 @@ def reprocess_command(
     export: Path = typer.Option(None, "--export", help="write the smoothed tracks here: tracks.geojson, tracks.csv, <responder>.tum"),
 ):
     """Run the service pipeline offline over the recorded inputs and compare with the poses recorded live."""
-    from service.recorder import RecordingWriteError  # noqa: F401  (import check: mcap installed)
     from service.reprocess import reprocess
 
     if not file.is_file():

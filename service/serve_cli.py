@@ -136,6 +136,19 @@ class running_service:
         return False
 
 
+def _client_session(connect: str):
+    """A zenoh client session to ``connect``, or a clear error and exit 1."""
+    import zenoh
+
+    from service.zenoh_config import client_config
+
+    try:
+        return zenoh.open(client_config(connect))
+    except Exception as e:  # zenoh's own ZError: say where it could not connect
+        fail(f"could not connect to {connect}: {e}")
+        raise typer.Exit(1)
+
+
 def wearable_command(
     responder: str = typer.Option(..., "--responder", help="responder id (letters, digits, _ . -)"),
     replay_file: Path = typer.Option(..., "--replay", help="recording to publish (IPIN, Oxford, PyShoe, ...)"),
@@ -147,24 +160,17 @@ def wearable_command(
     gnss: bool = typer.Option(True, "--gnss/--no-gnss", help="send the recording's GNSS fixes"),
 ):
     """Publish a real recording as a wearable would: IMU frames (10 per second), landmarks and GNSS as fixes."""
-    import zenoh
-
     from client.wearable import replay
     from pdr.io.errors import RecordingFormatError
     from service import wire
     from service.console_io import progress_bar
-    from service.zenoh_config import client_config
 
     if not wire.is_valid_id(responder):
         fail(f"--responder {responder!r}: use 1-64 letters, digits, '_', '.' or '-'")
         raise typer.Exit(2)
     cfg = _incident(config, incident_id)
     stop = stop_on_signals()
-    try:
-        session = zenoh.open(client_config(connect))
-    except Exception as e:
-        fail(f"could not connect to {connect}: {e}")
-        raise typer.Exit(1)
+    session = _client_session(connect)
     try:
         with progress_bar(f"{responder} ← {replay_file.name}") as update:
             sent = replay(replay_file, responder, session, cfg, speed, landmark_every, gnss, stop, update)
@@ -186,25 +192,19 @@ def simulate_command(
     seed: int = typer.Option(0, "--seed", help="random seed of the walkers"),
 ):
     """Publish synthetic walkers in the incident's building; their true positions go on .../truth."""
-    import zenoh
-
     from client.simulate import SimulationPublisher, building_bounds
-    from service.zenoh_config import client_config
 
     cfg = _incident(config, incident_id)
     stop = stop_on_signals()
-    try:
-        session = zenoh.open(client_config(connect))
-    except Exception as e:
-        fail(f"could not connect to {connect}: {e}")
-        raise typer.Exit(1)
+    session = _client_session(connect)
     floors = (min(f.number for f in cfg.floors), max(f.number for f in cfg.floors)) if cfg.floors else (0, 0)
-    pub = SimulationPublisher(session, cfg.id, responders, rate, seed, bounds=building_bounds(cfg),
-                              floors=(cfg.start_floor, cfg.start_floor) if floors[0] == floors[1] else floors)
     try:
-        frames = pub.run(seconds, stop)
+        pub = SimulationPublisher(session, cfg.id, responders, rate, seed, bounds=building_bounds(cfg), floors=floors)
+        try:
+            frames = pub.run(seconds, stop)
+        finally:
+            pub.close()
     finally:
-        pub.close()
         session.close()
     out.print(f"simulated {responders} responder(s): {frames} frames")
 
@@ -217,12 +217,9 @@ def demo_command(
     listen: str = typer.Option(DEFAULT_ENDPOINT, "--listen", help="router endpoint"),
 ):
     """The whole system on this machine: router, service, console, replayed IPIN walks and simulated walkers."""
-    import zenoh
-
     from client.simulate import SimulationPublisher, building_bounds
     from client.wearable import replay
     from service.incident import default_incident
-    from service.zenoh_config import client_config
 
     _logging(False)
     cfg = default_incident()
@@ -230,7 +227,7 @@ def demo_command(
     data = Path(__file__).resolve().parents[2] / "shared" / "data" / "ipin2023"
     walks = sorted(data.glob("IPIN2023_T3_TrainingTrial*_repetition01.txt.gz"))[:3] if data.is_dir() else []
     with running_service(cfg, [listen], None, None, True, port) as (svc, where):
-        session = zenoh.open(client_config(listen))
+        session = _client_session(listen)
         threads = []
         for i, path in enumerate(walks):
             th = threading.Thread(target=replay, args=(path, f"ipin-{i + 1}", session, cfg, speed, 3, False, stop),

@@ -27,7 +27,6 @@ import zlib
 from collections import deque
 from dataclasses import dataclass, field
 
-import msgpack
 import numpy as np
 import zenoh
 
@@ -65,7 +64,7 @@ class ServiceSettings:
     rejected_window_s: float = 10.0  # s
     rejected_burst: int = 5  # rejects within the window -> alarm
     reorder_window: int = 4  # frames a late frame may be overtaken by
-    entry_sigma_m: float = 50.0  # s: responders not yet placed by a checkpoint start at the origin with this σ
+    entry_sigma_m: float = 50.0  # m: responders not yet placed by a checkpoint start at the origin with this σ
     max_queue: int = 200_000  # samples waiting for the worker (beyond: the callbacks block: back-pressure)
     log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
 
@@ -246,7 +245,6 @@ class IncidentService:
         return r
 
     def _new_responder(self, rid: str, now: float) -> Responder:
-        cfg = self.incident
         s = self.settings
         r = Responder(
             id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=self._tracker(rid), first_heard=now,
@@ -272,7 +270,12 @@ class IncidentService:
         return ResponderTracker(rid, cfg.floor_elevations(), cfg.start_floor, s.tracker, entry=entry)
 
     def _reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
+        """A frame turned away before the gate saw it: counted there like the gate's own."""
         r.gate.count(reason, detail, now)
+        self._note_reject(r, reason, detail, now)
+
+    def _note_reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
+        """Every reject feeds the burst alarm; the log gets at most a few lines per window."""
         r.rejects.append(now)
         while r.logged and now - r.logged[0] > self.settings.rejected_window_s:
             r.logged.popleft()
@@ -292,15 +295,11 @@ class IncidentService:
         if batch.responder != r.id:
             self._reject(r, "schema", f"responder {batch.responder!r} in a frame on the key of {r.id!r}", now)
             return
-        before = dict(r.gate.counts)
+        rejected_before = r.gate.rejected
         released = r.gate.offer(batch, now)
-        after = r.gate.counts
-        for reason, n in after.items():
-            if n > before.get(reason, 0):
-                r.rejects.append(now)
-                if len(r.logged) < self.settings.log_rejects_per_window:
-                    r.logged.append(now)
-                    log.warning("%s: frame %d rejected (%s)", r.id, batch.seq, reason)
+        if r.gate.rejected > rejected_before:  # the gate records why in its newest event
+            _, reason, detail = r.gate.events[-1]
+            self._note_reject(r, reason, f"frame {batch.seq}: {detail}", now)
         for b in released:
             self._process(r, b)
 
@@ -405,6 +404,9 @@ class IncidentService:
         rejected = dict(r.gate.counts)
         for reason, n in r.fixes_rejected.items():
             rejected[f"fix_{reason}"] = n
+        for reason, n in (("fix_gated", r.tracker.fixes_rejected), ("fix_unused", r.tracker.fixes_unused)):
+            if n:
+                rejected[reason] = n
         return wire.Status(
             responder=r.id, t=t_dev, motion=pl.state.value, motion_since=since, alarms=alarms,
             rejected=rejected, frames=r.gate.accepted, gaps=r.gate.gaps, last_heard=heard, steps=pl.steps,
@@ -434,7 +436,7 @@ class IncidentService:
                 self._process(r, b)
 
     # ------------------------------------------------------------------ track queryable
-    def track_of(self, r: Responder) -> dict:
+    def track_of(self, r: Responder) -> bytes:
         sm = r.tracker.smoothed_track()
         if sm is None or len(sm["t"]) == 0:
             pts = r.tracker.pdr_track
@@ -444,8 +446,7 @@ class IncidentService:
             smoothed = False
         else:
             smoothed = True
-        return {"v": wire.SCHEMA_VERSION, "kind": "track", "responder": r.id, "smoothed": smoothed,
-                **{k: np.asarray(sm[k], "<f8").tobytes() for k in ("t", "x", "y", "floor", "heading")}}
+        return wire.encode_track(r.id, sm, smoothed)
 
     def _on_track_query(self, query: zenoh.Query) -> None:
         with self._lock:
@@ -457,7 +458,7 @@ class IncidentService:
             try:
                 with self._work_lock:  # the worker changes the smoother; read it between items
                     track = self.track_of(r)
-                query.reply(k, msgpack.packb(track, use_bin_type=True))
+                query.reply(k, track)
             except Exception:
                 log.exception("track query for %s", r.id)
 
@@ -481,10 +482,4 @@ def in_shard(key_or_id: str, k: int, n: int) -> bool:
     return zlib.crc32(rid.encode()) % n == k
 
 
-def decode_track(payload: bytes) -> dict[str, np.ndarray | str | bool]:
-    """The reply of a ``.../track`` query as numpy arrays."""
-    d = msgpack.unpackb(payload, raw=False)
-    out = {k: d[k] for k in ("responder", "smoothed")}
-    for k in ("t", "x", "y", "floor", "heading"):
-        out[k] = np.frombuffer(d[k], "<f8")
-    return out
+decode_track = wire.decode_track  # the reply format lives with the wire format

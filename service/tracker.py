@@ -28,6 +28,7 @@ from pdr.dead_reckoning import DeadReckoning
 from pdr.events import MotionEvent, StepEvent
 from pdr.floors import FloorElevations
 from pdr.pipeline import ImuFrame, PdrPipeline, PipelineSettings
+from service.fusion import TrackFusion
 from service.fusion.fixes import CheckpointFix  # noqa: F401  (re-exported: the tracker's fix type)
 
 
@@ -67,14 +68,6 @@ def tracker_settings_for(incident, engine: str = "fusion") -> TrackerSettings:
     return TrackerSettings(pipeline=PipelineSettings(heading=heading), engine=engine)
 
 
-def _fusion_module():
-    try:
-        from service import fusion
-    except ImportError:  # pragma: no cover - only while the fusion is not installed
-        return None
-    return fusion
-
-
 class ResponderTracker:
     def __init__(self, responder: str, floors: FloorElevations, start_floor: int = 0,
                  settings: TrackerSettings | None = None, entry: CheckpointFix | None = None):
@@ -86,17 +79,16 @@ class ResponderTracker:
         self._placed_at: CheckpointFix | None = None
         self._pending_fixes: list[tuple[float, int, object]] = []  # (t, order, fix) waiting for a step
         self._order = 0
-        fusion = _fusion_module() if s.engine == "fusion" else None
-        if s.engine == "fusion" and fusion is None:
-            raise RuntimeError("the gtsam fusion is not available; use engine='dr'")
-        self._fusion_mod = fusion
+        if s.engine not in ("fusion", "dr"):
+            raise ValueError(f"engine must be 'fusion' or 'dr', got {s.engine!r}")
         self.engine = None  # TrackFusion or DeadReckoning once placed
         self.dr = DeadReckoning()  # the dead-reckoning baseline, always kept (cheap)
         self.pdr_track: list[tuple[float, float, float, int]] = []  # (t, x, y, floor)
         self.live: PoseEstimate | None = None
         self.last_step: StepEvent | None = None
         self.fixes_applied = 0
-        self.fixes_rejected = 0
+        self.fixes_rejected = 0  # refused by the fusion's gates
+        self.fixes_unused = 0  # nothing to apply them to (see _apply_fix)
         self._first_step_after_placement = True
 
     # ------------------------------------------------------------------ inputs
@@ -165,7 +157,7 @@ class ResponderTracker:
             return self.live
         if self.engine is None:
             p0 = self._placed_at
-            self.engine = self._fusion_mod.TrackFusion(self.settings.fusion)
+            self.engine = TrackFusion(self.settings.fusion)
             self.engine.start(p0.t, p0.x, p0.y, ev.heading, ev.heading_sigma, p0.sigma,
                               p0.floor if p0.floor is not None else ev.floor)
         fp = self.engine.add_step(ev)
@@ -177,8 +169,8 @@ class ResponderTracker:
                             "fused" if self.fixes_applied > 1 else "pdr")
 
     def _apply_fix(self, fix) -> PoseEstimate | None:
-        if isinstance(fix, CheckpointFix) and self._placed_at is None:
-            self._place(fix)
+        if isinstance(fix, CheckpointFix) and (self._placed_at is None or self._first_step_after_placement):
+            self._place(fix)  # not walked from the last placement yet: this one is where the track starts
             self.fixes_applied += 1
             return None
         if isinstance(fix, CheckpointFix) and fix.floor is not None:
@@ -187,6 +179,8 @@ class ResponderTracker:
             if isinstance(fix, CheckpointFix) and self.dr.point is not None:
                 self.dr.move_to(fix.x, fix.y, fix.sigma)
                 self.fixes_applied += 1
+            else:  # GNSS/UWB with dead reckoning alone, or before the track has a first step: counted
+                self.fixes_unused += 1
             return None
         fp = self.engine.add_fix(self._fusion_fix(fix))
         if fp is None:

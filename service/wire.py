@@ -424,7 +424,8 @@ _REASON_OF_ERROR = {"shape": "shape", "nonfinite": "nonfinite", "finite_number":
                     "time_order": "time_order", "rate": "rate"}
 
 
-def _loc(loc: tuple) -> str:
+def error_location(loc: tuple) -> str:
+    """A pydantic error location as a field path: ``floors[2].elevation_m``."""
     out = ""
     for part in loc:
         out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
@@ -445,7 +446,7 @@ def _wire_error(exc: ValidationError, kind: str) -> WireError:
     errors = exc.errors(include_url=False)
     reasons = [_REASON_OF_ERROR.get(e["type"], "schema") for e in errors]
     reason = min(reasons, key=REJECT_REASONS.index)
-    parts = [f"{_loc(e['loc'])}: {e['msg']}{_shown(e)}" if e["loc"] else e["msg"] for e in errors]
+    parts = [f"{error_location(e['loc'])}: {e['msg']}{_shown(e)}" if e["loc"] else e["msg"] for e in errors]
     return WireError(reason, f"{kind}: " + "; ".join(parts))
 
 
@@ -573,6 +574,28 @@ def is_valid_id(value: str) -> bool:
 # ------------------------------------------------------------------------------------------
 # JSON Schema (for readers in other languages)
 # ------------------------------------------------------------------------------------------
+TRACK_FIELDS = ("t", "x", "y", "floor", "heading")
+
+
+def encode_track(responder: str, track: dict, smoothed: bool) -> bytes:
+    """The reply of a ``.../track`` query: a msgpack map with ``responder``, ``smoothed`` and
+    the arrays t (s), x, y (m, ENU), floor, heading (ENU yaw, rad; NaN when unknown) as
+    little-endian float64 bins, like every other array on the wire."""
+    d = {"v": SCHEMA_VERSION, "kind": "track", "responder": responder, "smoothed": bool(smoothed)}
+    for k in TRACK_FIELDS:
+        d[k] = np.asarray(track[k], "<f8").tobytes()
+    return msgpack.packb(d, use_bin_type=True)
+
+
+def decode_track(payload: bytes) -> dict:
+    """:func:`encode_track` back to numpy arrays."""
+    d = msgpack.unpackb(payload, raw=False)
+    out = {k: d[k] for k in ("responder", "smoothed")}
+    for k in TRACK_FIELDS:
+        out[k] = np.frombuffer(d[k], "<f8")
+    return out
+
+
 def json_schema() -> dict:
     """One JSON Schema document: a definition per message kind (with the envelope keys), the
     key-expression layout, the array encoding and the limits a reader enforces."""

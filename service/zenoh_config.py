@@ -11,10 +11,18 @@ laptop must not start talking to whatever else is on the fire service's network.
 from __future__ import annotations
 
 import json
+import socket
 
 import zenoh
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def free_local_port() -> int:
+    """A TCP port free on 127.0.0.1 now (tests, benchmarks, a console on ``--port 0``)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def _base(mode: str) -> zenoh.Config:

@@ -1,7 +1,6 @@
 """Record an incident from a real zenoh router on loopback, then replay it into the router."""
 from __future__ import annotations
 
-import socket
 import threading
 import time
 
@@ -13,25 +12,16 @@ from typer.testing import CliRunner
 
 from service.record_cli import client_config, record, record_command, replay, replay_command
 from service.recorder import IncidentRecorder, read_recording
+from service.zenoh_config import free_local_port, router_config
 
 TIMEOUT_S = 10.0
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture
 def router():
     """An in-process zenoh router on a free loopback port, no multicast scouting."""
-    port = _free_port()
-    config = zenoh.Config()
-    config.insert_json5("mode", '"router"')
-    config.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
-    config.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(config)
+    port = free_local_port()
+    session = zenoh.open(router_config([f"tcp/127.0.0.1:{port}"]))
     try:
         yield f"tcp/127.0.0.1:{port}"
     finally:
@@ -155,7 +145,7 @@ def test_commands_report_errors_clearly(router, tmp_path):
     app.command("record")(record_command)
     app.command("replay")(replay_command)
     runner = CliRunner()
-    closed = f"tcp/127.0.0.1:{_free_port()}"
+    closed = f"tcp/127.0.0.1:{free_local_port()}"
     (tmp_path / "x.mcap").write_bytes(b"")
     res = runner.invoke(app, ["record", "--connect", closed, "--incident", "demo", "--out", str(tmp_path / "y.mcap"), "--seconds", "1"])
     assert res.exit_code == 1 and "cannot reach a zenoh router" in res.output

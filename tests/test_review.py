@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 
-import pytest
 from typer.testing import CliRunner
 
 from client.simulate import SimulationPublisher
@@ -95,3 +94,17 @@ def test_simulated_walkers_all_publish_in_real_time():
     sub.undeclare()
     cl.close()
     session.close()
+
+
+def test_reprocess_reads_a_recording_of_another_incident_id(tmp_path):
+    cfg = default_incident()
+    path = tmp_path / "other.mcap"
+    from service import wire
+    from pdr.synthetic import static_imu
+
+    imu = static_imu(seconds=5.0, rate_hz=50.0)
+    with IncidentRecorder(path, "drill-7") as rec:
+        for k, b in enumerate(wire.imu_batches_from_arrays("ff1", "d", imu.t, imu.acc, imu.gyr, per_batch=5)):
+            rec.write(wire.key("drill-7", "ff1", "imu"), wire.encode(b), 1000.0 + 0.1 * k)
+    rep = reprocess(path, cfg)
+    assert rep["inputs"] == 50 and set(rep["responders"]) == {"ff1"}

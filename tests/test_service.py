@@ -2,7 +2,6 @@
 several responders, fixes, status, the track queryable and bad input at the edge."""
 from __future__ import annotations
 
-import math
 import threading
 import time
 import warnings

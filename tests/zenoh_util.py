@@ -1,18 +1,11 @@
 """Helpers for tests on a real zenoh router on loopback (free ports, bounded waits)."""
 from __future__ import annotations
 
-import socket
 import time
 
 import zenoh
 
-from service.zenoh_config import client_config, router_config
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from service.zenoh_config import client_config, free_local_port as free_port, router_config
 
 
 def router(port: int | None = None) -> tuple[zenoh.Session, str]:

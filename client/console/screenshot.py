@@ -11,20 +11,15 @@ takes the picture.
 from __future__ import annotations
 
 import argparse
-import socket
 import time
 from pathlib import Path
 
 import numpy as np
 
+from service.zenoh_config import free_local_port
+
 CHROMIUM = "/usr/bin/chromium"
 FRAME_S = 0.1  # device seconds per IMU frame, as a wearable sends them
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def take_screenshot(out: Path, walkers: int = 7, seconds: float = 75.0, collapse_at: float = 30.0,
@@ -44,10 +39,10 @@ def take_screenshot(out: Path, walkers: int = 7, seconds: float = 75.0, collapse
     from service.zenoh_config import client_config, router_config
 
     cfg = default_incident()
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_local_port()}"
     session = zenoh.open(router_config([endpoint]))
     svc = IncidentService(session, cfg).start()
-    console = start_console(session, cfg, port=_free_port())
+    console = start_console(session, cfg, port=free_local_port())
     cl = zenoh.open(client_config(endpoint))
     names = [f"E{k + 1}-{n}" for k, n in enumerate(["Weber", "Kaya", "Novak", "Schmidt", "Rossi", "Berg", "Lang",
                                                     "Hahn", "Vogel"][:walkers])]

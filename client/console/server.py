@@ -43,6 +43,7 @@ from aiohttp import WSMsgType, web
 
 from client.console.live import LiveBoard
 from client.console.plans import grid_matrix, plan_png, plan_problem, served_plan
+from pdr.events import bearing_deg
 from service import wire
 from service.incident import IncidentConfig, UnknownCheckpointError
 
@@ -335,7 +336,7 @@ class ConsoleServer:
     # ------------------------------------------------------------------ tracks
     def _query_tracks(self, key: str) -> dict[str, dict]:
         """Blocking zenoh query (run in an executor): responder -> track as JSON-ready lists."""
-        from service.server import decode_track  # the reply format is defined once, beside the queryable
+        from service.wire import decode_track  # the reply format is defined once, with the wire format
 
         out = {}
         for reply in self.session.get(key, timeout=TRACK_QUERY_TIMEOUT_S):
@@ -344,7 +345,7 @@ class ConsoleServer:
                 continue
             d = decode_track(reply.ok.payload.to_bytes())
             yaw = d["heading"]  # ENU yaw, rad (gtsam theta); NaN on dead-reckoning tracks
-            bearing = np.mod(90.0 - np.degrees(yaw), 360.0)
+            bearing = bearing_deg(yaw)
             out[str(d["responder"])] = {
                 "responder": str(d["responder"]), "smoothed": bool(d["smoothed"]),
                 "t": d["t"].tolist(), "x": np.round(d["x"], 3).tolist(), "y": np.round(d["y"], 3).tolist(),
