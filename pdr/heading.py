@@ -96,6 +96,7 @@ import numpy as np
 
 from pdr import quaternion as quat
 from pdr.ahrs import make_filter
+from pdr.windows import norm3, unwrap_turns, window_moments
 
 TWO_PI = 2.0 * math.pi
 
@@ -189,7 +190,8 @@ class HeadingEstimator:
         self.bias = np.zeros(3)  # rad/s, current gyro bias estimate
         self._t0: float | None = None
         self._tail = {"t": np.empty(0), "g": np.empty((0, 3)), "a": np.empty(0)}
-        self._psi_last: float | None = None  # last unwrapped gyro heading
+        self._raw_last: float | None = None  # last gyro heading, wrapped
+        self._turns = 0  # whole turns of the gyro heading at that sample
         self._epoch = {k: np.empty(0) for k in ("t", "psi", "d", "norm", "inc", "w")}
         self._ref_norm = s.field_norm
         self._ref_inc = s.field_inclination
@@ -229,24 +231,25 @@ class HeadingEstimator:
         q = self._ahrs.update(t, acc, gyr - bias)
         R = quat.to_matrix(q)
         f = R @ self._fwd
-        psi = np.unwrap(np.arctan2(f[:, 1], f[:, 0]))
-        if self._psi_last is not None:
-            psi += TWO_PI * np.round((self._psi_last - psi[0]) / TWO_PI)
-        self._psi_last = float(psi[-1])
+        raw = np.arctan2(f[:, 1], f[:, 0])
+        turns, self._turns = unwrap_turns(raw, self._raw_last, self._turns)
+        self._raw_last = float(raw[-1])
+        psi = raw + TWO_PI * turns
         if use_mag:
             mag = np.asarray(mag, float).reshape(-1, 3)
             mn = np.einsum("nij,nj->ni", R, mag)
             d = wrap(0.5 * np.pi - s.declination - np.arctan2(mn[:, 1], mn[:, 0]))
-            norm = np.linalg.norm(mag, axis=1)
+            norm = norm3(mag)
             inc = np.arctan2(-mn[:, 2], np.hypot(mn[:, 0], mn[:, 1]))
         else:
             d = norm = inc = np.full(len(t), np.nan)
         self.samples = {"t": t, "psi_gyro": psi, "delta_mag": d, "norm": norm, "inclination": inc, "bias": bias, "q": q}
-        self._run_epochs(t, psi, d, norm, inc, np.linalg.norm(gyr - bias, axis=1))
+        self._run_epochs(t, psi, d, norm, inc, norm3(gyr - bias))
         # older samples leave before the new ones come in, so every sample of this batch
         # stays until the next one: steps found in it later (update with step_times only)
-        # still find their samples, however large the batch
-        keep = self._buf["t"] > (t[-1] - 4 * s.max_step_duration)
+        # still find their samples, however large the batch; and what a step the detector
+        # still holds back (up to a few steps before this batch) needs stays too
+        keep = self._buf["t"] > (t[0] - 4 * s.max_step_duration)
         for k, v in (("t", t), ("psi", psi), ("d", d), ("norm", norm), ("inc", inc)):
             self._buf[k] = np.concatenate([self._buf[k][keep], v])
         return self._answer_steps()
@@ -256,21 +259,14 @@ class HeadingEstimator:
         s = self.settings
         T = np.concatenate([self._tail["t"], t])
         G = np.vstack([self._tail["g"], gyr])
-        A = np.concatenate([self._tail["a"], np.linalg.norm(acc, axis=1)])
+        A = np.concatenate([self._tail["a"], norm3(acc)])
         m = len(self._tail["t"])
-        c1 = np.vstack([np.zeros((1, 4)), np.cumsum(np.c_[G, A], axis=0)])
-        c2 = np.vstack([np.zeros((1, 4)), np.cumsum(np.c_[G, A] ** 2, axis=0)])
-        idx = np.arange(m, len(T))
-        j0 = np.searchsorted(T, T[idx] - s.still_window, side="right")
-        n = (idx + 1 - j0)[:, None]
-        mean = (c1[idx + 1] - c1[j0]) / n
-        var = np.maximum((c2[idx + 1] - c2[j0]) / n - mean**2, 0.0)
-        full = (T[idx] - T[j0]) >= 0.9 * s.still_window
-        std = np.sqrt(var)
+        mean, std, _, first = window_moments(T, np.c_[G, A], m, s.still_window)
+        full = (T[m:] - T[first]) >= 0.9 * s.still_window
         still = (
             full
             & (std[:, :3].max(axis=1) < s.still_gyr_std)
-            & (np.linalg.norm(mean[:, :3], axis=1) < s.still_gyr_max)
+            & (norm3(mean[:, :3]) < s.still_gyr_max)
             & (std[:, 3] < s.still_acc_std)
         )
         # forward fill: sample i uses the candidate of the latest still sample before i

@@ -52,6 +52,7 @@ from pdr.height import AltimeterSettings, BarometricAltimeter
 from pdr.steps import SIGNAL, make_detector
 from pdr.steps.signals import norm_minus_gravity, vertical_linear_acceleration
 from pdr.step_length import ResponderProfile, step_arrays, step_lengths
+from pdr.windows import norm3, window_moments
 
 
 @dataclass(frozen=True)
@@ -135,7 +136,7 @@ class PdrPipeline:
         self._lm_t = np.empty(0)  # recent sample times and, per sample, the time it last moved
         self._lm_v = np.empty(0)
         self._first_sample = math.nan
-        self._grid_next: float | None = None
+        self._grid_k = 1  # index of the next motion-state grid point: t0 + k · state_grid_s
         self.state = MotionState.STILL
         self.state_since = math.nan
         self._walk_start = math.nan
@@ -255,22 +256,14 @@ class PdrPipeline:
         """Per sample: the window ending at it was motionless (rolling std of ‖f‖, max ‖ω‖)."""
         s = self.settings
         T = np.concatenate([self._motion_tail["t"], t])
-        A = np.concatenate([self._motion_tail["a"], np.linalg.norm(acc, axis=1)])
-        G = np.concatenate([self._motion_tail["g"], np.linalg.norm(gyr, axis=1)])
+        A = np.concatenate([self._motion_tail["a"], norm3(acc)])
+        G = np.concatenate([self._motion_tail["g"], norm3(gyr)])
         m = self._motion_tail["t"].size
-        c1 = np.concatenate(([0.0], np.cumsum(A)))
-        c2 = np.concatenate(([0.0], np.cumsum(A * A)))
-        idx = np.arange(m, T.size)
-        j0 = np.searchsorted(T, T[idx] - s.motionless_window_s, side="right")
-        n = idx + 1 - j0
-        mean = (c1[idx + 1] - c1[j0]) / n
-        std = np.sqrt(np.maximum((c2[idx + 1] - c2[j0]) / n - mean**2, 0.0))
-        # largest gyro norm in the window: a running maximum over a short window
-        gmax = _window_max(G, j0, idx)
-        full = (T[idx] - T[j0]) >= 0.9 * s.motionless_window_s
+        _, std, top, first = window_moments(T, np.c_[A, G], m, s.motionless_window_s)
+        full = (T[m:] - T[first]) >= 0.9 * s.motionless_window_s
         keep = T > T[-1] - s.motionless_window_s - 1e-9
         self._motion_tail = {"t": T[keep], "a": A[keep], "g": G[keep]}
-        return full & (std < s.motionless_acc_std) & (gmax < s.motionless_gyr)
+        return full & (std[:, 0] < s.motionless_acc_std) & (top[:, 1] < s.motionless_gyr)
 
     def _update_motion(self, t, acc, gyr) -> list[MotionEvent]:
         s = self.settings
@@ -283,13 +276,12 @@ class PdrPipeline:
         self._last_moving = float(last_moving[-1])
         self._lm_t = np.concatenate([self._lm_t, t])
         self._lm_v = np.concatenate([self._lm_v, last_moving])
-        if self._grid_next is None:
-            self._grid_next = self._t0 + s.state_grid_s
         horizon = self._t_last - s.state_delay_s
         events: list[MotionEvent] = []
-        if self._grid_next <= horizon:
-            g = np.arange(self._grid_next, horizon + 1e-9, s.state_grid_s)
-            self._grid_next = float(g[-1] + s.state_grid_s)
+        k_hi = math.floor((horizon + 1e-9 - self._t0) / s.state_grid_s)
+        if k_hi >= self._grid_k:  # grid times from whole indices: the same however frames were cut
+            g = self._t0 + s.state_grid_s * np.arange(self._grid_k, k_hi + 1)
+            self._grid_k = k_hi + 1
             i = np.searchsorted(self._lm_t, g, side="right") - 1
             lm = np.where(i >= 0, self._lm_v[np.maximum(i, 0)], -np.inf)
             lm = np.where(np.isfinite(lm), lm, self._first_sample)
@@ -309,25 +301,6 @@ class PdrPipeline:
             drop = self._lm_t < g[-1] - 1.0
             self._lm_t, self._lm_v = self._lm_t[~drop], self._lm_v[~drop]
         return events
-
-
-def _window_max(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """max(x[lo_i..hi_i]) for windows whose ends both increase (a sparse-table query)."""
-    n = x.size
-    levels = [x]
-    k = 1
-    while 2 * k <= n:
-        prev = levels[-1]
-        levels.append(np.maximum(prev[:-k], prev[k:]))
-        k *= 2
-    length = hi - lo + 1
-    p = np.floor(np.log2(np.maximum(length, 1))).astype(int)
-    out = np.empty(lo.size)
-    for lev in np.unique(p):
-        sel = p == lev
-        arr = levels[lev]
-        out[sel] = np.maximum(arr[lo[sel]], arr[hi[sel] - (1 << lev) + 1])
-    return out
 
 
 def _merge(steps: list[StepEvent], motion: list[MotionEvent]) -> list[StepEvent | MotionEvent]:

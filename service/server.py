@@ -67,6 +67,8 @@ class ServiceSettings:
     entry_sigma_m: float = 50.0  # m: responders not yet placed by a checkpoint start at the origin with this σ
     max_queue: int = 200_000  # samples waiting for the worker (beyond: the callbacks block: back-pressure)
     log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
+    max_round: int = 5000  # messages the worker takes off the queue before it runs the trackers
+    max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
 
 
 @dataclass
@@ -77,7 +79,9 @@ class Responder:
     first_heard: float
     publisher_pose: object
     publisher_status: object
-    seq: int = -1  # seq of the frame being processed
+    seq: int = -1  # seq of the newest frame the tracker has seen
+    seq_oldest: int = -1  # seq of the oldest frame in the tracker's latest batch
+    backlog: list = field(default_factory=list)  # released frames waiting for the tracker (one round)
     epoch: int = 0  # the gate's stream epoch the tracker belongs to
     poses: int = 0
     rejects: deque = field(default_factory=lambda: deque(maxlen=1024))  # receive times of rejects
@@ -109,6 +113,7 @@ class IncidentService:
         self._threads: list[threading.Thread] = []
         self._decl: list = []
         self.frames_processed = 0
+        self.tracker_batches = 0  # tracker calls: frames_processed / tracker_batches frames each on average
         self.received = {"imu": 0, "fix": 0}  # payloads taken by the worker, good or bad
         self.errors = 0
         self.recorder_error: str | None = None
@@ -117,7 +122,8 @@ class IncidentService:
         self._in_lock = threading.Lock()
         self._work_lock = threading.Lock()  # held by the worker per item; track queries wait for it
         self.busy_s = 0.0  # wall time the worker spent on items (the benchmark's capacity figure)
-        self.pose_hook = None  # callable(responder_id, Pose) after each publication (benchmarks)
+        self.pose_hook = None  # callable(responder_id, Pose, oldest seq of its batch) after each publication
+        self._dirty: dict[str, Responder] = {}  # responders with frames waiting for the round's end
         self.profiler = None  # a cProfile.Profile the worker runs under, when set before start()
         self._pending_presence: dict[str, bool] = {}  # liveliness seen before the first frame
 
@@ -203,26 +209,68 @@ class IncidentService:
                 self.profiler.disable()
 
     def _work_loop(self) -> None:
+        """Rounds: take what is queued (up to ``max_round`` messages), then run each responder's
+        tracker once over the frames it received in the round. Idle, a round is one message;
+        behind, the rounds grow and every responder's frames go through its pipeline as one
+        batch, which costs far less per frame (the pipeline gives the same events for any
+        batching), so the worker catches up instead of falling further behind."""
         while True:
-            item = self._queue.get()
+            items = [self._queue.get()]
+            while len(items) < self.settings.max_round:
+                try:
+                    items.append(self._queue.get_nowait())
+                except queue.Empty:
+                    break
             started = time.perf_counter()
+            taken = len(items)
+            stop = None in items
+            items = [i for i in items if i is not None]
             try:
-                if item is None:
-                    return
-                if self.recorder is not None and item[0] in ("imu", "fix"):
-                    self._record(item[1], item[2], item[3])
+                if self.recorder is not None:
+                    for kind, key, payload, now in items:
+                        if kind in ("imu", "fix"):
+                            self._record(key, payload, now)
                 with self._work_lock:
-                    self.feed(*item)
-            except Exception:  # a bug must not kill the service: log it, count it, go on
-                self.errors += 1
-                log.exception("error while processing %s", item[1] if item else "?")
+                    self.feed_round(items)
             finally:
                 self.busy_s += time.perf_counter() - started
-                self._queue.task_done()
+                for _ in range(taken):
+                    self._queue.task_done()
+            if stop:
+                return
+
+    def feed_round(self, items) -> None:
+        """Messages ``(kind, key, payload, receive_time)`` taken together: each is decoded and
+        gated in turn, then every responder's new frames go through its tracker as one batch
+        (a fix first runs the frames that came before it). Poses are the same as from
+        :meth:`feed` one message at a time, bit for bit. A message that raises is logged and
+        counted in ``errors``; the others go on."""
+        for item in items:
+            try:
+                self._take(*item)
+            except Exception:  # a bug must not kill the service: log it, count it, go on
+                self.errors += 1
+                log.exception("error while processing %s", item[1])
+        for r in self._take_dirty():
+            try:
+                self._run_backlog(r)
+            except Exception:
+                self.errors += 1
+                log.exception("error while running the frames of %s", r.id)
+
+    def _take_dirty(self) -> list[Responder]:
+        dirty, self._dirty = self._dirty, {}
+        return list(dirty.values())
 
     def feed(self, kind: str, key: str, payload: bytes, now: float) -> None:
-        """Process one received message (``kind`` imu, fix or tick) synchronously: the worker's
-        body, and what ``firetrack reprocess`` calls for each recorded message."""
+        """Process one received message (``kind`` imu, fix or tick) synchronously: what
+        ``firetrack reprocess`` calls for each recorded message (a round of one)."""
+        self._take(kind, key, payload, now)
+        for r in self._take_dirty():
+            self._run_backlog(r)
+
+    def _take(self, kind: str, key: str, payload: bytes, now: float) -> None:
+        """Decode and gate one message; frames wait in their responder's backlog for the round's end."""
         if kind in self.received:
             self.received[kind] += 1
         if kind == "imu":
@@ -305,17 +353,37 @@ class IncidentService:
 
     def _process(self, r: Responder, b: wire.ImuBatch) -> None:
         if r.gate.epoch != r.epoch:  # a new stream (rebooted wearable, another device): a fresh pipeline
+            self._run_backlog(r)  # the old stream's last frames end the old track
             log.warning("%s: new stream (device %s); the track restarts", r.id, b.device)
             r.epoch = r.gate.epoch
             r.tracker = self._tracker(r.id)
-        r.seq = b.seq
-        frame = ImuFrame(b.t, b.acc, b.gyr, b.mag, b.pressure_t, b.pressure)
+        if r.backlog and not _continues(r.backlog[-1], b) or len(r.backlog) >= self.settings.max_coalesce:
+            self._run_backlog(r)
+        r.backlog.append(b)
+        if r.tracker.fix_waiting:  # frame by frame until the fix is applied (see fix_waiting)
+            self._run_backlog(r)
+        else:
+            self._dirty[r.id] = r
+
+    def _run_backlog(self, r: Responder) -> None:
+        """The responder's waiting frames through its tracker as one batch; poses out."""
+        batches, r.backlog = r.backlog, []
+        if not batches:
+            return
+        frame = _frame_of(batches)
         try:
             outputs = r.tracker.on_frame(frame)
         except ValueError as e:  # e.g. a frame the gate let through that the pipeline cannot take
-            self._reject(r, "pipeline", str(e), self.clock())
+            if len(batches) > 1:  # the check comes before any state changes: find the culprit alone
+                for b in batches:
+                    r.backlog = [b]
+                    self._run_backlog(r)
+                return
+            self._reject(r, "pipeline", f"frame {batches[0].seq}: {e}", self.clock())
             return
-        self.frames_processed += 1
+        r.seq, r.seq_oldest = batches[-1].seq, batches[0].seq
+        self.frames_processed += len(batches)
+        self.tracker_batches += 1
         for o in outputs:
             if isinstance(o, PoseEstimate):
                 self._publish_pose(r, o)
@@ -338,6 +406,7 @@ class IncidentService:
         if fix.responder != r.id:
             self._count_fix_reject(r, "schema", f"responder {fix.responder!r} in a fix on the key of {r.id!r}")
             return
+        self._run_backlog(r)  # the frames that came before the fix go first
         pose = r.tracker.on_fix(domain)
         log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
         if pose is not None:
@@ -380,7 +449,7 @@ class IncidentService:
         r.publisher_pose.put(payload)
         r.poses += 1
         if self.pose_hook is not None:
-            self.pose_hook(r.id, msg)
+            self.pose_hook(r.id, msg, r.seq_oldest)
         if self.recorder is not None:
             self._record(wire.key(self.id, r.id, "pose"), payload, msg.published_at)
 
@@ -480,6 +549,27 @@ def in_shard(key_or_id: str, k: int, n: int) -> bool:
     parts = key_or_id.split("/")
     rid = parts[2] if len(parts) == 4 else key_or_id
     return zlib.crc32(rid.encode()) % n == k
+
+
+def _continues(prev: wire.ImuBatch, b: wire.ImuBatch) -> bool:
+    """Can ``b`` join ``prev`` in one pipeline batch: later samples, the same sensors."""
+    return (prev.mag is None) == (b.mag is None) and len(b.t) > 0 and len(prev.t) > 0 and b.t[0] > prev.t[-1]
+
+
+def _frame_of(batches: list[wire.ImuBatch]) -> ImuFrame:
+    """One pipeline frame of consecutive wire frames (see :func:`_continues`)."""
+    if len(batches) == 1:
+        b = batches[0]
+        return ImuFrame(b.t, b.acc, b.gyr, b.mag, b.pressure_t, b.pressure)
+
+    def cat(name):
+        parts = [getattr(b, name) for b in batches if getattr(b, name) is not None]
+        return np.concatenate(parts) if parts else None
+
+    pt = [b.pressure_t for b in batches if b.pressure_t is not None and b.pressure is not None]
+    pv = [b.pressure for b in batches if b.pressure_t is not None and b.pressure is not None]
+    return ImuFrame(cat("t"), cat("acc"), cat("gyr"), cat("mag"),
+                    np.concatenate(pt) if pt else None, np.concatenate(pv) if pv else None)
 
 
 decode_track = wire.decode_track  # the reply format lives with the wire format

@@ -105,6 +105,13 @@ class ResponderTracker:
                 out.append(p)
         return out
 
+    @property
+    def fix_waiting(self) -> bool:
+        """A fix waits for the first step past its time. Applying it may re-anchor the
+        pipeline's floor between two frames, so until then frames must come one at a time
+        for the result not to depend on how they were batched."""
+        return bool(self._pending_fixes)
+
     def on_fix(self, fix) -> PoseEstimate | None:
         """Apply a fix now if its time is covered by the steps so far, else when a step passes it."""
         last_t = self.last_step.t if self.last_step else -math.inf

@@ -33,12 +33,13 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
     svc = IncidentService(session, cfg, shard=(k, n))
     poses: list = []
     if log_poses:
-        svc.pose_hook = lambda rid, msg: poses.append((rid, msg.seq, msg.published_at))
+        svc.pose_hook = lambda rid, msg, oldest: poses.append((rid, oldest, msg.published_at))
     svc.start()
     ready.set()
     stop.wait()
     svc.wait_idle(10.0)
     stats = {"shard": k, "frames_processed": svc.frames_processed, "busy_s": svc.busy_s,
+             "tracker_batches": svc.tracker_batches,
              "responders": len(svc.responders), "errors": svc.errors, "poses": poses}
     svc.close()
     session.close()

@@ -22,6 +22,7 @@ from scipy import signal
 
 from pdr import quaternion as quat
 from pdr.constants import GRAVITY
+from pdr.windows import norm3
 
 
 
@@ -63,7 +64,7 @@ def vertical_linear_acceleration(q: np.ndarray, acc: np.ndarray, g: float = GRAV
 
 def norm_minus_gravity(acc: np.ndarray, g: float = GRAVITY) -> np.ndarray:
     """:math:`\\lVert\\mathbf f\\rVert - g` (m/s²) per sample: orientation-free, shape (N,)."""
-    return np.linalg.norm(np.asarray(acc, dtype=float), axis=-1) - g
+    return norm3(np.asarray(acc, dtype=float).reshape(-1, 3)) - g
 
 
 def vertical_from_gravity_estimate(t: np.ndarray, acc: np.ndarray, tau: float = 1.0) -> np.ndarray:
