@@ -91,11 +91,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 
 import numpy as np
 
-from pdr import quaternion as quat
 from pdr.ahrs import make_filter
+from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass
 from pdr.windows import norm3, unwrap_turns, window_moments
 
 TWO_PI = 2.0 * math.pi
@@ -192,7 +193,7 @@ class HeadingEstimator:
         self._tail = {"t": np.empty(0), "g": np.empty((0, 3)), "a": np.empty(0)}
         self._raw_last: float | None = None  # last gyro heading, wrapped
         self._turns = 0  # whole turns of the gyro heading at that sample
-        self._epoch = {k: np.empty(0) for k in ("t", "psi", "d", "norm", "inc", "w")}
+        self._epoch_state = np.zeros(EPOCH_STATE)  # the open compass epoch (see close_epochs)
         self._ref_norm = s.field_norm
         self._ref_inc = s.field_inclination
         self._ref_buf: list[np.ndarray] = []
@@ -200,7 +201,7 @@ class HeadingEstimator:
         self._P = s.sigma_init**2
         self._kf_t = -math.inf  # end time of the last epoch the filter has seen
         self._kf_psi: float | None = None  # gyro heading at that epoch end
-        self._hist = [(-math.inf, math.nan, math.inf)]  # (epoch end, δ, P) for step lookups
+        self._hist = deque([(-math.inf, math.nan, math.inf)])  # (epoch end, δ, P) for step lookups
         self._pending: list[float] = []
         self._pending_off: list[float] = []
         self._buf = {k: np.empty(0) for k in ("t", "psi", "d", "norm", "inc")}  # samples for step means
@@ -209,40 +210,31 @@ class HeadingEstimator:
         self.samples: dict[str, np.ndarray] = {}
 
     # ---------------------------------------------------------------- samples
-    def update(self, t, acc, gyr, mag=None, step_times=(), walking_offset=None) -> StepHeadings:
+    def update(self, t, acc, gyr, mag=None, step_times=(), walking_offset=None, acc_norm=None) -> StepHeadings:
+        """``acc_norm`` (N,) optionally passes ‖acc‖ when the caller has it already."""
         s = self.settings
         t = np.asarray(t, float).reshape(-1)
+        if len(t) == 0:
+            return self.steps(step_times, walking_offset)
         acc = np.asarray(acc, float).reshape(-1, 3)
         gyr = np.asarray(gyr, float).reshape(-1, 3)
         use_mag = s.use_mag and mag is not None
-        offs = np.zeros(len(step_times)) if walking_offset is None else np.asarray(walking_offset, float)
-        self._pending += [float(x) for x in np.asarray(step_times, float).reshape(-1)]
-        self._pending_off += [float(x) for x in offs.reshape(-1)]
-        if len(t) == 0:
-            return self._answer_steps()
+        self._queue_steps(step_times, walking_offset)
         if self._t0 is None:
             self._t0 = float(t[0])
 
         # filter history old enough that no step can still ask for it leaves (keep one before)
-        old = [i for i, h in enumerate(self._hist) if h[0] < t[0] - 4 * s.max_step_duration - s.epoch]
-        if len(old) > 1:
-            del self._hist[: old[-1]]
-        bias = self._bias_per_sample(t, acc, gyr) if s.estimate_bias else np.tile(self.bias, (len(t), 1))
+        limit = t[0] - 4 * s.max_step_duration - s.epoch
+        while len(self._hist) > 1 and self._hist[1][0] < limit:
+            self._hist.popleft()
+        an = norm3(acc) if acc_norm is None else acc_norm
+        bias = self._bias_per_sample(t, an, gyr) if s.estimate_bias else np.tile(self.bias, (len(t), 1))
         q = self._ahrs.update(t, acc, gyr - bias)
-        R = quat.to_matrix(q)
-        f = R @ self._fwd
-        raw = np.arctan2(f[:, 1], f[:, 0])
+        mag = np.ascontiguousarray(mag, float).reshape(-1, 3) if use_mag else np.empty((0, 3))
+        raw, d, norm, inc = level_and_compass(np.ascontiguousarray(q), self._fwd, mag, use_mag, s.declination)
         turns, self._turns = unwrap_turns(raw, self._raw_last, self._turns)
         self._raw_last = float(raw[-1])
         psi = raw + TWO_PI * turns
-        if use_mag:
-            mag = np.asarray(mag, float).reshape(-1, 3)
-            mn = np.einsum("nij,nj->ni", R, mag)
-            d = wrap(0.5 * np.pi - s.declination - np.arctan2(mn[:, 1], mn[:, 0]))
-            norm = norm3(mag)
-            inc = np.arctan2(-mn[:, 2], np.hypot(mn[:, 0], mn[:, 1]))
-        else:
-            d = norm = inc = np.full(len(t), np.nan)
         self.samples = {"t": t, "psi_gyro": psi, "delta_mag": d, "norm": norm, "inclination": inc, "bias": bias, "q": q}
         self._run_epochs(t, psi, d, norm, inc, norm3(gyr - bias))
         # older samples leave before the new ones come in, so every sample of this batch
@@ -254,14 +246,14 @@ class HeadingEstimator:
             self._buf[k] = np.concatenate([self._buf[k][keep], v])
         return self._answer_steps()
 
-    def _bias_per_sample(self, t, acc, gyr) -> np.ndarray:
+    def _bias_per_sample(self, t, acc_norm, gyr) -> np.ndarray:
         """Bias used for each sample: the gyro mean of the latest still window ending before it."""
         s = self.settings
         T = np.concatenate([self._tail["t"], t])
         G = np.vstack([self._tail["g"], gyr])
-        A = np.concatenate([self._tail["a"], norm3(acc)])
+        A = np.concatenate([self._tail["a"], acc_norm])
         m = len(self._tail["t"])
-        mean, std, _, first = window_moments(T, np.c_[G, A], m, s.still_window)
+        mean, std, _, first = window_moments(T, np.column_stack((G, A)), m, s.still_window)
         full = (T[m:] - T[first]) >= 0.9 * s.still_window
         still = (
             full
@@ -285,33 +277,17 @@ class HeadingEstimator:
     # ---------------------------------------------------------------- compass epochs + filter
     def _run_epochs(self, t, psi, d, norm, inc, w) -> None:
         s = self.settings
-        E = self._epoch
-        E = {"t": np.concatenate((E["t"], t)), "psi": np.concatenate((E["psi"], psi)), "d": np.concatenate((E["d"], d)), "norm": np.concatenate((E["norm"], norm)),
-             "inc": np.concatenate((E["inc"], inc)), "w": np.concatenate((E["w"], w))}
-        k = np.floor((E["t"] - self._t0) / s.epoch).astype(np.int64)
-        done = k < k[-1]
-        self._epoch = {n: v[~done] for n, v in E.items()}
-        if not done.any():
+        rows = close_epochs(t, psi, d, norm, inc, w, self._t0, s.epoch, self._epoch_state)
+        if not len(rows):
             return
-        kk = k[done]
-        first = np.concatenate(([0], np.flatnonzero(np.diff(kk)) + 1))
-        cnt = np.diff(np.append(first, len(kk)))
-        dd = E["d"][done]
-        cs = np.add.reduceat(np.cos(dd), first) / cnt
-        sn = np.add.reduceat(np.sin(dd), first) / cnt
+        t_end, psi_end, cs, sn, nrm, inc_m, rate = rows.T
         dm = np.arctan2(sn, cs)
         rho = np.clip(np.hypot(cs, sn), 1e-12, 1.0)
         spread = np.sqrt(-2.0 * np.log(rho))
-        nrm = np.add.reduceat(E["norm"][done], first) / cnt
-        inc_m = np.add.reduceat(E["inc"][done], first) / cnt
-        t_end = self._t0 + (kk[first] + 1) * s.epoch
-        last = np.append(first[1:], len(kk)) - 1
-        psi_end = E["psi"][done][last]
-        rate = np.add.reduceat(E["w"][done], first) / cnt
         self._learn_reference(t_end, nrm, inc_m, np.where(rate > s.max_rate, np.inf, spread))
         sig = self._measurement_sigma(spread, nrm, inc_m, t_end)
         sig = np.where(rate > s.max_rate, np.inf, sig)
-        for i in range(len(first)):  # a few epochs per second: a scalar filter loop is cheap
+        for i in range(len(t_end)):  # a few epochs per second: a scalar filter loop is cheap
             self._kf_step(t_end[i], psi_end[i], dm[i], sig[i])
 
     def _learn_reference(self, t_end, nrm, inc_m, spread) -> None:
@@ -382,6 +358,18 @@ class HeadingEstimator:
         self._hist.append((t_end, math.nan if self._delta is None else self._delta, self._P))
 
     # ---------------------------------------------------------------- steps
+    def steps(self, step_times, walking_offset=None) -> StepHeadings:
+        """Headings of steps at ``step_times`` found in samples already given (no new samples)."""
+        self._queue_steps(step_times, walking_offset)
+        return self._answer_steps()
+
+    def _queue_steps(self, step_times, walking_offset) -> None:
+        if len(step_times) == 0:
+            return
+        offs = np.zeros(len(step_times)) if walking_offset is None else np.asarray(walking_offset, float)
+        self._pending += [float(x) for x in np.asarray(step_times, float).reshape(-1)]
+        self._pending_off += [float(x) for x in offs.reshape(-1)]
+
     def _answer_steps(self) -> StepHeadings:
         s = self.settings
         B = self._buf

@@ -45,12 +45,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pdr.constants import GRAVITY
 from pdr.events import MotionEvent, MotionState, StepDetection, StepEvent
 from pdr.floors import FloorElevations, FloorSettings, FloorTracker, StairsDetector, StairsSettings
 from pdr.heading import HeadingEstimator, HeadingSettings
 from pdr.height import AltimeterSettings, BarometricAltimeter
 from pdr.steps import SIGNAL, make_detector
-from pdr.steps.signals import norm_minus_gravity, vertical_linear_acceleration
+from pdr.steps.signals import vertical_linear_acceleration
 from pdr.step_length import ResponderProfile, step_arrays, step_lengths
 from pdr.windows import norm3, window_moments
 
@@ -186,24 +187,23 @@ class PdrPipeline:
             self._t0 = float(t[0])
         self._t_last = float(t[-1])
 
-        self._heading.update(t, acc, gyr, mag)
+        acc_norm = norm3(acc)  # once: the heading's stillness test, the detector, the motion state
+        self._heading.update(t, acc, gyr, mag, acc_norm=acc_norm)
         if self._signal == "norm":
-            a = norm_minus_gravity(acc)
+            a = acc_norm - GRAVITY  # norm_minus_gravity
         else:
             a = vertical_linear_acceleration(self._heading.samples["q"], acc)
         found = self._detector.update(t, a)
-        headings = self._heading.update(np.empty(0), np.empty((0, 3)), np.empty((0, 3)), None,
-                                        step_times=[d.t for d in found])
+        headings = self._heading.steps([d.t for d in found])
         self._pending += found
         steps = self._make_steps(headings)
-        motion = self._update_motion(t, acc, gyr)
+        motion = self._update_motion(t, acc_norm, gyr)
         return _merge(steps, motion)
 
     def finish(self) -> list[StepEvent | MotionEvent]:
         """The stream has ended: steps still inside the detector are released."""
         found = self._detector.finish()
-        headings = self._heading.update(np.empty(0), np.empty((0, 3)), np.empty((0, 3)), None,
-                                        step_times=[d.t for d in found])
+        headings = self._heading.steps([d.t for d in found])
         self._pending += found
         return list(self._make_steps(headings))
 
@@ -252,22 +252,22 @@ class PdrPipeline:
         self._step_times = np.concatenate([self._step_times[-64:], hd.t])
         return events
 
-    def _motionless(self, t, acc, gyr) -> np.ndarray:
+    def _motionless(self, t, acc_norm, gyr) -> np.ndarray:
         """Per sample: the window ending at it was motionless (rolling std of ‖f‖, max ‖ω‖)."""
         s = self.settings
         T = np.concatenate([self._motion_tail["t"], t])
-        A = np.concatenate([self._motion_tail["a"], norm3(acc)])
+        A = np.concatenate([self._motion_tail["a"], acc_norm])
         G = np.concatenate([self._motion_tail["g"], norm3(gyr)])
         m = self._motion_tail["t"].size
-        _, std, top, first = window_moments(T, np.c_[A, G], m, s.motionless_window_s)
+        _, std, top, first = window_moments(T, np.column_stack((A, G)), m, s.motionless_window_s)
         full = (T[m:] - T[first]) >= 0.9 * s.motionless_window_s
         keep = T > T[-1] - s.motionless_window_s - 1e-9
         self._motion_tail = {"t": T[keep], "a": A[keep], "g": G[keep]}
         return full & (std[:, 0] < s.motionless_acc_std) & (top[:, 1] < s.motionless_gyr)
 
-    def _update_motion(self, t, acc, gyr) -> list[MotionEvent]:
+    def _update_motion(self, t, acc_norm, gyr) -> list[MotionEvent]:
         s = self.settings
-        still = self._motionless(t, acc, gyr)
+        still = self._motionless(t, acc_norm, gyr)
         if math.isnan(self._first_sample):
             self._first_sample = float(t[0])
         # time of the latest moving sample at or before each sample

@@ -34,6 +34,7 @@ from scipy import signal
 from pdr.events import StepDetection
 from pdr.settings import settings_with  # noqa: F401  (re-exported)
 from pdr.steps.signals import estimate_rate
+from pdr.steps.sosfilter import sos_filter
 
 _TAIL_MARGIN_S = 0.5  # s kept beyond the longest step, for the extremum and crossing tests
 
@@ -132,7 +133,7 @@ class StepDetector:
     # -- internals ----------------------------------------------------------------------
     def _start(self, fs: float) -> None:
         self.rate_hz = float(fs)
-        self._sos = self._design(self.rate_hz)
+        self._sos = np.ascontiguousarray(self._design(self.rate_hz), dtype=np.float64)
 
     def _process(self, t: np.ndarray, a: np.ndarray) -> list[StepDetection]:
         if t.size == 0:
@@ -141,8 +142,8 @@ class StepDetector:
             y = a
         else:
             if self._zi is None:  # steady state for the first sample: no start-up transient
-                self._zi = signal.sosfilt_zi(self._sos) * a[0]
-            y, self._zi = signal.sosfilt(self._sos, a, zi=self._zi)
+                self._zi = np.ascontiguousarray(signal.sosfilt_zi(self._sos) * a[0])
+            y = sos_filter(self._sos, a, self._zi)
         self._t = np.concatenate([self._t, t])
         self._y = np.concatenate([self._y, y])
         n = self._t.size
