@@ -69,6 +69,7 @@ class ServiceSettings:
     log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
     max_round: int = 5000  # messages the worker takes off the queue before it runs the trackers
     max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
+    warm_up: bool = True  # run a simulated responder through the whole path before subscribing (service/warmup.py)
 
 
 @dataclass
@@ -129,6 +130,12 @@ class IncidentService:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> IncidentService:
+        if self.settings.warm_up:
+            from service.warmup import warm_up
+
+            w = warm_up(self.incident, dataclasses.replace(self.settings, warm_up=False))
+            log.info("warmed up in %.2f s (a simulated responder: %d poses, %d fixes applied)",
+                     w.seconds, w.poses, w.fixes_applied)
         s = self.session
         self._decl += [
             s.declare_subscriber(wire.key_all(self.id, "imu"), self._enqueue("imu")),

@@ -262,3 +262,17 @@ def test_rounds_of_any_size_give_the_same_poses_bit_for_bit():
         assert (p.responder, p.t, p.x, p.y, p.floor, p.steps, p.source) == (q.responder, q.t, q.x, q.y, q.floor,
                                                                              q.steps, q.source)
         assert np.array_equal(p.cov, q.cov)
+
+
+def test_warm_up_takes_a_responder_through_every_kind_of_fix():
+    """The service warms its kernels, graph and codecs on a simulated responder before it
+    subscribes; every kind of fix the incident supports must go through without an error."""
+    from service.incident import UwbAnchor
+    from service.warmup import warm_up
+
+    cfg = default_incident()
+    cfg = cfg.model_copy(update={"uwb_anchors": [UwbAnchor(id="A1", x=3.0, y=4.0)]})
+    w = warm_up(cfg)
+    assert w.errors == 0
+    assert w.poses > 10
+    assert w.fixes_applied == 4  # door checkpoint, GNSS, UWB range, second checkpoint
