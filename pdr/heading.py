@@ -96,8 +96,8 @@ from collections import deque
 import numpy as np
 
 from pdr.ahrs import make_filter
-from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass
-from pdr.windows import norm3, unwrap_turns, window_moments
+from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass, still_bias
+from pdr.windows import norm3, unwrap_turns
 
 TWO_PI = 2.0 * math.pi
 
@@ -253,22 +253,8 @@ class HeadingEstimator:
         G = np.vstack([self._tail["g"], gyr])
         A = np.concatenate([self._tail["a"], acc_norm])
         m = len(self._tail["t"])
-        mean, std, _, first = window_moments(T, np.column_stack((G, A)), m, s.still_window)
-        full = (T[m:] - T[first]) >= 0.9 * s.still_window
-        still = (
-            full
-            & (std[:, :3].max(axis=1) < s.still_gyr_std)
-            & (norm3(mean[:, :3]) < s.still_gyr_max)
-            & (std[:, 3] < s.still_acc_std)
-        )
-        # forward fill: sample i uses the candidate of the latest still sample before i
-        last = np.where(still, np.arange(len(t)), -1)
-        last = np.maximum.accumulate(last)
-        prev = np.concatenate(([-1], last[:-1]))
-        cand = mean[:, :3]
-        bias = np.where(prev[:, None] >= 0, cand[np.maximum(prev, 0)], self.bias)
-        if still.any():
-            self.bias = cand[last[-1]].copy()
+        bias, still, self.bias = still_bias(T, np.ascontiguousarray(G), A, m, s.still_window, s.still_gyr_std,
+                                            s.still_gyr_max, s.still_acc_std, np.asarray(self.bias, float))
         keep = T > T[-1] - s.still_window - 1e-9
         self._tail = {"t": T[keep], "g": G[keep], "a": A[keep]}
         self.samples_still = still
