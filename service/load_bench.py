@@ -15,11 +15,13 @@ with reliable, blocking congestion control. The service runs as in production. F
   behind), the clock starts at the oldest frame of that batch, not the newest
   (``Pose.seq``), so batching cannot flatter the figure. Steady state: after each wearable's first 3 s (``latency_warmup_max_ms`` is the worst
   of those, when numba kernels compile and trackers start);
-* ``frames_sent``/``frames_processed``/``frames_lost`` — lost = sent but never processed;
+* ``frames_sent``/``frames_processed``/``frames_lost`` — lost = sent but never processed, and
+  ``frames_not_processed`` says why (the gates' rejects by reason, frames declared lost, held);
 * ``rss_mb`` — peak resident memory of the service process (router included).
 """
 from __future__ import annotations
 
+import contextlib
 import cProfile
 import io
 import multiprocessing as mp
@@ -62,6 +64,14 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
     session.close()
 
 
+def _summed(dicts) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for d in dicts:
+        for k, v in d.items():
+            out[k] = out.get(k, 0) + v
+    return out
+
+
 WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers and graphs are built
 
 
@@ -74,53 +84,57 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
     from service.zenoh_config import router_config
 
     endpoint = f"tcp/127.0.0.1:{free_local_port()}"
-    session = zenoh.open(router_config([endpoint]))
     cfg = default_incident()
-    svc = IncidentService(session, cfg, ServiceSettings(), shard=(0, workers))
     poses: list[tuple[str, int, float]] = []
-    svc.pose_hook = lambda rid, msg, oldest: poses.append((rid, oldest, msg.published_at))
     prof = cProfile.Profile() if profile is not None else None
-    svc.profiler = prof
-    svc.start()
-    stats_dir = tempfile.mkdtemp(prefix="firetrack-bench-")
-    pool = WorkerPool(endpoint, cfg, workers, stats_dir, log_poses=True)
-    if not pool.wait_ready(120):
-        raise RuntimeError("the service workers did not start within 120 s")
-    ctx = mp.get_context("spawn")
-    ready, go = ctx.Event(), ctx.Event()
-    with tempfile.TemporaryDirectory() as tmp:
-        out = str(Path(tmp) / "sent.npz")
+    share0 = sum(in_shard(f"sim-{i:03d}", 0, workers) for i in range(responders))
+    with contextlib.ExitStack() as done:  # whatever fails, the processes, threads and sessions end
+        session = zenoh.open(router_config([endpoint]))
+        done.callback(session.close)
+        svc = IncidentService(session, cfg, ServiceSettings(), shard=(0, workers))
+        svc.pose_hook = lambda rid, msg, oldest: poses.append((rid, oldest, msg.published_at))
+        svc.profiler = prof
+        done.callback(svc.close)
+        svc.start()
+        stats_dir = done.enter_context(tempfile.TemporaryDirectory(prefix="firetrack-bench-"))
+        pool = WorkerPool(endpoint, cfg, workers, stats_dir, log_poses=True)
+        done.callback(pool.close)
+        if not pool.wait_ready(120):
+            raise RuntimeError("the service workers did not start within 120 s")
+        ctx = mp.get_context("spawn")
+        ready, go = ctx.Event(), ctx.Event()
+        out = str(Path(stats_dir) / "sent.npz")
         child = ctx.Process(target=_publisher, args=(endpoint, cfg.id, responders, seconds, rate, seed, out, ready, go))
         child.start()
-        try:
-            if not ready.wait(120):
-                raise RuntimeError("the simulated wearables did not start within 120 s")
-            log(f"{responders} wearables connected; running {seconds:g} s at {rate:g} Hz ...")
-            busy0, frames0, t0 = svc.busy_s, svc.frames_processed, time.monotonic()
-            calls0 = svc.tracker_batches
-            go.set()
-            child.join(seconds + 120)
-            if child.exitcode != 0:
-                raise RuntimeError(f"the publisher process failed (exit code {child.exitcode})")
-            sent = np.load(out)
-            send_t, per_walker = sent["send_t"], int(sent["frames_per_walker"])
-        finally:
-            if child.is_alive():
-                child.kill()
+        done.callback(lambda: child.kill() if child.is_alive() else None)
+        if not ready.wait(120):
+            raise RuntimeError("the simulated wearables did not start within 120 s")
+        log(f"{responders} wearables connected; running {seconds:g} s at {rate:g} Hz ...")
+        busy0, frames0, t0 = svc.busy_s, svc.frames_processed, time.monotonic()
+        calls0 = svc.tracker_batches
+        go.set()
+        child.join(seconds + 120)
+        if child.exitcode != 0:
+            raise RuntimeError(f"the publisher process failed (exit code {child.exitcode})")
+        sent = np.load(out)
+        send_t, per_walker, publisher_cpu = sent["send_t"], int(sent["frames_per_walker"]), float(sent["cpu"])
         frames_sent = per_walker * responders
-        share0 = sum(in_shard(f"sim-{i:03d}", 0, workers) for i in range(responders))
         deadline = time.monotonic() + drain_s
         while svc.frames_processed < per_walker * share0 and time.monotonic() < deadline:
             time.sleep(0.05)
         svc.wait_idle(5.0)
         others = pool.close()
         wall = time.monotonic() - t0
+        accounting = [svc.frame_accounting()] + [s.get("frames_not_processed", {}) for s in others]
     per_sample = rate / 10.0
-    shards = [{"frames_processed": svc.frames_processed - frames0, "busy_s": svc.busy_s - busy0,
-               "responders": share0, "tracker_batches": svc.tracker_batches - calls0}] + others
+    # counts from the start (the first frame of each wearable went out before the timed run);
+    # capacity from what was processed while the worker's busy time was being counted
+    shards = [{"frames_processed": svc.frames_processed, "frames_timed": svc.frames_processed - frames0,
+               "busy_s": svc.busy_s - busy0, "responders": share0,
+               "tracker_batches": svc.tracker_batches - calls0}] + others
     processed = sum(s["frames_processed"] for s in shards)
-    samples = processed * per_sample
-    capacity = [(s["frames_processed"] * per_sample / s["busy_s"]) / (s["responders"] * rate)
+    samples = sum(s.get("frames_timed", s["frames_processed"]) for s in shards) * per_sample
+    capacity = [(s.get("frames_timed", s["frames_processed"]) * per_sample / s["busy_s"]) / (s["responders"] * rate)
                 for s in shards if s["busy_s"] > 0 and s["responders"]]
     for s in others:
         poses += [tuple(p) for p in s["poses"]]
@@ -132,8 +146,6 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
             (warm if seq < WARMUP_FRAMES else lat).append(pub - send_t[i, seq])
     lat = np.array(lat) * 1e3
     warm = np.array(warm) * 1e3
-    svc.close()
-    session.close()
     result = {
         "responders": responders,
         "rate_hz": rate,
@@ -146,11 +158,13 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "frames_sent": frames_sent,
         "frames_processed": processed,
         "frames_lost": frames_sent - processed,
+        "frames_not_processed": _summed(accounting),
         "poses": len(poses),
         "workers": workers,
-        "frames_per_tracker_batch": round(processed / max(sum(s["tracker_batches"] for s in shards), 1), 2),
+        "frames_per_tracker_batch": round(sum(s.get("frames_timed", s["frames_processed"]) for s in shards)
+                                          / max(sum(s["tracker_batches"] for s in shards), 1), 2),
         "worker_busy_fraction": [round(s["busy_s"] / wall, 3) for s in shards],
-        "publisher_cpu_s": float(sent["cpu"]),
+        "publisher_cpu_s": publisher_cpu,
         "rss_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
                    + resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0,
     }

@@ -69,6 +69,8 @@ class ServiceSettings:
     log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
     max_round: int = 5000  # messages the worker takes off the queue before it runs the trackers
     max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
+    imu_channel: int = 20_000  # frames zenoh may hold for the worker (beyond: back-pressure to the router)
+    idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
     warm_up: bool = True  # run a simulated responder through the whole path before subscribing (service/warmup.py)
 
 
@@ -120,13 +122,15 @@ class IncidentService:
         self.recorder_error: str | None = None
         self.published: list[tuple[str, bytes]] = []  # offline only: (key, payload) in order
         self._rec_lock = threading.Lock()
-        self._in_lock = threading.Lock()
         self._work_lock = threading.Lock()  # held by the worker per item; track queries wait for it
         self.busy_s = 0.0  # wall time the worker spent on items (the benchmark's capacity figure)
         self.pose_hook = None  # callable(responder_id, Pose, oldest seq of its batch) after each publication
         self._dirty: dict[str, Responder] = {}  # responders with frames waiting for the round's end
         self.profiler = None  # a cProfile.Profile the worker runs under, when set before start()
         self._pending_presence: dict[str, bool] = {}  # liveliness seen before the first frame
+        self._imu = None  # the frames' subscriber (a zenoh FIFO channel), once started
+        self._looks = 0  # times the worker looked for input ...
+        self._last_busy_look = 0  # ... and the last time it found some (wait_idle)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> IncidentService:
@@ -137,8 +141,12 @@ class IncidentService:
             log.info("warmed up in %.2f s (a simulated responder: %d poses, %d fixes applied)",
                      w.seconds, w.poses, w.fixes_applied)
         s = self.session
+        # frames wait in zenoh's own channel until the worker takes them, with no Python
+        # callback per frame: at hundreds of frames a second such callbacks queue for the GIL
+        # behind the worker and hold the frames back; fixes are few and come by callback
+        self._imu = s.declare_subscriber(wire.key_all(self.id, "imu"),
+                                         zenoh.handlers.FifoChannel(self.settings.imu_channel))
         self._decl += [
-            s.declare_subscriber(wire.key_all(self.id, "imu"), self._enqueue("imu")),
             s.declare_subscriber(wire.key_all(self.id, "fix"), self._enqueue("fix")),
             s.declare_queryable(wire.key_all(self.id, "track"), self._on_track_query),
             s.liveliness().declare_subscriber(wire.key_all(self.id, "presence"), self._on_presence, history=True),
@@ -163,19 +171,27 @@ class IncidentService:
             except Exception:  # already gone with a closed session
                 pass
         self._decl.clear()
-        self._queue.put(None)
+        self._queue.put(None)  # the worker takes the frames still in the channel first, then stops
         self._stop.set()
         for th in self._threads:
             th.join(timeout)
         self._threads.clear()
+        if self._imu is not None:
+            try:
+                self._imu.undeclare()
+            except Exception:
+                pass
+            self._imu = None
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
-        """Block until everything received so far is processed (tests, benchmarks)."""
+        """Block until everything received so far is processed (tests, benchmarks): the worker
+        has looked at its inputs since the call and found nothing left to do."""
         deadline = time.monotonic() + timeout
+        seen = self._looks
         while time.monotonic() < deadline:
-            if self._queue.unfinished_tasks == 0:
+            if self._looks > seen + 1 and self._last_busy_look < self._looks and self._queue.unfinished_tasks == 0:
                 return True
-            time.sleep(0.01)
+            time.sleep(0.005)
         return False
 
     # ------------------------------------------------------------------ zenoh callbacks
@@ -184,12 +200,7 @@ class IncidentService:
             key = str(sample.key_expr)
             if self.shard[1] > 1 and not in_shard(key, *self.shard):
                 return  # another worker's responder
-            payload = sample.payload.to_bytes()
-            # zenoh may run callbacks of different keys on different threads: stamping and queueing
-            # under one lock makes the processing order the receive-time order, which is the
-            # order a recording is read back in (so ``reprocess`` sees what the worker saw)
-            with self._in_lock:
-                self._queue.put((kind, key, payload, self.clock()))
+            self._queue.put((kind, key, sample.payload.to_bytes()))
         return callback
 
     def _on_presence(self, sample: zenoh.Sample) -> None:
@@ -216,22 +227,43 @@ class IncidentService:
                 self.profiler.disable()
 
     def _work_loop(self) -> None:
-        """Rounds: take what is queued (up to ``max_round`` messages), then run each responder's
-        tracker once over the frames it received in the round. Idle, a round is one message;
-        behind, the rounds grow and every responder's frames go through its pipeline as one
-        batch, which costs far less per frame (the pipeline gives the same events for any
-        batching), so the worker catches up instead of falling further behind."""
+        """Rounds: take the frames waiting in zenoh's channel (up to ``max_round``), then the
+        fixes and ticks queued by callbacks, then run each responder's tracker once over the
+        frames it received in the round. Each message is stamped with its receive time as it
+        is taken, in the order it is processed — the order a recording is read back in, so
+        ``reprocess`` sees what the worker saw. Idle, a round is a frame or two; behind, the
+        rounds grow and every responder's frames go through its pipeline as one batch, which
+        costs far less per frame (the pipeline gives the same events for any batching), so
+        the worker catches up instead of falling further behind."""
+        quick, slow = self.settings.idle_poll_s
+        last_frame = -math.inf
+        stop = False
         while True:
-            items = [self._queue.get()]
-            while len(items) < self.settings.max_round:
+            items = self._take_frames(self.settings.max_round)
+            taken = 0
+            while len(items) < self.settings.max_round or not items:
                 try:
-                    items.append(self._queue.get_nowait())
+                    item = self._queue.get(timeout=quick if time.monotonic() - last_frame < 1.0 else slow) \
+                        if not items and not stop else self._queue.get_nowait()
                 except queue.Empty:
                     break
+                taken += 1
+                if item is None:
+                    stop = True
+                    items += self._take_frames(None)  # what is still in the channel goes first
+                    continue
+                items.append((*item[:3], self.clock()) if item[0] != "tick" else item)
+            self._looks += 1
+            if not items:
+                for _ in range(taken):
+                    self._queue.task_done()
+                if stop:
+                    return
+                continue
+            self._last_busy_look = self._looks
+            if items[0][0] == "imu":
+                last_frame = time.monotonic()
             started = time.perf_counter()
-            taken = len(items)
-            stop = None in items
-            items = [i for i in items if i is not None]
             try:
                 if self.recorder is not None:
                     for kind, key, payload, now in items:
@@ -245,6 +277,25 @@ class IncidentService:
                     self._queue.task_done()
             if stop:
                 return
+
+    def _take_frames(self, limit: int | None) -> list:
+        """Frames waiting in zenoh's channel for this worker's responders, stamped as taken."""
+        out: list = []
+        if self._imu is None:
+            return out
+        sharded = self.shard[1] > 1
+        while limit is None or len(out) < limit:
+            try:
+                sample = self._imu.try_recv()
+            except zenoh.ZError:  # undeclared (closing)
+                break
+            if sample is None:
+                break
+            key = str(sample.key_expr)
+            if sharded and not in_shard(key, *self.shard):
+                continue  # another worker's responder
+            out.append(("imu", key, sample.payload.to_bytes(), self.clock()))
+        return out
 
     def feed_round(self, items) -> None:
         """Messages ``(kind, key, payload, receive_time)`` taken together: each is decoded and
@@ -418,6 +469,18 @@ class IncidentService:
         log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
         if pose is not None:
             self._publish_pose(r, pose)
+
+    def frame_accounting(self) -> dict[str, int]:
+        """Over all responders: frames rejected by reason, declared lost, still held by a gate."""
+        out: dict[str, int] = dict(self.unattributed)
+        with self._lock:
+            responders = list(self.responders.values())
+        for r in responders:
+            for reason, n in r.gate.counts.items():
+                out[reason] = out.get(reason, 0) + n
+            out["lost"] = out.get("lost", 0) + r.gate.lost
+            out["held"] = out.get("held", 0) + r.gate.held + len(r.backlog)
+        return {k: v for k, v in out.items() if v}
 
     def _count_fix_reject(self, r: Responder, reason: str, detail: str) -> None:
         r.fixes_rejected[reason] = r.fixes_rejected.get(reason, 0) + 1

@@ -37,14 +37,29 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
     svc.start()
     ready.set()
     stop.wait()
-    svc.wait_idle(10.0)
+    _drain(svc, quiet_s=0.5, timeout=20.0)
     stats = {"shard": k, "frames_processed": svc.frames_processed, "busy_s": svc.busy_s,
-             "tracker_batches": svc.tracker_batches,
+             "tracker_batches": svc.tracker_batches, "frames_not_processed": svc.frame_accounting(),
              "responders": len(svc.responders), "errors": svc.errors, "poses": poses}
     svc.close()
     session.close()
     if stats_path:
         Path(stats_path).write_text(json.dumps(stats))
+
+
+def _drain(svc, quiet_s: float, timeout: float) -> None:
+    """Until the worker's queue is empty and nothing new has come in for ``quiet_s`` (frames
+    still in flight from the router when the stop came are processed, not dropped)."""
+    deadline = time.monotonic() + timeout
+    last, since = None, time.monotonic()
+    while time.monotonic() < deadline:
+        svc.wait_idle(max(0.0, deadline - time.monotonic()))
+        seen = sum(svc.received.values())
+        if seen != last:
+            last, since = seen, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            return
+        time.sleep(0.05)
 
 
 class WorkerPool:

@@ -84,3 +84,17 @@ def test_schema_command_writes_json_schema(tmp_path):
     text = json.dumps(doc)
     for kind in ("ImuBatch", "Fix", "Pose", "Status"):
         assert kind in text
+
+
+def test_load_bench_reports_every_figure_and_loses_nothing():
+    """``firetrack bench`` end to end at a toy size: a real router, two workers, a publisher process."""
+    from service.load_bench import bench_service
+
+    r = bench_service(responders=6, seconds=6.0, workers=2, log=lambda m: None)
+    for key in ("responders", "rate_hz", "samples_per_s", "realtime_factor", "latency_p50_ms", "latency_p99_ms",
+                "frames_sent", "frames_processed", "frames_lost", "rss_mb"):
+        assert key in r, key
+    assert r["frames_sent"] == 6 * 61  # the first frame, then 10 a second
+    assert r["frames_lost"] == 0 and r["frames_not_processed"] == {}
+    assert r["realtime_factor"] > 1
+    assert 0 < r["latency_p50_ms"] <= r["latency_p99_ms"]
