@@ -40,6 +40,9 @@ def reprocess_command(
         fail(f"{file}: {e}")
         raise typer.Exit(1)
     tracks = rep.pop("tracks")
+    if rep["errors"]:
+        fail(f"{file}: {rep['errors']} message(s) raised an error while reprocessing (see the log above); "
+             "the other messages were processed")
     if export is not None:
         try:
             _export(tracks, cfg, export)

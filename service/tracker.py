@@ -107,10 +107,12 @@ class ResponderTracker:
 
     @property
     def fix_waiting(self) -> bool:
-        """A fix waits for the first step past its time. Applying it may re-anchor the
-        pipeline's floor between two frames, so until then frames must come one at a time
-        for the result not to depend on how they were batched."""
-        return bool(self._pending_fixes)
+        """A checkpoint fix waits for the first step past its time. Applying it re-anchors the
+        pipeline's floor (and may place the track) between two frames, so until then frames
+        must come one at a time for the result not to depend on how they were batched. GNSS
+        and UWB fixes only touch the factor graph, which sees the same sequence of steps and
+        fixes however the frames were batched."""
+        return any(isinstance(f, CheckpointFix) for _, _, f in self._pending_fixes)
 
     def on_fix(self, fix) -> PoseEstimate | None:
         """Apply a fix now if its time is covered by the steps so far, else when a step passes it."""

@@ -211,7 +211,8 @@ def test_motionless_responder_raises_man_down(live):
 
 def _simulated_messages(n_walkers=3, seconds=60.0, fix_every_s=7.0):
     """(kind, key, payload) of simulated walkers interleaved as they would arrive: frames of
-    10 samples, a checkpoint fix at each one's start and then every ``fix_every_s``."""
+    10 samples, a checkpoint fix at each one's start and then every ``fix_every_s``, GNSS
+    fixes in between."""
     from pdr.simulation import WalkerFleet
 
     cfg = default_incident()
@@ -225,6 +226,10 @@ def _simulated_messages(n_walkers=3, seconds=60.0, fix_every_s=7.0):
                 floor = int(b.floor[0]) - (k // int(fix_every_s * 10)) % 2
                 fix = wire.Fix.checkpoint(names[i], float(b.t[0]), x=float(b.x[0]), y=float(b.y[0]),
                                           floor=max(floor, -2), sigma=0.3)
+                out.append(("fix", wire.key(cfg.id, names[i], "fix"), wire.encode(fix)))
+            if k % 30 == 15:  # and a GNSS fix every 3 s, 2 m off
+                lat, lon, _ = cfg.to_geodetic(float(b.x[0]) + 2.0, float(b.y[0]))
+                fix = wire.Fix.gnss(names[i], float(b.t[0]), lat=float(lat), lon=float(lon), accuracy=4.0)
                 out.append(("fix", wire.key(cfg.id, names[i], "fix"), wire.encode(fix)))
             msg = wire.ImuBatch(responder=names[i], device="sim", seq=k, t=b.t, acc=b.acc, gyr=b.gyr, mag=b.mag,
                                 pressure_t=b.pressure_t, pressure=b.pressure)
@@ -257,7 +262,8 @@ def test_rounds_of_any_size_give_the_same_poses_bit_for_bit():
     assert rounds.tracker_batches < 0.5 * one.tracker_batches  # frames were joined
     assert rounds.frames_processed == one.frames_processed == sum(k == "imu" for k, _, _ in msgs)
     assert len(a) == len(b) > 100
-    assert sum(p.source == "fused" for p in a) > 50  # the fixes were applied
+    assert sum(p.source == "fused" for p in a) > 50  # the fixes were applied ...
+    assert all(r.tracker.fixes_applied > 15 for r in rounds.responders.values())  # ... GNSS ones too
     for p, q in zip(a, b):
         assert (p.responder, p.t, p.x, p.y, p.floor, p.steps, p.source) == (q.responder, q.t, q.x, q.y, q.floor,
                                                                              q.steps, q.source)
