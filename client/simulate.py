@@ -39,7 +39,8 @@ class SimulationPublisher:
     """N simulated wearables on one zenoh session, advanced one frame at a time."""
 
     def __init__(self, session: zenoh.Session, incident_id: str, n: int, rate_hz: float = 100.0, seed: int = 0,
-                 bounds=None, floors=(0, 0), prefix: str = "sim", truth: bool = True, start_t: float = 1000.0):
+                 bounds=None, floors=(0, 0), prefix: str = "sim", truth: bool = True, start_t: float = 1000.0,
+                 start_spread_s: float = 0.0):
         self.session = session
         self.incident_id = incident_id
         self.rate_hz = rate_hz
@@ -48,6 +49,10 @@ class SimulationPublisher:
         kw = {} if bounds is None else {"bounds": bounds}
         self.fleet = WalkerFleet(n, settings, seed, responders=self.names, floors=floors, start_t=start_t,
                                  attitude=False, **kw)
+        if start_spread_s > 0:  # crews do not start walking in the same instant: each waits a while first
+            waits = np.random.default_rng([seed, 0x5747]).uniform(0.0, start_spread_s, n)
+            for i, w in enumerate(waits):
+                self.fleet.stand_still(i, float(w), at=start_t)
         self.wearables = [Wearable(session, incident_id, r) for r in self.names]
         self.seq = np.zeros(n, dtype=np.int64)
         self.truth = truth

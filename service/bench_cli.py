@@ -27,13 +27,16 @@ def bench_service_command(
     as_json: bool = typer.Option(False, "--json", help="print JSON only"),
     profile: Path = typer.Option(None, "--profile", help="profile the service's worker; write the top functions here"),
     workers: int = typer.Option(2, "--workers", help="service worker processes (one per core)"),
+    start_spread: float = typer.Option(5.0, "--start-spread",
+                                       help="s over which the wearers start walking (0: all in the same instant)"),
 ):
     """N simulated wearables through a real zenoh router against the service (see service/load_bench.py)."""
     if ctx.invoked_subcommand is not None:
         return
     from service.load_bench import bench_service
 
-    result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers)
+    result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers,
+                           start_spread_s=start_spread)
     print_json(result)
 
 

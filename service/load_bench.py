@@ -3,7 +3,11 @@
 N simulated wearables (:class:`client.simulate.SimulationPublisher`, in a separate process so
 they do not share the service's interpreter) publish 10 frames a second each through a real
 zenoh router on loopback — the service's own in-process router, as deployed by default —
-with reliable, blocking congestion control. The service runs as in production. Figures:
+with reliable, blocking congestion control. The service runs as in production. The wearers
+start walking at random moments over the first ``start_spread_s`` (5 s by default; a crew does
+not take its first step in the same instant — and the pipeline confirms a walk by releasing
+its first four steps together, so 200 wearers starting at once make one burst of 800 graph
+updates; ``--start-spread 0`` measures that worst case). Figures:
 
 * ``samples_per_s`` — IMU samples the service processed per second of the run;
 * ``realtime_factor`` — samples processed per second of the worker's busy time, over the
@@ -39,14 +43,14 @@ from service.zenoh_config import free_local_port
 
 
 def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float, seed: int, out: str,
-               ready, go) -> None:  # pragma: no cover - runs in the child process
+               ready, go, start_spread_s: float) -> None:  # pragma: no cover - runs in the child process
     import zenoh
 
     from client.simulate import SimulationPublisher
     from service.zenoh_config import client_config
 
     session = zenoh.open(client_config(endpoint))
-    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False)
+    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s)
     frames = int(seconds * 10) + 20
     send_t = np.full((n, frames), np.nan)
 
@@ -76,7 +80,8 @@ WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers 
 
 
 def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
-                  profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2) -> dict:
+                  profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2,
+                  start_spread_s: float = 5.0) -> dict:
     import zenoh
 
     from service.incident import default_incident
@@ -104,7 +109,8 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         ctx = mp.get_context("spawn")
         ready, go = ctx.Event(), ctx.Event()
         out = str(Path(stats_dir) / "sent.npz")
-        child = ctx.Process(target=_publisher, args=(endpoint, cfg.id, responders, seconds, rate, seed, out, ready, go))
+        child = ctx.Process(target=_publisher, args=(endpoint, cfg.id, responders, seconds, rate, seed, out, ready, go,
+                                                            start_spread_s))
         child.start()
         done.callback(lambda: child.kill() if child.is_alive() else None)
         if not ready.wait(120):
@@ -150,6 +156,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "responders": responders,
         "rate_hz": rate,
         "seconds": seconds,
+        "start_spread_s": start_spread_s,
         "samples_per_s": samples / wall,
         "realtime_factor": min(capacity) if capacity else None,
         "latency_p50_ms": float(np.percentile(lat, 50)) if lat.size else None,

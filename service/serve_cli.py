@@ -190,6 +190,7 @@ def simulate_command(
     incident_id: str = typer.Option(None, "--incident", help="incident id (default: the config's)"),
     config: Path = typer.Option(None, "--config", help="incident config (the building the walkers roam)"),
     seed: int = typer.Option(0, "--seed", help="random seed of the walkers"),
+    start_spread: float = typer.Option(5.0, "--start-spread", help="s over which the walkers start walking"),
 ):
     """Publish synthetic walkers in the incident's building; their true positions go on .../truth."""
     from client.simulate import SimulationPublisher, building_bounds
@@ -199,7 +200,8 @@ def simulate_command(
     session = _client_session(connect)
     floors = (min(f.number for f in cfg.floors), max(f.number for f in cfg.floors)) if cfg.floors else (0, 0)
     try:
-        pub = SimulationPublisher(session, cfg.id, responders, rate, seed, bounds=building_bounds(cfg), floors=floors)
+        pub = SimulationPublisher(session, cfg.id, responders, rate, seed, bounds=building_bounds(cfg), floors=floors,
+                                  start_spread_s=start_spread)
         try:
             frames = pub.run(seconds, stop)
         finally:
