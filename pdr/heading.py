@@ -253,7 +253,7 @@ class HeadingEstimator:
         G = np.vstack([self._tail["g"], gyr])
         A = np.concatenate([self._tail["a"], acc_norm])
         m = len(self._tail["t"])
-        bias, still, self.bias = still_bias(T, np.ascontiguousarray(G), A, m, s.still_window, s.still_gyr_std,
+        bias, still, self.bias = still_bias(T, np.column_stack((G, A)), m, s.still_window, s.still_gyr_std,
                                             s.still_gyr_max, s.still_acc_std, np.asarray(self.bias, float))
         keep = T > T[-1] - s.still_window - 1e-9
         self._tail = {"t": T[keep], "g": G[keep], "a": A[keep]}

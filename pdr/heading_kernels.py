@@ -11,6 +11,8 @@ import math
 import numpy as np
 from numba import njit
 
+from pdr.windows import trailing_moments
+
 TWO_PI = 2.0 * math.pi
 
 
@@ -93,46 +95,26 @@ def close_epochs(t, psi, d, norm, inc, w, t0, epoch, state):  # pragma: no cover
 
 
 @njit(cache=True)
-def still_bias(T, G, A, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma: no cover - compiled
+def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma: no cover - compiled
     """Gyro bias for each sample ``start..n-1`` (see ``HeadingEstimator._bias_per_sample``).
 
-    A sample is *still* when its trailing ``window`` (s) is at least 90 % full and, over it,
+    ``X`` (n, 4) holds the gyro axes and the specific-force norm. A sample is *still* when its
+    trailing ``window`` (s) is at least 90 % full and, over it (:func:`pdr.windows.window_moments`),
     every gyro axis varies less than ``gyr_std``, the gyro mean is shorter than ``gyr_max``
-    and the specific-force norm ``A`` varies less than ``acc_std`` (two-pass moments, as in
-    :mod:`pdr.windows`). Each sample uses the gyro mean of the latest still sample before
-    it, else ``bias0``. Returns the biases (n − start, 3), the still flags, the bias after
-    the last sample."""
-    n = T.shape[0]
-    out = np.empty((n - start, 3))
-    still = np.zeros(n - start, np.bool_)
+    and the force norm varies less than ``acc_std``. Each sample uses the gyro mean of the
+    latest still sample before it, else ``bias0``. Returns the biases (n − start, 3), the
+    still flags, the bias after the last sample."""
+    mean, std, _, first = trailing_moments(T, X, start, window)
+    m = T.shape[0] - start
+    out = np.empty((m, 3))
+    still = np.zeros(m, np.bool_)
     cur = bias0.copy()
-    j0 = 0
-    mean = np.empty(4)
-    for i in range(start, n):
-        r = i - start
+    for r in range(m):
         out[r, 0], out[r, 1], out[r, 2] = cur[0], cur[1], cur[2]
-        lim = T[i] - window
-        while j0 < i and T[j0] <= lim:
-            j0 += 1
-        if T[i] - T[j0] < 0.9 * window:
-            continue
-        cnt = i + 1 - j0
-        ok = True
-        for c in range(4):
-            s = 0.0
-            for j in range(j0, i + 1):
-                s += G[j, c] if c < 3 else A[j]
-            mu = s / cnt
-            ss = 0.0
-            for j in range(j0, i + 1):
-                d = (G[j, c] if c < 3 else A[j]) - mu
-                ss += d * d
-            sd = math.sqrt(ss / cnt)
-            mean[c] = mu
-            if not sd < (gyr_std if c < 3 else acc_std):  # NaN is not still
-                ok = False
-                break
-        if ok and math.sqrt(mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]) < gyr_max:
+        g = mean[r]
+        if (T[start + r] - T[first[r]] >= 0.9 * window
+                and std[r, 0] < gyr_std and std[r, 1] < gyr_std and std[r, 2] < gyr_std and std[r, 3] < acc_std
+                and math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) < gyr_max):
             still[r] = True
-            cur[0], cur[1], cur[2] = mean[0], mean[1], mean[2]
+            cur[0], cur[1], cur[2] = g[0], g[1], g[2]
     return out, still, cur

@@ -18,7 +18,7 @@ from numba import njit
 
 
 @njit(cache=True)
-def _moments(T, X, start, window):  # pragma: no cover - compiled
+def trailing_moments(T, X, start, window):  # pragma: no cover - compiled
     n, k = X.shape
     m = n - start
     mean = np.empty((m, k))
@@ -64,7 +64,7 @@ def window_moments(T: np.ndarray, X: np.ndarray, start: int, window: float):
         raise ValueError(f"X must be (n, k) with n = len(T) = {T.shape[0]}, got {X.shape}")
     if not 0 <= start <= T.shape[0]:
         raise ValueError(f"start {start} outside [0, {T.shape[0]}]")
-    return _moments(T, X, int(start), float(window))
+    return trailing_moments(T, X, int(start), float(window))
 
 
 def norm3(a: np.ndarray) -> np.ndarray:
@@ -88,4 +88,4 @@ def unwrap_turns(angle: np.ndarray, last_angle: float | None, last_turns: int) -
     return last_turns + np.cumsum(step), int(last_turns + step.sum())
 
 
-__all__ = ["window_moments", "norm3", "unwrap_turns"]
+__all__ = ["trailing_moments", "window_moments", "norm3", "unwrap_turns"]

@@ -237,46 +237,53 @@ class IncidentService:
         the worker catches up instead of falling further behind."""
         quick, slow = self.settings.idle_poll_s
         last_frame = -math.inf
-        stop = False
         while True:
             items = self._take_frames(self.settings.max_round)
-            taken = 0
-            while len(items) < self.settings.max_round or not items:
-                try:
-                    item = self._queue.get(timeout=quick if time.monotonic() - last_frame < 1.0 else slow) \
-                        if not items and not stop else self._queue.get_nowait()
-                except queue.Empty:
-                    break
-                taken += 1
-                if item is None:
-                    stop = True
-                    items += self._take_frames(None)  # what is still in the channel goes first
-                    continue
-                items.append((*item[:3], self.clock()) if item[0] != "tick" else item)
+            wait = 0.0 if items else quick if time.monotonic() - last_frame < 1.0 else slow
+            taken, stop = self._take_queued(items, wait)
             self._looks += 1
-            if not items:
-                for _ in range(taken):
-                    self._queue.task_done()
-                if stop:
-                    return
-                continue
-            self._last_busy_look = self._looks
-            if items[0][0] == "imu":
-                last_frame = time.monotonic()
-            started = time.perf_counter()
             try:
-                if self.recorder is not None:
-                    for kind, key, payload, now in items:
-                        if kind in ("imu", "fix"):
-                            self._record(key, payload, now)
-                with self._work_lock:
-                    self.feed_round(items)
+                if items:
+                    self._last_busy_look = self._looks
+                    if items[0][0] == "imu":
+                        last_frame = time.monotonic()
+                    self._run_round(items)
             finally:
-                self.busy_s += time.perf_counter() - started
                 for _ in range(taken):
                     self._queue.task_done()
             if stop:
                 return
+
+    def _take_queued(self, items: list, wait: float) -> tuple[int, bool]:
+        """Append the fixes and ticks the callbacks queued to ``items``, waiting up to ``wait``
+        s for the first. Returns how many queue entries were taken and whether one asked the
+        worker to stop (the frames still in the channel are then taken too)."""
+        try:
+            pending = [self._queue.get(timeout=wait) if wait > 0 else self._queue.get_nowait()]
+        except queue.Empty:
+            return 0, False
+        while len(items) + len(pending) < self.settings.max_round:
+            try:
+                pending.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        stop = None in pending
+        items += [(*i[:3], self.clock()) if i[0] != "tick" else i for i in pending if i is not None]
+        if stop:
+            items += self._take_frames(None)
+        return len(pending), stop
+
+    def _run_round(self, items: list) -> None:
+        started = time.perf_counter()
+        try:
+            if self.recorder is not None:
+                for kind, key, payload, now in items:
+                    if kind in ("imu", "fix"):
+                        self._record(key, payload, now)
+            with self._work_lock:
+                self.feed_round(items)
+        finally:
+            self.busy_s += time.perf_counter() - started
 
     def _take_frames(self, limit: int | None) -> list:
         """Frames waiting in zenoh's channel for this worker's responders, stamped as taken."""
@@ -415,7 +422,7 @@ class IncidentService:
             log.warning("%s: new stream (device %s); the track restarts", r.id, b.device)
             r.epoch = r.gate.epoch
             r.tracker = self._tracker(r.id)
-        if r.backlog and not _continues(r.backlog[-1], b) or len(r.backlog) >= self.settings.max_coalesce:
+        if r.backlog and (not _continues(r.backlog[-1], b) or len(r.backlog) >= self.settings.max_coalesce):
             self._run_backlog(r)
         r.backlog.append(b)
         if r.tracker.fix_waiting:  # frame by frame until the fix is applied (see fix_waiting)
