@@ -50,7 +50,7 @@ class DeadReckoning:
         c, s = math.cos(ev.heading), math.sin(ev.heading)
         R = np.array([[c, -s], [s, c]])
         sig_h = ev.heading_sigma if math.isfinite(ev.heading_sigma) else math.pi
-        Q = R @ np.diag([ev.length_sigma**2, (ev.length * sig_h) ** 2]) @ R.T
+        Q = R @ np.diag([ev.length_sigma**2, (ev.length * sig_h) ** 2]) @ R.T  # blas-ok: 2x2, one step at a time
         self.point = TrackPoint(ev.t, p.x + ev.length * c, p.y + ev.length * s, ev.heading, ev.floor,
                                 p.steps + 1, p.cov + Q)
         return self.point

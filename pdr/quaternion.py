@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from pdr.fixed_order import mat_vec
+
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
@@ -67,13 +69,17 @@ def to_matrix(q: np.ndarray) -> np.ndarray:
 
 
 def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Body -> navigation: ``q ⊗ [0, v] ⊗ q*`` for unit ``q``; shapes (...,4), (...,3)."""
-    return np.einsum("...ij,...j->...i", to_matrix(q), np.asarray(v, dtype=float))
+    """Body -> navigation: ``q ⊗ [0, v] ⊗ q*`` for unit ``q``; shapes (...,4), (...,3).
+
+    Summed in a fixed order per element (:func:`pdr.fixed_order.mat_vec`), so a sample
+    gives the same bits alone or in any batch, on any CPU's kernels.
+    """
+    return mat_vec(to_matrix(q), np.asarray(v, dtype=float))
 
 
 def rotate_inverse(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Navigation -> body: ``q* ⊗ [0, v] ⊗ q`` = ``R(q)ᵀ v`` (Justa eq. 14, 23)."""
-    return np.einsum("...ji,...j->...i", to_matrix(q), np.asarray(v, dtype=float))
+    return mat_vec(np.swapaxes(to_matrix(q), -1, -2), np.asarray(v, dtype=float))
 
 
 def from_axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:

@@ -41,6 +41,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pdr.events import StepDetection
+from pdr.fixed_order import row_dot
 
 _MAX_FREQUENCY_HZ = 4.0  # a step shorter than 0.25 s is clipped to this frequency
 
@@ -165,7 +166,7 @@ def step_lengths(steps, profile: ResponderProfile | None = None) -> np.ndarray:
     theta = np.array([profile.coefficients[c] for c in m.coefficients])
     if len(x["a_max"]) == 0:
         return np.empty(0)
-    return m.base(x, profile.height_m) + m.regressors(x, profile.height_m) @ theta
+    return m.base(x, profile.height_m) + row_dot(m.regressors(x, profile.height_m), theta)
 
 
 class Calibration(NamedTuple):

@@ -85,7 +85,8 @@ class WalkingDirection:
             return 0.0
         F, L, Z = (B[k][sel] - B[k][sel].mean() for k in ("f", "l", "z"))
         if s.mode == "pca":
-            w, v = np.linalg.eigh(np.cov(np.vstack([F, L])))
+            # blas-ok: the window is fixed by the step's time, so its shape never depends on batching
+            w, v = np.linalg.eigh(np.cov(np.vstack([F, L])))  # blas-ok: see above
             alpha = math.atan2(v[1, 1], v[0, 1])
             alpha = (alpha + math.pi / 2) % math.pi - math.pi / 2  # within ±90° of forward
         else:

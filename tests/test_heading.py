@@ -118,6 +118,7 @@ def test_declination_turns_magnetic_into_true_heading():
     assert deg(wrap(r1.heading[-1] - r0.heading[-1])) == pytest.approx(-3.6, abs=0.05)
 
 
+@pytest.mark.bitexact
 def test_batches_equal_one_batch():
     t, acc, gyr, mag, truth, steps = walk(square_rate, 30.0, bias=(0, 0, 0.002))
     one = HeadingEstimator().update(t, acc, gyr, mag, steps)

@@ -148,6 +148,7 @@ def test_reference_is_the_mean_of_the_first_seconds_and_output_is_causal():
     assert out[-1] == pytest.approx(3.0, abs=0.35)
 
 
+@pytest.mark.bitexact
 @pytest.mark.parametrize("size", [1, 7, 100])
 def test_altimeter_batches_equal_one_batch(size):
     t, h, _ = two_floors_up()
@@ -261,6 +262,7 @@ def test_ten_noisy_minutes_on_one_floor_do_not_flicker():
     assert track.changes == []
 
 
+@pytest.mark.bitexact
 @pytest.mark.parametrize("size", [1, 7, 100])
 def test_floor_tracker_batches_equal_one_batch(size):
     t, h, _ = two_floors_up()

@@ -59,6 +59,7 @@ def _run(rec, imu, per_frame):
                                       per_frame=per_frame))
 
 
+@pytest.mark.bitexact
 @pytest.mark.recording
 def test_live_frames_give_the_same_events_as_one_batch(trial52):
     rec, imu = trial52
@@ -97,6 +98,7 @@ def _cuts(n: int, sizes) -> list[tuple[int, int]]:
     return out
 
 
+@pytest.mark.bitexact
 def test_frames_of_any_mixture_of_sizes_give_the_same_events():
     """The service runs 10-sample frames one by one when idle and joins many when behind
     (up to several seconds): a simulated walk cut both ways gives the same events."""

@@ -88,6 +88,7 @@ def test_counts_synthetic_gait(name, rate):
     assert np.all(times >= peaks - 0.05) and np.all(times <= peaks + 2 / 1.8)
 
 
+@pytest.mark.bitexact
 @pytest.mark.parametrize("name", list(DETECTORS))
 def test_streaming_in_batches_equals_one_batch(name):
     t, a, _ = gait([2.5, 3.5] * 15, freq=2.0, rate=100.0, seed=3)
@@ -372,6 +373,7 @@ def test_eval_steps_command_reports_files_without_a_count(tmp_path):
     assert bad.exit_code == 2 and "Traceback" not in bad.output
 
 
+@pytest.mark.bitexact
 def test_compiled_sos_filter_matches_scipy_and_any_chunking():
     from scipy import signal
 

@@ -27,8 +27,7 @@ from pdr.settings import settings_with  # noqa: F401  (re-exported)
 
 # q_ENU<-NWU: rotation by +90° about z (NWU x = north becomes ENU y)
 _NWU_TO_ENU = quat.from_yaw(np.pi / 2)
-_TO_ENU_T = quat.left_matrix(_NWU_TO_ENU).T  # row-stacked q: q_enu = q_nwu @ _TO_ENU_T
-_FROM_ENU_T = quat.left_matrix(quat.conjugate(_NWU_TO_ENU)).T
+_ENU_TO_NWU = quat.conjugate(_NWU_TO_ENU)
 FRAMES = ("ENU", "NWU")
 
 
@@ -56,10 +55,12 @@ class OrientationFilter:
     # -- frame conversion -------------------------------------------------------------
     def _to_native(self, q: np.ndarray) -> np.ndarray:
         q = quat.normalize(q)
-        return q if self.frame == "NWU" else q @ _FROM_ENU_T
+        # Hamilton product written out element by element, not a matmul: a BLAS kernel
+        # would sum in an order that depends on the batch's shape and the CPU.
+        return q if self.frame == "NWU" else quat.multiply(_ENU_TO_NWU, q)
 
     def _from_native(self, q: np.ndarray) -> np.ndarray:
-        return q if self.frame == "NWU" else q @ _TO_ENU_T
+        return q if self.frame == "NWU" else quat.multiply(_NWU_TO_ENU, q)
 
     @property
     def q(self) -> np.ndarray | None:

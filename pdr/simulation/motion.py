@@ -93,6 +93,7 @@ import math
 import numpy as np
 
 from pdr.constants import GRAVITY
+from pdr.fixed_order import row_dot
 from pdr.height import AltimeterSettings, pressure_at_height
 
 TWO_PI = 2.0 * math.pi
@@ -165,7 +166,7 @@ def curve_offset(u, psi0, dpsi, ls):
     psi = np.asarray(psi0, float)[..., None] + np.asarray(dpsi, float)[..., None] * smooth_step(s / np.asarray(ls, float)[..., None])[0]
     half = 0.5 * u
     sn, cs = sincos(psi)
-    return half * (cs @ _GL_W), half * (sn @ _GL_W)
+    return half * row_dot(cs, _GL_W), half * row_dot(sn, _GL_W)
 
 
 def corner_cut(turn: float) -> float:

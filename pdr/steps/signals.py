@@ -84,4 +84,4 @@ def vertical_from_gravity_estimate(t: np.ndarray, acc: np.ndarray, tau: float = 
     zi = signal.lfilter_zi(b, a)
     grav = np.column_stack([signal.lfilter(b, a, acc[:, k], zi=zi * acc[0, k])[0] for k in range(3)])
     mag = np.linalg.norm(grav, axis=1)
-    return np.einsum("ij,ij->i", acc, grav) / mag - mag
+    return (acc[:, 0] * grav[:, 0] + acc[:, 1] * grav[:, 1] + acc[:, 2] * grav[:, 2]) / mag - mag
