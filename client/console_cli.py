@@ -10,7 +10,7 @@ from pathlib import Path
 
 import typer
 
-from service.console_io import err, fail, out
+from service.protocol.terminal import err, fail, out
 
 
 def console_command(
@@ -25,8 +25,8 @@ def console_command(
     import zenoh
 
     from client.console.server import ConsoleError, start_console
-    from service.serve_cli import _incident, stop_on_signals
-    from service.zenoh_config import client_config
+    from service.cli.serve import _incident, stop_on_signals
+    from service.protocol.session import client_config
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s")
     cfg = _incident(config, incident)

@@ -2,7 +2,7 @@
 
 A :class:`pdr.simulation.WalkerFleet` walks N responders through the incident's building;
 every ``1/frames_per_s`` of wall time each walker's new samples leave as one
-:class:`service.wire.ImuBatch` on ``.../imu``, and its true position as a small msgpack map
+:class:`service.protocol.wire.ImuBatch` on ``.../imu``, and its true position as a small msgpack map
 on ``.../truth`` (``{"t", "x", "y", "floor", "heading", "steps"}`` — for scoring and the
 console, never read by the service). Each walker first sends a checkpoint fix at its start
 point: the door it came in by.
@@ -19,7 +19,7 @@ import zenoh
 
 from client.wearable import Wearable
 from pdr.simulation import WalkerFleet, WalkerSettings
-from service import wire
+from service.protocol import wire
 
 FRAMES_PER_SECOND = 10.0
 

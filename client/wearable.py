@@ -1,7 +1,7 @@
 """A wearable that publishes a real recording: ``firetrack wearable --responder ID --replay FILE``.
 
 What a phone or IMU on a responder would send, taken from a recording (IPIN, Oxford, PyShoe
-or anything :func:`pdr.io.load` reads): the IMU samples as :class:`service.wire.ImuBatch`
+or anything :func:`pdr.io.load` reads): the IMU samples as :class:`service.protocol.wire.ImuBatch`
 frames of about 1/10 s, at the recording's own pace (or ``speed`` times faster), and —
 where the recording has them — its landmarks as checkpoint fixes (a tag reader at a door)
 and its GNSS fixes. A liveliness token on ``.../presence`` says the wearable is connected.
@@ -22,7 +22,7 @@ import zenoh
 
 from pdr.io import load
 from pdr.recording import Recording
-from service import wire
+from service.protocol import wire
 
 FRAMES_PER_SECOND = 10.0
 

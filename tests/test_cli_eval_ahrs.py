@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 from pdr import quaternion as quat
 from pdr.ahrs.base import _NWU_TO_ENU
 from pdr.synthetic import GRAVITY, rotating_imu
-from service.cli import app
+from client.cli import app
 
 runner = CliRunner()
 

@@ -1,4 +1,4 @@
-"""Incident configuration (service.incident): the demo museum, frames, floor plans, bad configs."""
+"""Incident configuration (service.protocol.incident): the demo museum, frames, floor plans, bad configs."""
 from __future__ import annotations
 
 import json
@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pdr.floors import FloorElevations
-from service.incident import (
+from service.protocol.incident import (
     DEFAULT_INCIDENT_PATH,
     IncidentConfig,
     IncidentConfigError,

@@ -8,10 +8,10 @@ import json
 from typer.testing import CliRunner
 
 from client.simulate import SimulationPublisher
-from service.incident import default_incident
-from service.recorder import IncidentRecorder, read_recording, recording_summary
-from service.reprocess import reprocess
-from service.server import IncidentService, ServiceSettings
+from service.protocol.incident import default_incident
+from service.review.recorder import IncidentRecorder, read_recording, recording_summary
+from service.review.reprocess import reprocess
+from service.shell.service import IncidentService, ServiceSettings
 from tests.zenoh_util import client, router, wait_until
 
 
@@ -50,7 +50,7 @@ def test_four_person_exercise_recorded_live_then_reprocessed_gives_identical_pos
 
 
 def test_exercise_and_reprocess_commands(tmp_path, shared_data):
-    from service.cli import app
+    from client.cli import app
 
     d = shared_data("ipin2023")
     files = sorted(d.glob("IPIN2023_T3_TrainingTrial2*_repetition01.txt.gz"))[:2]
@@ -74,7 +74,7 @@ def test_exercise_and_reprocess_commands(tmp_path, shared_data):
 
 
 def test_bad_exercise_arguments_are_refused(tmp_path):
-    from service.cli import app
+    from client.cli import app
 
     r = CliRunner().invoke(app, ["exercise", "--out", str(tmp_path / "x.mcap"), "--responder", "nofile"])
     assert r.exit_code == 2 and "ID=FILE" in r.output
@@ -102,7 +102,7 @@ def test_simulated_walkers_all_publish_in_real_time():
 def test_reprocess_reads_a_recording_of_another_incident_id(tmp_path):
     cfg = default_incident()
     path = tmp_path / "other.mcap"
-    from service import wire
+    from service.protocol import wire
     from pdr.synthetic import static_imu
 
     imu = static_imu(seconds=5.0, rate_hz=50.0)

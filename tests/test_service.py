@@ -12,10 +12,10 @@ import pytest
 
 from client.wearable import Wearable, paced, recording_messages
 from pdr.synthetic import static_imu
-from service import wire
-from service.incident import default_incident
-from service.server import IncidentService, ServiceSettings, decode_track
-from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker, tracker_settings_for
+from service.protocol import wire
+from service.protocol.incident import default_incident
+from service.shell.service import IncidentService, ServiceSettings, decode_track
+from service.core.tracker import CheckpointFix, PoseEstimate, ResponderTracker, tracker_settings_for
 from tests.zenoh_util import client, router, wait_until
 
 IPIN_TRIAL52 = "ipin2023/IPIN2023_T3_TrainingTrial52_repetition01.txt.gz"
@@ -276,8 +276,8 @@ def test_rounds_of_any_size_give_the_same_poses_bit_for_bit():
 def test_warm_up_takes_a_responder_through_every_kind_of_fix():
     """The service warms its kernels, graph and codecs on a simulated responder before it
     subscribes; every kind of fix the incident supports must go through without an error."""
-    from service.incident import UwbAnchor
-    from service.warmup import warm_up
+    from service.protocol.incident import UwbAnchor
+    from service.core.warmup import warm_up
 
     cfg = default_incident()
     cfg = cfg.model_copy(update={"uwb_anchors": [UwbAnchor(id="A1", x=3.0, y=4.0)]})

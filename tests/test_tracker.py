@@ -7,7 +7,7 @@ from pdr.floors import FloorElevations
 from pdr.pipeline import frames_of
 from pdr.synthetic import static_imu
 from service.fusion import GnssFix
-from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings
+from service.core.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings
 
 
 def _walk_frames(seconds=20.0, rate=50.0):

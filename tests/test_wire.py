@@ -1,4 +1,4 @@
-"""The wire schema and codec (service.wire): round trips, byte layout, every reject reason, fuzz."""
+"""The wire schema and codec (service.protocol.wire): round trips, byte layout, every reject reason, fuzz."""
 from __future__ import annotations
 
 import json
@@ -14,8 +14,8 @@ from hypothesis.extra import numpy as hnp
 from pydantic import ValidationError
 from typer.testing import CliRunner
 
-from service import wire
-from service.wire import (
+from service.protocol import wire
+from service.protocol.wire import (
     MAX_SAMPLES,
     REJECT_REASONS,
     SCHEMA_VERSION,
@@ -564,7 +564,7 @@ def test_json_schema_describes_every_kind():
 def test_schema_command_writes_stdout_and_file(tmp_path):
     import typer
 
-    from service import schema_cli
+    from service.cli import schema as schema_cli
 
     app = typer.Typer()
     app.command("schema")(schema_cli.schema_command)
@@ -585,7 +585,7 @@ def test_the_wire_module_needs_neither_gtsam_nor_zenoh():
     import subprocess
     import sys
 
-    code = ("import sys, service.wire, service.ingest; "
+    code = ("import sys, service.protocol.wire, service.core.gate; "
             "bad = [m for m in ('gtsam', 'zenoh', 'numba') if m in sys.modules]; assert not bad, bad")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr

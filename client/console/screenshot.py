@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.zenoh_config import free_local_port
+from service.protocol.session import free_local_port
 
 CHROMIUM = "/usr/bin/chromium"
 FRAME_S = 0.1  # device seconds per IMU frame, as a wearable sends them
@@ -33,10 +33,10 @@ def take_screenshot(out: Path, walkers: int = 7, seconds: float = 75.0, collapse
     from client.console.server import start_console
     from client.wearable import Wearable
     from pdr.simulation import WalkerFleet
-    from service import wire
-    from service.incident import default_incident
-    from service.server import IncidentService
-    from service.zenoh_config import client_config, router_config
+    from service.protocol import wire
+    from service.protocol.incident import default_incident
+    from service.shell.service import IncidentService
+    from service.protocol.session import client_config, router_config
 
     cfg = default_incident()
     endpoint = f"tcp/127.0.0.1:{free_local_port()}"

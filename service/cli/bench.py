@@ -11,8 +11,8 @@ import typer
 from pdr.ahrs import FILTERS, make_filter
 from pdr.ahrs.reference import scf_reference
 from pdr.synthetic import rotating_imu
-from service.console_io import err, print_json
-from service.fusion_bench import fusion_command
+from service.protocol.terminal import err, print_json
+from service.fusion.bench import fusion_command
 
 app = typer.Typer(help="Benchmarks: each prints JSON figures. Without a sub-command: the live service under load.",
                   invoke_without_command=True)
@@ -30,10 +30,10 @@ def bench_service_command(
     start_spread: float = typer.Option(5.0, "--start-spread",
                                        help="s over which the wearers start walking (0: all in the same instant)"),
 ):
-    """N simulated wearables through a real zenoh router against the service (see service/load_bench.py)."""
+    """N simulated wearables through a real zenoh router against the service (see client/load_bench.py)."""
     if ctx.invoked_subcommand is not None:
         return
-    from service.load_bench import bench_service
+    from client.load_bench import bench_service
 
     result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers,
                            start_spread_s=start_spread)

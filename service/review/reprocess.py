@@ -1,7 +1,7 @@
 """After-action review: an incident recording run through the service again, offline.
 
 ``reprocess`` feeds every recorded input (imu and fix messages, in the order and with the
-receive times they were recorded with) to an :class:`service.server.IncidentService` that has
+receive times they were recorded with) to an :class:`service.shell.service.IncidentService` that has
 no network session — the same object the live service runs, calling the same ``feed`` — and
 compares the poses it publishes with the poses recorded live, pose by pose. Frames held by
 the reorder gate are released on the recorded receive times, as live; a live run whose
@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service import wire
-from service.recorder import IncidentRecorder, read_recording
+from service.protocol import wire
+from service.review.recorder import IncidentRecorder, read_recording
 
 
 @dataclass
@@ -34,7 +34,7 @@ class ResponderReview:
 
 
 def reprocess(path: Path, incident_cfg, progress=None) -> dict:
-    from service.server import IncidentService
+    from service.shell.service import IncidentService
 
     svc = IncidentService(None, incident_cfg)
     recorded: dict[str, list[tuple[float, float, float]]] = {}
@@ -117,14 +117,14 @@ def _feed(svc, pending: list) -> None:
 
 
 def _duration(path: Path) -> float | None:
-    from service.recorder import recording_summary
+    from service.review.recorder import recording_summary
 
     return recording_summary(path)["duration"]
 
 
 def _retarget(svc, cfg, incident: str):
     """A recording of another incident id: serve it under that id (same building config)."""
-    from service.server import IncidentService
+    from service.shell.service import IncidentService
 
     if svc.responders:
         raise ValueError(f"the recording mixes incidents ({cfg.id!r} and {incident!r})")

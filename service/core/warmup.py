@@ -28,8 +28,8 @@ class WarmUp:
 def warm_up(incident, settings=None, seconds: float = WARMUP_SECONDS) -> WarmUp:
     """Run a simulated responder through an offline copy of the service."""
     from pdr.simulation import SimulatedWalker
-    from service import wire
-    from service.server import IncidentService
+    from service.protocol import wire
+    from service.shell.service import IncidentService
 
     started = time.perf_counter()
     svc = IncidentService(None, incident, settings)

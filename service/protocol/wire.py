@@ -204,7 +204,7 @@ class ImuBatch(WireMessage):
     """A frame of raw IMU samples from one device of one responder (wearable -> service).
 
     ``seq`` counts frames per device from the publisher's start (the service's
-    :class:`service.ingest.FrameGate` re-orders and detects loss with it). Pressure samples,
+    :class:`service.core.gate.FrameGate` re-orders and detects loss with it). Pressure samples,
     on the same device clock, travel with the batch whose time span contains them, so their
     times may precede ``t[0]`` (they belong after the previous batch's end).
     """

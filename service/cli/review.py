@@ -8,11 +8,11 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from service.console_io import err, fail, out, print_json
+from service.protocol.terminal import err, fail, out, print_json
 
 
 def _cfg(config: Path | None):
-    from service.incident import IncidentConfigError, default_incident, load_incident
+    from service.protocol.incident import IncidentConfigError, default_incident, load_incident
 
     try:
         return load_incident(config) if config else default_incident()
@@ -28,7 +28,7 @@ def reprocess_command(
     export: Path = typer.Option(None, "--export", help="write the smoothed tracks here: tracks.geojson, tracks.csv, <responder>.tum"),
 ):
     """Run the service pipeline offline over the recorded inputs and compare with the poses recorded live."""
-    from service.reprocess import reprocess
+    from service.review.reprocess import reprocess
 
     if not file.is_file():
         fail(f"{file}: no such recording")
@@ -64,7 +64,7 @@ def reprocess_command(
 
 
 def _export(tracks: dict, cfg, folder: Path) -> None:
-    from service.export import to_csv, to_geojson, to_tum
+    from service.review.export import to_csv, to_geojson, to_tum
 
     folder.mkdir(parents=True, exist_ok=True)
     origin = (cfg.origin.lat, cfg.origin.lon, cfg.origin.alt_m)
@@ -86,7 +86,7 @@ def exercise_command(
 ):
     """Combine single-person recordings into one multi-person exercise with aligned start times."""
     from pdr.io.errors import RecordingFormatError
-    from service.reprocess import build_exercise
+    from service.review.reprocess import build_exercise
 
     members = []
     for item in responder:

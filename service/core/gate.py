@@ -1,6 +1,6 @@
 """The frame gate at the service edge: one per responder, pure (no zenoh, no clock of its own).
 
-Frames (:class:`service.wire.ImuBatch`) can arrive twice, out of order, late or not at all;
+Frames (:class:`service.protocol.wire.ImuBatch`) can arrive twice, out of order, late or not at all;
 the PDR pipeline behind the gate needs each frame once, in order, with strictly increasing
 device time. :class:`FrameGate` turns the first stream into the second and counts what it
 turns away, so nothing is dropped silently.
@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 from collections import Counter, deque
 
-from service.wire import ImuBatch
+from service.protocol.wire import ImuBatch
 
 GATE_REASONS = ("duplicate", "late", "time_order")
 
@@ -97,7 +97,7 @@ class FrameGate:
         return self._last_t
 
     def count(self, reason: str, detail: str, receive_time: float | None = None) -> None:
-        """Count a reject found elsewhere (a decode error: :data:`service.wire.REJECT_REASONS`)."""
+        """Count a reject found elsewhere (a decode error: :data:`service.protocol.wire.REJECT_REASONS`)."""
         if receive_time is not None:
             self.last_heard = receive_time
         self._counts[reason] += 1

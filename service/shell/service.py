@@ -1,6 +1,6 @@
 """The live service of one incident: zenoh in, one tracker per responder, poses and status out.
 
-Data flow (keys from :mod:`service.wire`)::
+Data flow (keys from :mod:`service.protocol.wire`)::
 
     firetrack/{incident}/*/imu  ──► decode ─► FrameGate (order, duplicates, gaps) ─► ResponderTracker ─► .../pose
     firetrack/{incident}/*/fix  ──► decode ─► to local ENU (incident config) ──────────┘                  .../status (1 Hz)
@@ -32,10 +32,10 @@ import zenoh
 
 from pdr.events import MotionEvent, MotionState, bearing_deg
 from pdr.pipeline import ImuFrame
-from service import wire
-from service.incident import IncidentConfig, UnknownCheckpointError
-from service.ingest import FrameGate
-from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings, tracker_settings_for
+from service.protocol import wire
+from service.protocol.incident import IncidentConfig, UnknownCheckpointError
+from service.core.gate import FrameGate
+from service.core.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings, tracker_settings_for
 
 log = logging.getLogger("firetrack.service")
 
@@ -71,7 +71,7 @@ class ServiceSettings:
     max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
     imu_channel: int = 20_000  # frames zenoh may hold for the worker (beyond: back-pressure to the router)
     idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
-    warm_up: bool = True  # run a simulated responder through the whole path before subscribing (service/warmup.py)
+    warm_up: bool = True  # run a simulated responder through the whole path before subscribing (service/core/warmup.py)
 
 
 @dataclass
@@ -135,7 +135,7 @@ class IncidentService:
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> IncidentService:
         if self.settings.warm_up:
-            from service.warmup import warm_up
+            from service.core.warmup import warm_up
 
             w = warm_up(self.incident, dataclasses.replace(self.settings, warm_up=False))
             log.info("warmed up in %.2f s (a simulated responder: %d poses, %d fixes applied)",

@@ -1,4 +1,4 @@
-"""Drive a :class:`service.tracker.ResponderTracker` over one IPIN log, as the service would live.
+"""Drive a :class:`service.core.tracker.ResponderTracker` over one IPIN log, as the service would live.
 
 The log's samples go through in frames (as a wearable would send them), its landmarks are
 checkpoint fixes at their own time (landmark 0 always: the initial position; with
@@ -16,7 +16,7 @@ from pdr.evaluation.ipin import LandmarkErrors, fix_indices, score_track
 from pdr.floors import FloorElevations
 from pdr.pipeline import frames_of
 from pdr.recording import Recording
-from service.tracker import CheckpointFix, ResponderTracker, TrackerSettings
+from service.core.tracker import CheckpointFix, ResponderTracker, TrackerSettings
 
 LANDMARK_SIGMA_M = 0.3  # surveyed landmark, walker standing on it
 

@@ -10,10 +10,10 @@ import typer
 from rich.table import Table
 
 from pdr.evaluation.ipin import summary
-from service.console_io import err, fail, out, print_json, progress
-from service.eval_cli import app, load_all
-from service.ipin_run import IpinRun, run_ipin
-from service.tracker import tracker_settings_for
+from service.protocol.terminal import err, fail, out, print_json, progress
+from service.cli.eval import app, load_all
+from service.review.ipin_run import IpinRun, run_ipin
+from service.core.tracker import tracker_settings_for
 
 KINDS = ("live", "smoothed", "pdr")
 
@@ -29,7 +29,7 @@ def eval_ipin(
     plot: Path = typer.Option(None, "--plot", help="write a PNG per file (track over the landmarks, on the floor plan) into this folder"),
 ):
     """Error at each scored landmark = horizontal distance + 15 m x |floor error|; p75 and median pooled over all files."""
-    from service.incident import IncidentConfigError, default_incident, load_incident
+    from service.protocol.incident import IncidentConfigError, default_incident, load_incident
 
     if engine not in ("fusion", "dr"):
         fail(f"--engine must be fusion or dr, got {engine!r}")
@@ -56,7 +56,7 @@ def eval_ipin(
     report = _report(runs, fix_every, not no_gnss, engine)
     report["cpu_s"] = time.process_time() - started
     if plot is not None:
-        from service.ipin_plot import plot_run
+        from service.review.ipin_plot import plot_run
 
         plot.mkdir(parents=True, exist_ok=True)
         for r in progress(runs, "plotting"):

@@ -1,10 +1,10 @@
 """More than one core: the responders of an incident shared between worker processes.
 
 The per-responder work (numpy and gtsam under Python's GIL) runs on one core per process,
-so ``firetrack serve --workers K`` runs K :class:`service.server.IncidentService` workers:
+so ``firetrack serve --workers K`` runs K :class:`service.shell.service.IncidentService` workers:
 the first in the main process beside the router, the others in their own processes, each
 a zenoh client of that router. Every worker subscribes to the whole incident and keeps the
-responders whose id hashes to it (:func:`service.server.in_shard`) — it looks at the key
+responders whose id hashes to it (:func:`service.shell.service.in_shard`) — it looks at the key
 only, so the others' frames cost it a callback, not a decode. Each worker publishes the
 poses and status of its own responders and answers ``track`` queries for them; to the
 console and the wearables the K workers look like one service.
@@ -23,9 +23,9 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
 
     import zenoh
 
-    from service.incident import incident_from_dict
-    from service.server import IncidentService
-    from service.zenoh_config import client_config
+    from service.protocol.incident import incident_from_dict
+    from service.shell.service import IncidentService
+    from service.protocol.session import client_config
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us through ``stop``
     cfg = incident_from_dict(config, base_dir=base_dir)

@@ -8,7 +8,13 @@ from __future__ import annotations
 import typer
 
 from client import console_cli
-from service import bench_cli, eval_cli, record_cli, review_cli, schema_cli, serve_cli, tune_cli
+from service.cli import bench as bench_cli
+from service.cli import eval as eval_cli
+from service.cli import record as record_cli
+from service.cli import review as review_cli
+from service.cli import schema as schema_cli
+from service.cli import serve as serve_cli
+from service.cli import tune as tune_cli
 
 app = typer.Typer(
     name="firetrack",

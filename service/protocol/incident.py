@@ -44,9 +44,9 @@ import pymap3d
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo, model_validator
 from pydantic_core import PydanticCustomError
 
-from service.wire import ID_PATTERN, error_location
+from service.protocol.wire import ID_PATTERN, error_location
 
-DEFAULT_INCIDENT_PATH = Path(__file__).resolve().parents[1] / "deploy" / "incidents" / "ipin-museum.json"
+DEFAULT_INCIDENT_PATH = Path(__file__).resolve().parents[2] / "deploy" / "incidents" / "ipin-museum.json"
 DEFAULT_FLOOR_HEIGHT_M = 3.0
 POSITION_AGREEMENT_M = 0.05  # x, y and lat, lon given together must agree this well
 
@@ -89,7 +89,7 @@ class Floor(_Config):
 
 
 class Checkpoint(_Config):
-    """A named point an operator can place a responder at (a :class:`service.wire.Fix` with
+    """A named point an operator can place a responder at (a :class:`service.protocol.wire.Fix` with
     ``source="checkpoint"`` and ``name``). Give ``x, y`` (ENU, m) or ``lat, lon`` (deg); after
     loading both are filled. ``sigma_m`` is the 1-sigma horizontal uncertainty."""
 

@@ -11,8 +11,8 @@ from pdr.io import load
 from pdr.io.errors import RecordingFormatError, RecordingWarning
 from pdr.steps import DEFAULT_DETECTOR, DETECTORS, make_detector
 from pdr.steps.scoring import StepCount, count_steps, mean_abs_error_pct
-from service.console_io import fail, out, parse_params, print_json, progress, warn
-from service.eval_cli import app
+from service.protocol.terminal import fail, out, parse_params, print_json, progress, warn
+from service.cli.eval import app
 
 
 @app.command("steps")

@@ -16,7 +16,7 @@ import numpy as np
 import typer
 
 from pdr.events import StepEvent
-from service.console_io import out, print_json
+from service.protocol.terminal import out, print_json
 
 
 @dataclass(frozen=True)

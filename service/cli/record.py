@@ -1,7 +1,7 @@
 """``firetrack record`` and ``firetrack replay``: an incident's zenoh traffic to and from MCAP.
 
 ``record`` joins a router as a zenoh client, subscribes to ``firetrack/{incident}/**`` and
-writes every sample's raw payload with its key and receive time (:mod:`service.recorder`).
+writes every sample's raw payload with its key and receive time (:mod:`service.review.recorder`).
 ``replay`` publishes a recording's inputs (``imu`` and ``fix`` unless told otherwise) back to
 a router with the recorded timing, so the service downstream sees what it saw live: a
 recording, a live stream and a replay go through the same code path.
@@ -9,7 +9,7 @@ recording, a live stream and a replay go through the same code path.
 The zenoh callback runs on zenoh's own threads; it only stamps the receive time and queues the
 sample. One thread owns the file (the MCAP writer is not thread-safe) and also closes a chunk
 ``flush_interval_s`` after its first message when traffic stops, keeping the crash-loss bound
-of :class:`service.recorder.IncidentRecorder` in wall-clock time too (plus whatever sits in the
+of :class:`service.review.recorder.IncidentRecorder` in wall-clock time too (plus whatever sits in the
 queue, normally nothing: the writer keeps up with ~100 000 samples/s through a router).
 
 A replay publishes with encoding ``application/msgpack`` (the channel's message encoding): the
@@ -29,13 +29,13 @@ from pathlib import Path
 import typer
 import zenoh
 
-from service.console_io import err, fail, progress, warn
-from service.console_io import out as console
-from service.recorder import (
+from service.protocol.terminal import err, fail, progress, warn
+from service.protocol.terminal import out as console
+from service.review.recorder import (
     INPUT_KINDS, KEY_ROOT, IncidentRecorder, RecordingWriteError, check_segment, read_recording,
     recording_summary,
 )
-from service.zenoh_config import DEFAULT_ENDPOINT, client_config
+from service.protocol.session import DEFAULT_ENDPOINT, client_config
 
 DEFAULT_CONNECT = DEFAULT_ENDPOINT
 POLL_S = 0.05  # how often the writer thread wakes without traffic: stop requests, timed chunk flushes
@@ -270,7 +270,7 @@ def _wait_for_subscribers(publishers: dict, timeout: float, stop: threading.Even
 
 
 # ------------------------------------------------------------------------------------------
-# typer commands (registered by service/cli.py)
+# typer commands (registered by client/cli.py)
 # ------------------------------------------------------------------------------------------
 def record_command(
     connect: str = typer.Option(DEFAULT_CONNECT, "--connect", help="zenoh router endpoint"),

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import typer
 
-from service.console_io import err, fail
-from service.wire import json_schema
+from service.protocol.terminal import err, fail
+from service.protocol.wire import json_schema
 
 
 def schema_command(

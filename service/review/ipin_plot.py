@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.ipin_run import IpinRun
+from service.review.ipin_run import IpinRun
 
 THUMB_WIDTH_PX = 2400  # plans are large (the museum's is 10719 px wide); plot a reduced copy
 
@@ -31,7 +31,7 @@ def plot_run(run: IpinRun, cfg, folder: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from service.incident import enu_to_plan_pixel
+    from service.protocol.incident import enu_to_plan_pixel
 
     plan = cfg.floor_plan(int(run.lm_floor[0]), fallback=True)
     on_plan = plan is not None and plan.available and plan.georeferenced

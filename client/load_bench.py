@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.server import in_shard
-from service.workers import WorkerPool
-from service.zenoh_config import free_local_port
+from service.shell.service import in_shard
+from service.shell.workers import WorkerPool
+from service.protocol.session import free_local_port
 
 
 def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float, seed: int, out: str,
@@ -47,7 +47,7 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
     import zenoh
 
     from client.simulate import SimulationPublisher
-    from service.zenoh_config import client_config
+    from service.protocol.session import client_config
 
     session = zenoh.open(client_config(endpoint))
     pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s)
@@ -84,9 +84,9 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
                   start_spread_s: float = 5.0) -> dict:
     import zenoh
 
-    from service.incident import default_incident
-    from service.server import IncidentService, ServiceSettings
-    from service.zenoh_config import router_config
+    from service.protocol.incident import default_incident
+    from service.shell.service import IncidentService, ServiceSettings
+    from service.protocol.session import router_config
 
     endpoint = f"tcp/127.0.0.1:{free_local_port()}"
     cfg = default_incident()

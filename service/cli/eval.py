@@ -10,7 +10,7 @@ from rich.table import Table
 from pdr.evaluation.orientation import OrientationScore, pooled, score_orientation
 from pdr.io import load
 from pdr.io.errors import RecordingFormatError, RecordingWarning
-from service.console_io import err, fail, out, parse_params, print_json, progress, warn
+from service.protocol.terminal import err, fail, out, parse_params, print_json, progress, warn
 
 app = typer.Typer(help="Score algorithms on recordings with ground truth.", no_args_is_help=True)
 
@@ -114,5 +114,5 @@ def _plot_errors(results: dict[str, list[OrientationScore]], folder: Path) -> No
 
 
 # Commands defined in their own modules register themselves on ``app`` when imported.
-from service import eval_steps_cli  # noqa: E402,F401
-from service import eval_ipin_cli  # noqa: E402,F401
+from service.cli import eval_steps as eval_steps_cli  # noqa: E402,F401
+from service.cli import eval_ipin as eval_ipin_cli  # noqa: E402,F401

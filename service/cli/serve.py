@@ -9,12 +9,12 @@ from pathlib import Path
 
 import typer
 
-from service.console_io import err, fail, out
-from service.zenoh_config import DEFAULT_ENDPOINT
+from service.protocol.terminal import err, fail, out
+from service.protocol.session import DEFAULT_ENDPOINT
 
 
 def _incident(config: Path | None, incident_id: str | None):
-    from service.incident import IncidentConfigError, default_incident, load_incident
+    from service.protocol.incident import IncidentConfigError, default_incident, load_incident
 
     try:
         cfg = load_incident(config) if config else default_incident()
@@ -88,8 +88,8 @@ class running_service:
         self._closers: list = []
 
     def __enter__(self):
-        from service.server import IncidentService
-        from service.zenoh_config import open_session
+        from service.shell.service import IncidentService
+        from service.protocol.session import open_session
 
         try:
             session = open_session(self.listen, self.connect)
@@ -99,14 +99,14 @@ class running_service:
         self._closers.append(session.close)
         recorder = None
         if self.record is not None:
-            from service.recorder import IncidentRecorder
+            from service.review.recorder import IncidentRecorder
 
             recorder = IncidentRecorder(self.record, self.cfg.id).__enter__()
             self._closers.append(lambda: recorder.__exit__(None, None, None))
         svc = IncidentService(session, self.cfg, self.settings, recorder=recorder, shard=(0, self.workers)).start()
         self._closers.append(svc.close)
         if self.workers > 1:
-            from service.workers import WorkerPool
+            from service.shell.workers import WorkerPool
 
             ep = (self.connect or self.listen or [DEFAULT_ENDPOINT])[0].replace("0.0.0.0", "127.0.0.1")
             pool = WorkerPool(ep, self.cfg, self.workers)
@@ -140,7 +140,7 @@ def _client_session(connect: str):
     """A zenoh client session to ``connect``, or a clear error and exit 1."""
     import zenoh
 
-    from service.zenoh_config import client_config
+    from service.protocol.session import client_config
 
     try:
         return zenoh.open(client_config(connect))
@@ -162,8 +162,8 @@ def wearable_command(
     """Publish a real recording as a wearable would: IMU frames (10 per second), landmarks and GNSS as fixes."""
     from client.wearable import replay
     from pdr.io.errors import RecordingFormatError
-    from service import wire
-    from service.console_io import progress_bar
+    from service.protocol import wire
+    from service.protocol.terminal import progress_bar
 
     if not wire.is_valid_id(responder):
         fail(f"--responder {responder!r}: use 1-64 letters, digits, '_', '.' or '-'")
@@ -221,12 +221,12 @@ def demo_command(
     """The whole system on this machine: router, service, console, replayed IPIN walks and simulated walkers."""
     from client.simulate import SimulationPublisher, building_bounds
     from client.wearable import replay
-    from service.incident import default_incident
+    from service.protocol.incident import default_incident
 
     _logging(False)
     cfg = default_incident()
     stop = stop_on_signals()
-    data = Path(__file__).resolve().parents[2] / "shared" / "data" / "ipin2023"
+    data = Path(__file__).resolve().parents[3] / "shared" / "data" / "ipin2023"
     walks = sorted(data.glob("IPIN2023_T3_TrainingTrial*_repetition01.txt.gz"))[:3] if data.is_dir() else []
     with running_service(cfg, [listen], None, None, True, port) as (svc, where):
         session = _client_session(listen)
