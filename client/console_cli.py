@@ -26,13 +26,13 @@ def console_command(
 
     from client.console.server import ConsoleError, start_console
     from service.cli.serve import _incident, stop_on_signals
-    from service.protocol.session import client_config
+    from service.protocol.session import open_client
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s")
     cfg = _incident(config, incident)
     stop = stop_on_signals()
     try:
-        session = zenoh.open(client_config(connect))
+        session = open_client(connect)
     except Exception as e:  # zenoh raises its own error type; say where it could not connect
         fail(f"could not connect to the zenoh router at {connect}: {e}")
         raise typer.Exit(1)

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.shell.service import in_shard
+from service.shell.sharding import in_shard
 from service.shell.workers import WorkerPool
 from service.protocol.session import free_local_port
 
@@ -47,9 +47,9 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
     import zenoh
 
     from client.simulate import SimulationPublisher
-    from service.protocol.session import client_config
+    from service.protocol.session import open_client
 
-    session = zenoh.open(client_config(endpoint))
+    session = open_client(endpoint)
     pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s)
     frames = int(seconds * 10) + 20
     send_t = np.full((n, frames), np.nan)
@@ -86,7 +86,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
 
     from service.protocol.incident import default_incident
     from service.shell.service import IncidentService, ServiceSettings
-    from service.protocol.session import router_config
+    from service.protocol.session import open_session
 
     endpoint = f"tcp/127.0.0.1:{free_local_port()}"
     cfg = default_incident()
@@ -94,7 +94,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
     prof = cProfile.Profile() if profile is not None else None
     share0 = sum(in_shard(f"sim-{i:03d}", 0, workers) for i in range(responders))
     with contextlib.ExitStack() as done:  # whatever fails, the processes, threads and sessions end
-        session = zenoh.open(router_config([endpoint]))
+        session = open_session([endpoint])
         done.callback(session.close)
         svc = IncidentService(session, cfg, ServiceSettings(), shard=(0, workers))
         svc.pose_hook = lambda rid, msg, oldest: poses.append((rid, oldest, msg.published_at))

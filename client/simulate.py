@@ -20,8 +20,7 @@ import zenoh
 from client.wearable import Wearable
 from pdr.simulation import WalkerFleet, WalkerSettings
 from service.protocol import wire
-
-FRAMES_PER_SECOND = 10.0
+from service.protocol.messages import FRAMES_PER_SECOND
 
 
 def building_bounds(incident, margin: float = 5.0) -> tuple[float, float, float, float]:

@@ -23,7 +23,9 @@ import pytest
 from PIL import Image
 
 from client.console.server import ConsoleError, start_console
-from client.wearable import Wearable, paced, recording_messages
+from client.wearable import Wearable
+from service.protocol.messages import recording_messages
+from service.protocol.pacing import paced
 from pdr.synthetic import static_imu
 from service.protocol import wire
 from service.protocol.incident import default_incident, plan_pixel_to_enu

@@ -10,7 +10,8 @@ import typer
 import zenoh
 from typer.testing import CliRunner
 
-from service.cli.record import client_config, record, record_command, replay, replay_command
+from service.cli.record import record, record_command, replay, replay_command
+from service.protocol.session import client_config
 from service.review.recorder import IncidentRecorder, read_recording
 from service.protocol.session import free_local_port, router_config
 

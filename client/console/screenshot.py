@@ -36,14 +36,14 @@ def take_screenshot(out: Path, walkers: int = 7, seconds: float = 75.0, collapse
     from service.protocol import wire
     from service.protocol.incident import default_incident
     from service.shell.service import IncidentService
-    from service.protocol.session import client_config, router_config
+    from service.protocol.session import open_client, open_session
 
     cfg = default_incident()
     endpoint = f"tcp/127.0.0.1:{free_local_port()}"
-    session = zenoh.open(router_config([endpoint]))
+    session = open_session([endpoint])
     svc = IncidentService(session, cfg).start()
     console = start_console(session, cfg, port=free_local_port())
-    cl = zenoh.open(client_config(endpoint))
+    cl = open_client(endpoint)
     names = [f"E{k + 1}-{n}" for k, n in enumerate(["Weber", "Kaya", "Novak", "Schmidt", "Rossi", "Berg", "Lang",
                                                     "Hahn", "Vogel"][:walkers])]
     # inside the museum's surveyed area, ground floor (the checkpoints t01-* and t52-lm1 lie there)

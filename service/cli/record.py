@@ -17,7 +17,6 @@ zenoh encoding of each original sample is not stored.
 """
 from __future__ import annotations
 
-import math
 import queue
 import signal
 import threading
@@ -35,19 +34,13 @@ from service.review.recorder import (
     INPUT_KINDS, KEY_ROOT, IncidentRecorder, RecordingWriteError, check_segment, read_recording,
     recording_summary,
 )
-from service.protocol.session import DEFAULT_ENDPOINT, client_config
+from service.protocol.pacing import paced
+from service.protocol.session import DEFAULT_ENDPOINT, open_client
 
 DEFAULT_CONNECT = DEFAULT_ENDPOINT
 POLL_S = 0.05  # how often the writer thread wakes without traffic: stop requests, timed chunk flushes
 DRAIN_BATCH = 2000  # samples written between those checks under load (~10 ms of writing)
 MSGPACK = "application/msgpack"
-
-
-def open_client(connect: str) -> zenoh.Session:
-    try:
-        return zenoh.open(client_config(connect))
-    except zenoh.ZError as e:
-        raise ConnectionError(f"cannot reach a zenoh router at {connect}: {e}") from e
 
 
 class _StopOnSignals:
@@ -211,7 +204,6 @@ def replay(
                          f"{sorted(summary['responders'])}")
     total = None if start is not None else sum(summary["keys"][k] for k in keys)
     stop = stop_event or threading.Event()
-    realtime = 0 < speed < math.inf
     counts: Counter[str] = Counter()
     session = open_client(connect)
     try:
@@ -223,17 +215,9 @@ def replay(
             warn(f"no subscriber yet for {', '.join(_retarget(k, incident) for k in unmatched)}; publishing anyway")
         reader = read_recording(path, kinds=kinds, responders=responders, start=start)
         began = time.monotonic()
-        t0 = None
         with _StopOnSignals(stop):
             messages = reader if quiet else progress(reader, f"replaying {Path(path).name}", total=total)
-            for msg in messages:
-                if stop.is_set():
-                    break
-                if realtime:
-                    t0 = msg.receive_time if t0 is None else t0
-                    delay = began + (msg.receive_time - t0) / speed - time.monotonic()
-                    if delay > 0 and stop.wait(delay):
-                        break
+            for msg in paced(messages, speed, stop, time_of=lambda m: m.receive_time):
                 publishers[msg.key].put(msg.payload)
                 counts[msg.key] += 1
         elapsed = time.monotonic() - began

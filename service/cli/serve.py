@@ -138,14 +138,12 @@ class running_service:
 
 def _client_session(connect: str):
     """A zenoh client session to ``connect``, or a clear error and exit 1."""
-    import zenoh
-
-    from service.protocol.session import client_config
+    from service.protocol.session import open_client
 
     try:
-        return zenoh.open(client_config(connect))
-    except Exception as e:  # zenoh's own ZError: say where it could not connect
-        fail(f"could not connect to {connect}: {e}")
+        return open_client(connect)
+    except ConnectionError as e:
+        fail(str(e))
         raise typer.Exit(1)
 
 
@@ -249,7 +247,7 @@ def demo_command(
         for th in threads:
             th.join(5)
         pub.close()
-        summary = {rid: (r.tracker.pipeline.steps, r.poses) for rid, r in sorted(svc.responders.items())}
+        summary = {rid: (r.tracker.steps, r.poses) for rid, r in sorted(svc.responders.items())}
         session.close()
     out.print(f"demo over: {len(summary)} responders")
     for rid, (steps, poses) in summary.items():

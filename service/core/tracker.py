@@ -91,6 +91,24 @@ class ResponderTracker:
         self.fixes_unused = 0  # nothing to apply them to (see _apply_fix)
         self._first_step_after_placement = True
 
+    # ------------------------------------------------------------------ what Status reads
+    @property
+    def steps(self) -> int:
+        return self.pipeline.steps
+
+    @property
+    def motion(self):
+        """The motion state (:class:`pdr.events.MotionState`) and the device time it began."""
+        pl = self.pipeline
+        since = pl.state_since if math.isfinite(pl.state_since) else self.device_time
+        return pl.state, since
+
+    @property
+    def device_time(self) -> float:
+        """Device time of the newest sample taken (0 before the first)."""
+        t = self.pipeline.last_time
+        return t if math.isfinite(t) else 0.0
+
     # ------------------------------------------------------------------ inputs
     def on_frame(self, frame: ImuFrame) -> list[PoseEstimate | MotionEvent]:
         return self._consume(self.pipeline.update(frame))

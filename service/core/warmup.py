@@ -7,7 +7,7 @@ its first step, first compass epoch and first fix within the same seconds, the w
 for some hundreds of milliseconds and every frame queued behind it waits. So before the
 service subscribes, a simulated walker goes through the very path live frames take —
 decode, gate, pipeline, fusion, every kind of fix the incident can use, pose and status
-encoding, the track reply — on a throwaway offline service whose output is dropped.
+encoding, the track reply — on a throwaway incident core whose output is dropped.
 """
 from __future__ import annotations
 
@@ -26,13 +26,14 @@ class WarmUp:
 
 
 def warm_up(incident, settings=None, seconds: float = WARMUP_SECONDS) -> WarmUp:
-    """Run a simulated responder through an offline copy of the service."""
+    """Run a simulated responder through a throwaway incident core (``settings``: its
+    :class:`service.core.incident_core.CoreSettings`)."""
     from pdr.simulation import SimulatedWalker
+    from service.core.incident_core import IncidentCore, Inbound
     from service.protocol import wire
-    from service.shell.service import IncidentService
 
     started = time.perf_counter()
-    svc = IncidentService(None, incident, settings)
+    core = IncidentCore(incident, settings)
     rid = "warm-up"
     walker = SimulatedWalker(rid, attitude=False)
     key = {k: wire.key(incident.id, rid, k) for k in ("imu", "fix")}
@@ -41,7 +42,7 @@ def warm_up(incident, settings=None, seconds: float = WARMUP_SECONDS) -> WarmUp:
         b = walker.next_batch(int(round(walker.settings.rate_hz / 10)))
         msg = wire.ImuBatch(responder=rid, device="warm-up", seq=k, t=b.t, acc=b.acc, gyr=b.gyr, mag=b.mag,
                             pressure_t=b.pressure_t, pressure=b.pressure)
-        svc.feed("imu", key["imu"], wire.encode(msg), 0.0)
+        core.feed(Inbound("imu", key["imu"], wire.encode(msg), 0.0))
         t, x, y = float(b.t[-1]), float(b.x[-1]), float(b.y[-1])
         if k == 0:
             fix = wire.Fix.checkpoint(rid, float(b.t[0]), x=float(b.x[0]), y=float(b.y[0]), floor=incident.start_floor,
@@ -57,11 +58,13 @@ def warm_up(incident, settings=None, seconds: float = WARMUP_SECONDS) -> WarmUp:
             fix = wire.Fix.checkpoint(rid, t, x=x, y=y, floor=incident.start_floor, sigma=0.5)
         else:
             continue
-        svc.feed("fix", key["fix"], wire.encode(fix), 0.0)
-    r = svc.responders[rid]
-    wire.encode(svc.status_of(r, 0.0))
-    svc.track_of(r)
-    return WarmUp(time.perf_counter() - started, r.poses, r.tracker.fixes_applied, svc.errors)
+        core.feed(Inbound("fix", key["fix"], wire.encode(fix), 0.0))
+    for o in core.tick(1.0):
+        wire.encode(o.message)
+    t = core.track(rid)
+    wire.encode_track(rid, t["track"], t["smoothed"])
+    r = core.responders[rid]
+    return WarmUp(time.perf_counter() - started, r.poses, r.tracker.fixes_applied, core.counters.errors)
 
 
 __all__ = ["WarmUp", "warm_up"]

@@ -11,6 +11,7 @@ laptop must not start talking to whatever else is on the fire service's network.
 from __future__ import annotations
 
 import json
+import re
 import socket
 
 import zenoh
@@ -47,8 +48,20 @@ def client_config(connect: list[str] | str | None = None) -> zenoh.Config:
     return conf
 
 
-def open_session(listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Session:
-    """The service's session: a router on ``listen`` unless ``connect`` names one to join."""
+def zenoh_error(e: BaseException) -> str:
+    """zenoh's error text in one line for a person: the Rust source location it carries
+    (``... at /root/.cargo/git/checkouts/.../tcp.rs:61.``) and its backtrace removed."""
+    text = " ".join(str(e).split())
+    text = re.sub(r"\s+at\s+\S+\.rs:\d+(:\d+)?\.?", "", text)
+    text = re.sub(r"\s*\(?[Bb]acktrace:.*$", "", text)
+    return text.strip() or type(e).__name__
+
+
+def open_session(listen: list[str] | None = None, connect: list[str] | str | None = None) -> zenoh.Session:
+    """A router on ``listen`` (the service's default), or a client of ``connect`` that also
+    listens on ``listen`` when given. Raises ``ConnectionError`` with one clear line."""
+    if isinstance(connect, str):
+        connect = [connect]
     if connect:
         conf = client_config(connect)
         if listen:
@@ -58,5 +71,12 @@ def open_session(listen: list[str] | None = None, connect: list[str] | None = No
     try:
         return zenoh.open(conf)
     except Exception as e:  # zenoh raises its own ZError; say what could not be opened
-        where = f"connect to {', '.join(connect)}" if connect else f"listen on {', '.join(listen or [DEFAULT_ENDPOINT])}"
-        raise ConnectionError(f"could not open a zenoh session to {where}: {e}") from None
+        where = (f"cannot reach a zenoh router at {', '.join(connect)}" if connect
+                 else f"could not listen on {', '.join(listen or [DEFAULT_ENDPOINT])}")
+        raise ConnectionError(f"{where}: {zenoh_error(e)}") from None
+
+
+def open_client(connect: list[str] | str | None = None) -> zenoh.Session:
+    """A client session to ``connect`` (default the local demo endpoint); ``ConnectionError``
+    with one clear line when the router cannot be reached."""
+    return open_session(None, connect or DEFAULT_ENDPOINT)

@@ -63,6 +63,7 @@ from pydantic_core import PydanticCustomError
 
 SCHEMA_VERSION = 1
 
+LOST_CONTACT_S = 10.0  # s: a responder not heard for this long is in lost contact (service and console agree)
 MAX_PAYLOAD_BYTES = 1 << 20  # 1 MiB: far above a real frame (10 samples ~ 0.8 kB), far below harm
 MAX_SAMPLES = 4096  # samples per ImuBatch (about 20 s at 200 Hz)
 MIN_RATE_HZ = 5.0  # slowest plausible IMU rate (median interval 0.2 s)

@@ -1,8 +1,8 @@
 """After-action review: an incident recording run through the service again, offline.
 
-``reprocess`` feeds every recorded input (imu and fix messages, in the order and with the
-receive times they were recorded with) to an :class:`service.shell.service.IncidentService` that has
-no network session — the same object the live service runs, calling the same ``feed`` — and
+``reprocess`` feeds every recorded input (imu, fix and presence messages, in the order and
+with the receive times they were recorded with) to an :class:`service.core.IncidentCore` —
+the same core the live service runs, in the same rounds — and
 compares the poses it publishes with the poses recorded live, pose by pose. Frames held by
 the reorder gate are released on the recorded receive times, as live; a live run whose
 frames waited for the once-a-second timer (a frame lost for good) may differ there.
@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.core.incident_core import INBOUND_KINDS, IncidentCore, Inbound
 from service.protocol import wire
 from service.review.recorder import IncidentRecorder, read_recording
 
@@ -34,43 +35,42 @@ class ResponderReview:
 
 
 def reprocess(path: Path, incident_cfg, progress=None) -> dict:
-    from service.shell.service import IncidentService
-
-    svc = IncidentService(None, incident_cfg)
+    core = IncidentCore(incident_cfg)
+    published: list = []
     recorded: dict[str, list[tuple[float, float, float]]] = {}
     n_inputs = 0
     cpu0 = time.process_time()
     pending: list = []
     for m in read_recording(path):
-        if m.incident != svc.id:
-            _feed(svc, pending)
-            svc = _retarget(svc, incident_cfg, m.incident)
-        if m.kind in ("imu", "fix"):
-            pending.append((m.kind, m.key, m.payload, m.receive_time))
+        if m.incident != core.id:
+            _feed(core, pending, published)
+            core = _retarget(core, incident_cfg, m.incident)
+        if m.kind in INBOUND_KINDS:
+            pending.append(Inbound(m.kind, m.key, m.payload, m.receive_time))
             n_inputs += 1
             if len(pending) >= ROUND:
-                _feed(svc, pending)
+                _feed(core, pending, published)
             if progress is not None and n_inputs % 2000 == 0:
                 progress(n_inputs)
         elif m.kind == "pose":
             p = wire.decode(m.payload, expect=wire.Pose)
             recorded.setdefault(p.responder, []).append((p.t, p.x, p.y))
-    _feed(svc, pending)
+    _feed(core, pending, published)
     cpu = time.process_time() - cpu0
     out: dict[str, ResponderReview] = {}
-    for key, payload in svc.published:
-        _, rid, kind = wire.parse_key(key)
-        if kind != "pose":
+    for o in published:
+        p = o.message
+        if not isinstance(p, wire.Pose):
             continue
-        p = wire.decode(payload, expect=wire.Pose)
+        rid = p.responder
         r = out.setdefault(rid, ResponderReview())
         if r.xy:
             r.distance_m += math.hypot(p.x - r.xy[-1][1], p.y - r.xy[-1][2])
         r.xy.append((p.t, p.x, p.y))
         r.steps = max(r.steps, p.steps)
-    for rid, resp in svc.responders.items():
+    for rid, resp in core.responders.items():
         r = out.setdefault(rid, ResponderReview())
-        r.steps = max(r.steps, resp.tracker.pipeline.steps)
+        r.steps = max(r.steps, resp.tracker.steps)
     worst = None
     for rid, r in out.items():
         r.poses = len(r.xy)
@@ -86,7 +86,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         worst = r.max_deviation_m if worst is None else max(worst, r.max_deviation_m)
     duration = _duration(path)
     tracks = {}
-    for rid, resp in svc.responders.items():
+    for rid, resp in core.responders.items():
         tr = resp.tracker.smoothed_track()
         if tr is not None and len(tr["t"]):
             tracks[rid] = {k: np.asarray(tr[k]) for k in ("t", "x", "y", "floor", "heading")}
@@ -97,7 +97,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
                        for rid, r in sorted(out.items())},
         "max_deviation_m": worst,
         "inputs": n_inputs,
-        "errors": svc.errors,
+        "errors": core.counters.errors,
         "cpu_s": cpu,
         "recording_s": duration,
         "realtime_factor": duration / cpu if cpu > 0 and duration else None,
@@ -107,12 +107,13 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
 ROUND = 500  # recorded messages fed together: what the live worker does when it has a backlog
 
 
-def _feed(svc, pending: list) -> None:
-    """The messages read so far through the live worker's own round (``feed_round``): each
-    responder's frames go through its pipeline as one batch, with the same poses, bit for
-    bit, as one message at a time (tests/test_service.py), at a fraction of the cost."""
+def _feed(core: IncidentCore, pending: list, published: list) -> None:
+    """The messages read so far through the core in one round, as the live worker does with a
+    backlog: each responder's frames go through its pipeline as one batch, with the same
+    poses, bit for bit, as one message at a time (tests/test_service.py), at a fraction of
+    the cost."""
     if pending:
-        svc.feed_round(pending)
+        published += core.feed_round(pending)
         pending.clear()
 
 
@@ -122,21 +123,19 @@ def _duration(path: Path) -> float | None:
     return recording_summary(path)["duration"]
 
 
-def _retarget(svc, cfg, incident: str):
+def _retarget(core: IncidentCore, cfg, incident: str) -> IncidentCore:
     """A recording of another incident id: serve it under that id (same building config)."""
-    from service.shell.service import IncidentService
-
-    if svc.responders:
+    if core.responders:
         raise ValueError(f"the recording mixes incidents ({cfg.id!r} and {incident!r})")
-    return IncidentService(None, cfg.model_copy(update={"id": incident}))
+    return IncidentCore(cfg.model_copy(update={"id": incident}))
 
 
 def build_exercise(members: list[tuple[str, Path]], out: Path, incident_cfg, start: float | None = None,
                    landmark_every: int = 0, gnss: bool = True, overwrite: bool = False) -> dict:
     """One exercise file from single-person recordings: responder ``rid`` walks ``path``; all
     start together at ``start`` (unix s, default now); messages are stamped as received then."""
-    from client.wearable import recording_messages
     from pdr.io import load
+    from service.protocol.messages import recording_messages
 
     start = time.time() if start is None else start
     streams = []

@@ -25,11 +25,11 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
 
     from service.protocol.incident import incident_from_dict
     from service.shell.service import IncidentService
-    from service.protocol.session import client_config
+    from service.protocol.session import open_client
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us through ``stop``
     cfg = incident_from_dict(config, base_dir=base_dir)
-    session = zenoh.open(client_config(endpoint))
+    session = open_client(endpoint)
     svc = IncidentService(session, cfg, shard=(k, n))
     poses: list = []
     if log_poses:
