@@ -42,12 +42,10 @@ def eval_ipin(
     started = time.process_time()
     recordings, bad = load_all(files)
     settings = tracker_settings_for(cfg, engine)
-    origin = (cfg.origin.lat, cfg.origin.lon, cfg.origin.alt_m)
-    floors = cfg.floor_elevations()
     runs: list[IpinRun] = []
     for rec in progress(recordings, "tracking"):
         try:
-            runs.append(run_ipin(rec, origin, floors, fix_every, not no_gnss, settings))
+            runs.append(run_ipin(rec, cfg, fix_every, not no_gnss, settings))
         except ValueError as e:
             fail(str(e))
             bad += 1

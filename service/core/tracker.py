@@ -9,6 +9,8 @@ fixes at their own time. The live service, replays, ``firetrack reprocess`` and
 Placement. A responder has no position until the first checkpoint fix (an operator at the
 door, a tag reader, the IPIN initial landmark) or, when the incident configures an entry
 point, until the first step. Steps before placement are counted (Status) but make no pose.
+A track placed at the entry point is provisional: the first checkpoint starts it again
+where the checkpoint says (a responder who walked a few steps before being checked in).
 
 Fix timing. A fix stamped later than the newest step waits until a step passes its time,
 then attaches there (so an IPIN landmark reached after the last step before it attaches to
@@ -77,6 +79,7 @@ class ResponderTracker:
         self.floors = floors
         self._entry = entry
         self._placed_at: CheckpointFix | None = None
+        self._provisional = False  # placed at the entry guess, not yet by a checkpoint
         self._pending_fixes: list[tuple[float, int, object]] = []  # (t, order, fix) waiting for a step
         self._order = 0
         if s.engine not in ("fusion", "dr"):
@@ -172,6 +175,7 @@ class ResponderTracker:
             if self._entry is None:
                 return None
             self._place(dataclasses.replace(self._entry, t=ev.t - 1e-6))
+            self._provisional = True
         first = self._first_step_after_placement
         self._first_step_after_placement = False
         if first:  # the heading before the first placed step is the step's own
@@ -196,8 +200,13 @@ class ResponderTracker:
                             "fused" if self.fixes_applied > 1 else "pdr")
 
     def _apply_fix(self, fix) -> PoseEstimate | None:
-        if isinstance(fix, CheckpointFix) and (self._placed_at is None or self._first_step_after_placement):
-            self._place(fix)  # not walked from the last placement yet: this one is where the track starts
+        if isinstance(fix, CheckpointFix) and (self._placed_at is None or self._first_step_after_placement
+                                               or self._provisional):
+            # not walked from the last placement yet, or only from the entry guess: the
+            # track starts here (a responder checked in at the door after a few steps)
+            self._place(fix)
+            self._provisional = False
+            self.engine = None
             self.fixes_applied += 1
             return None
         if isinstance(fix, CheckpointFix) and fix.floor is not None:

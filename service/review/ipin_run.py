@@ -1,4 +1,4 @@
-"""Drive a :class:`service.core.tracker.ResponderTracker` over one IPIN log, as the service would live.
+"""Track one IPIN log through the incident core, as the service would live.
 
 The log's samples go through in frames (as a wearable would send them), its landmarks are
 checkpoint fixes at their own time (landmark 0 always: the initial position; with
@@ -10,15 +10,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pymap3d
 
 from pdr.evaluation.ipin import LandmarkErrors, fix_indices, score_track
-from pdr.floors import FloorElevations
-from pdr.pipeline import frames_of
 from pdr.recording import Recording
-from service.core.tracker import CheckpointFix, ResponderTracker, TrackerSettings
+from service.core.incident_core import CoreSettings
+from service.core.tracker import TrackerSettings
+from service.protocol.messages import recording_messages
+from service.review.walk import run_walk
 
-LANDMARK_SIGMA_M = 0.3  # surveyed landmark, walker standing on it
+RESPONDER = "walk"
 
 
 @dataclass
@@ -45,40 +45,30 @@ class IpinRun:
         return score_track(self.lm_t, self.lm_x, self.lm_y, self.lm_floor, tr["t"], tr["x"], tr["y"], tr["floor"], self.scored())
 
 
-def run_ipin(rec: Recording, origin: tuple[float, float, float], floors: FloorElevations, fix_every: int = 0,
-             use_gnss: bool = True, settings: TrackerSettings | None = None, per_frame: int = 50) -> IpinRun:
+def run_ipin(rec: Recording, incident, fix_every: int = 0, use_gnss: bool = True,
+             settings: TrackerSettings | None = None) -> IpinRun:
+    """Track one IPIN walk through the incident core, from the messages a wearable would send:
+    landmark 0 (and every ``fix_every``-th) as checkpoint fixes, the log's GNSS unless
+    ``use_gnss`` is off, the IMU in frames of 1/10 s."""
     if rec.landmarks is None or len(rec.landmarks) == 0:
         raise ValueError(f"{rec.source}: no landmarks (POSI lines) to start from and score against")
     lm = rec.landmarks
-    lat0, lon0, alt0 = origin
-    lx, ly, _ = pymap3d.geodetic2enu(lm.lat, lm.lon, np.zeros(len(lm)), lat0, lon0, alt0)
+    lx, ly, _ = incident.to_enu(lm.lat, lm.lon)
     fixes = fix_indices(len(lm), fix_every)
     settings = settings or TrackerSettings()
-    tracker = ResponderTracker(rec.source, floors, int(lm.floor[0]), settings)
-    for j in fixes:
-        tracker.on_fix(CheckpointFix(float(lm.t[j]), float(lx[j]), float(ly[j]), int(lm.floor[j]), LANDMARK_SIGMA_M))
-    gnss_n = 0
-    if use_gnss and rec.gnss is not None and len(rec.gnss) and settings.engine == "fusion":
-        from service.fusion import GnssFix
-
-        gx, gy, _ = pymap3d.geodetic2enu(rec.gnss.lat, rec.gnss.lon, np.zeros(len(rec.gnss)), lat0, lon0, alt0)
-        for k in range(len(rec.gnss)):
-            if rec.gnss.t[k] >= lm.t[0]:
-                tracker.on_fix(GnssFix(t=float(rec.gnss.t[k]), x=float(gx[k]), y=float(gy[k]),
-                                       accuracy=float(rec.gnss.accuracy_m[k])))
-                gnss_n += 1
-    imu = rec.imu_samples()
-    pt = rec.pressure.t if rec.pressure is not None else None
-    pv = rec.pressure.values[:, 0] if rec.pressure is not None else None
-    poses = []
-    for frame in frames_of(imu.t, imu.acc, imu.gyr, imu.mag, pt, pv, per_frame=per_frame):
-        poses += [p for p in tracker.on_frame(frame) if hasattr(p, "x")]
-    poses += [p for p in tracker.finish() if hasattr(p, "x")]
-    live = _columns([(p.t, p.x, p.y, p.floor) for p in poses])
+    gnss = use_gnss and settings.engine == "fusion"
+    msgs = recording_messages(rec, RESPONDER, incident=incident, landmark_every=fix_every, gnss=gnss)
+    cfg = incident.model_copy(update={"start_floor": int(lm.floor[0])})
+    run = run_walk(msgs, cfg, RESPONDER, CoreSettings(tracker=settings))
+    if run.errors:
+        raise RuntimeError(f"{rec.source}: the incident core hit {run.errors} errors (see the log)")
+    tracker = run.tracker
+    live = _columns([(p.t, p.x, p.y, p.floor) for p in run.poses])
     sm = tracker.smoothed_track()
     smoothed = None if sm is None else {k: np.asarray(sm[k]) for k in ("t", "x", "y", "floor")}
-    return IpinRun(rec.source, lm.t, np.asarray(lx), np.asarray(ly), lm.floor.astype(int), fixes, live, smoothed,
-                   _columns(tracker.pdr_track), gnss_n, tracker.fixes_rejected)
+    gnss_n = sum(m.kind == "fix" and m.msg.source == "gnss" for m in msgs)
+    return IpinRun(rec.source, lm.t, np.asarray(lx, float), np.asarray(ly, float), lm.floor.astype(int), fixes, live,
+                   smoothed, _columns(tracker.pdr_track), gnss_n, tracker.fixes_rejected)
 
 
 def _columns(rows) -> dict[str, np.ndarray]:
