@@ -36,15 +36,16 @@ import time
 from pathlib import Path
 
 import numpy as np
+import typer
 
+from service.protocol.session import free_local_port
+from service.protocol.terminal import err, print_json
 from service.shell.sharding import in_shard
 from service.shell.workers import WorkerPool
-from service.protocol.session import free_local_port
 
 
 def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float, seed: int, out: str,
                ready, go, start_spread_s: float) -> None:  # pragma: no cover - runs in the child process
-    import zenoh
 
     from client.simulate import SimulationPublisher
     from service.protocol.session import open_client
@@ -82,11 +83,10 @@ WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers 
 def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
                   profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2,
                   start_spread_s: float = 5.0) -> dict:
-    import zenoh
 
     from service.protocol.incident import default_incident
-    from service.shell.service import IncidentService, ServiceSettings
     from service.protocol.session import open_session
+    from service.shell.service import IncidentService, ServiceSettings
 
     endpoint = f"tcp/127.0.0.1:{free_local_port()}"
     cfg = default_incident()
@@ -181,3 +181,22 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         Path(profile).write_text(buf.getvalue())
         result["profile"] = str(profile)
     return result
+
+
+def bench_service_command(
+    ctx: typer.Context,
+    responders: int = typer.Option(200, "--responders", "-n", help="simulated wearables"),
+    seconds: float = typer.Option(30.0, "--seconds", help="length of the run, s"),
+    rate: float = typer.Option(100.0, "--rate", help="IMU rate of each wearable, Hz"),
+    as_json: bool = typer.Option(False, "--json", help="print JSON only"),
+    profile: Path = typer.Option(None, "--profile", help="profile the service's worker; write the top functions here"),
+    workers: int = typer.Option(2, "--workers", help="service worker processes (one per core)"),
+    start_spread: float = typer.Option(5.0, "--start-spread",
+                                       help="s over which the wearers start walking (0: all in the same instant)"),
+):
+    """N simulated wearables through a real zenoh router against the service (see client/load_bench.py)."""
+    if ctx.invoked_subcommand is not None:
+        return
+    result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers,
+                           start_spread_s=start_spread)
+    print_json(result)

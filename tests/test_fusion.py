@@ -8,9 +8,16 @@ import numpy as np
 import pytest
 
 from pdr.events import StepEvent
-from service.fusion import CheckpointFix, FusedPose, FusionSettings, GnssFix, TrackFusion, UwbRange
-from service.fusion.noise import step_covariance
+from service.fusion import (
+    CheckpointFix,
+    FusedPose,
+    FusionSettings,
+    GnssFix,
+    TrackFusion,
+    UwbRange,
+)
 from service.fusion.bench import bench_fusion
+from service.fusion.noise import step_covariance
 
 DEG = math.pi / 180.0
 STEP_DT = 0.5  # s between steps (2 steps/s)

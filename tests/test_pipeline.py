@@ -41,8 +41,8 @@ def split(events):
 
 @pytest.fixture(scope="module")
 def trial52():
-    from tests.conftest import shared_data_path
     from pdr.io import load
+    from tests.conftest import shared_data_path
 
     path = shared_data_path(IPIN_TRIAL52)
     with warnings.catch_warnings():

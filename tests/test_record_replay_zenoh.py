@@ -11,9 +11,8 @@ import zenoh
 from typer.testing import CliRunner
 
 from service.cli.record import record, record_command, replay, replay_command
-from service.protocol.session import client_config
+from service.protocol.session import client_config, free_local_port, router_config
 from service.review.recorder import IncidentRecorder, read_recording
-from service.protocol.session import free_local_port, router_config
 
 TIMEOUT_S = 10.0
 

@@ -15,7 +15,11 @@ import numpy as np
 import pytest
 
 from service.review.recorder import (
-    IncidentRecorder, RecordingWriteError, TruncatedRecordingWarning, read_recording, recording_summary,
+    IncidentRecorder,
+    RecordingWriteError,
+    TruncatedRecordingWarning,
+    read_recording,
+    recording_summary,
 )
 
 ROOT = Path(__file__).resolve().parents[1]

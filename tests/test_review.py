@@ -1,10 +1,9 @@
 """Recording a live multi-person exercise and reprocessing it offline: the same poses."""
 from __future__ import annotations
 
-import pytest
-
 import json
 
+import pytest
 from typer.testing import CliRunner
 
 from client.simulate import SimulationPublisher
@@ -83,7 +82,8 @@ def test_bad_exercise_arguments_are_refused(tmp_path):
 
 
 def test_simulated_walkers_all_publish_in_real_time():
-    from tests.zenoh_util import client as _client, router as _router
+    from tests.zenoh_util import client as _client
+    from tests.zenoh_util import router as _router
 
     session, endpoint = _router()
     cl = _client(endpoint)
@@ -102,8 +102,8 @@ def test_simulated_walkers_all_publish_in_real_time():
 def test_reprocess_reads_a_recording_of_another_incident_id(tmp_path):
     cfg = default_incident()
     path = tmp_path / "other.mcap"
-    from service.protocol import wire
     from pdr.synthetic import static_imu
+    from service.protocol import wire
 
     imu = static_imu(seconds=5.0, rate_hz=50.0)
     with IncidentRecorder(path, "drill-7") as rec:

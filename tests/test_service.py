@@ -8,17 +8,23 @@ import warnings
 
 import msgpack
 import numpy as np
+from pdr.floors import FloorElevations
 import pytest
 
 from client.wearable import Wearable
-from service.protocol.messages import recording_messages
-from service.protocol.pacing import paced
 from pdr.synthetic import static_imu
+from service.core.incident_core import Inbound, IncidentCore
+from service.core.tracker import (
+    CheckpointFix,
+    PoseEstimate,
+    ResponderTracker,
+    tracker_settings_for,
+)
 from service.protocol import wire
 from service.protocol.incident import default_incident
-from service.core.incident_core import IncidentCore, Inbound
+from service.protocol.messages import recording_messages
+from service.protocol.pacing import paced
 from service.shell.service import IncidentService, ServiceSettings, decode_track
-from service.core.tracker import CheckpointFix, PoseEstimate, ResponderTracker, tracker_settings_for
 from tests.zenoh_util import client, router, wait_until
 
 IPIN_TRIAL52 = "ipin2023/IPIN2023_T3_TrainingTrial52_repetition01.txt.gz"
@@ -57,7 +63,7 @@ class Collector:
 def offline_poses(cfg, msgs, responder):
     """The same messages through a ResponderTracker without any network: the reference."""
     s = ServiceSettings().core
-    tracker = ResponderTracker(responder, cfg.floor_elevations(), cfg.start_floor, tracker_settings_for(cfg),
+    tracker = ResponderTracker(responder, FloorElevations(cfg.elevations()), cfg.start_floor, tracker_settings_for(cfg),
                                entry=CheckpointFix(0.0, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m))
     from pdr.pipeline import ImuFrame
 
@@ -279,8 +285,8 @@ def test_rounds_of_any_size_give_the_same_poses_bit_for_bit():
 def test_warm_up_takes_a_responder_through_every_kind_of_fix():
     """The service warms its kernels, graph and codecs on a simulated responder before it
     subscribes; every kind of fix the incident supports must go through without an error."""
-    from service.protocol.incident import UwbAnchor
     from service.core.warmup import warm_up
+    from service.protocol.incident import UwbAnchor
 
     cfg = default_incident()
     cfg = cfg.model_copy(update={"uwb_anchors": [UwbAnchor(id="A1", x=3.0, y=4.0)]})

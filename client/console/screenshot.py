@@ -27,7 +27,6 @@ def take_screenshot(out: Path, walkers: int = 7, seconds: float = 75.0, collapse
                     chromium: str = CHROMIUM) -> Path:
     """Run the demo for ``seconds`` of device time (fast, then the last seconds live) and save
     the console as PNG at ``out``."""
-    import zenoh
     from playwright.sync_api import sync_playwright
 
     from client.console.server import start_console
@@ -35,8 +34,8 @@ def take_screenshot(out: Path, walkers: int = 7, seconds: float = 75.0, collapse
     from pdr.simulation import WalkerFleet
     from service.protocol import wire
     from service.protocol.incident import default_incident
-    from service.shell.service import IncidentService
     from service.protocol.session import open_client, open_session
+    from service.shell.service import IncidentService
 
     cfg = default_incident()
     endpoint = f"tcp/127.0.0.1:{free_local_port()}"

@@ -336,7 +336,9 @@ class ConsoleServer:
     # ------------------------------------------------------------------ tracks
     def _query_tracks(self, key: str) -> dict[str, dict]:
         """Blocking zenoh query (run in an executor): responder -> track as JSON-ready lists."""
-        from service.protocol.wire import decode_track  # the reply format is defined once, with the wire format
+        from service.protocol.wire import (
+            decode_track,  # the reply format is defined once, with the wire format
+        )
 
         out = {}
         for reply in self.session.get(key, timeout=TRACK_QUERY_TIMEOUT_S):

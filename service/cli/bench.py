@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import os
 import time
-from pathlib import Path
 
 import numpy as np
 import typer
@@ -11,33 +10,11 @@ import typer
 from pdr.ahrs import FILTERS, make_filter
 from pdr.ahrs.reference import scf_reference
 from pdr.synthetic import rotating_imu
-from service.protocol.terminal import err, print_json
 from service.fusion.bench import fusion_command
+from service.protocol.terminal import err, print_json
 
 app = typer.Typer(help="Benchmarks: each prints JSON figures. Without a sub-command: the live service under load.",
-                  invoke_without_command=True)
-
-
-@app.callback()
-def bench_service_command(
-    ctx: typer.Context,
-    responders: int = typer.Option(200, "--responders", "-n", help="simulated wearables"),
-    seconds: float = typer.Option(30.0, "--seconds", help="length of the run, s"),
-    rate: float = typer.Option(100.0, "--rate", help="IMU rate of each wearable, Hz"),
-    as_json: bool = typer.Option(False, "--json", help="print JSON only"),
-    profile: Path = typer.Option(None, "--profile", help="profile the service's worker; write the top functions here"),
-    workers: int = typer.Option(2, "--workers", help="service worker processes (one per core)"),
-    start_spread: float = typer.Option(5.0, "--start-spread",
-                                       help="s over which the wearers start walking (0: all in the same instant)"),
-):
-    """N simulated wearables through a real zenoh router against the service (see client/load_bench.py)."""
-    if ctx.invoked_subcommand is not None:
-        return
-    from client.load_bench import bench_service
-
-    result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers,
-                           start_spread_s=start_spread)
-    print_json(result)
+                  invoke_without_command=True)  # the load bench (client/load_bench.py) is the callback, set in client/cli.py
 
 
 app.command("fusion")(fusion_command)

@@ -1,24 +1,21 @@
 """``firetrack eval ipin``: track IPIN 2023 logs from their first landmark and score the others."""
 from __future__ import annotations
 
-
 import time
 from pathlib import Path
-
 
 import typer
 from rich.table import Table
 
 from pdr.evaluation.ipin import summary
-from service.protocol.terminal import err, fail, out, print_json, progress
-from service.cli.eval import app, load_all
-from service.review.ipin_run import IpinRun, run_ipin
+from service.cli.recordings import load_all
 from service.core.tracker import tracker_settings_for
+from service.protocol.terminal import err, fail, out, print_json, progress
+from service.review.ipin_run import IpinRun, run_ipin
 
 KINDS = ("live", "smoothed", "pdr")
 
 
-@app.command("ipin")
 def eval_ipin(
     files: list[Path] = typer.Argument(..., help="IPIN 2023 GetSensorData logs (.txt or .txt.gz)"),
     fix_every: int = typer.Option(0, "--fix-every", "-k", help="hand landmarks 0, K, 2K, ... to the tracker as checkpoint fixes (0: only the first)"),
@@ -29,7 +26,11 @@ def eval_ipin(
     plot: Path = typer.Option(None, "--plot", help="write a PNG per file (track over the landmarks, on the floor plan) into this folder"),
 ):
     """Error at each scored landmark = horizontal distance + 15 m x |floor error|; p75 and median pooled over all files."""
-    from service.protocol.incident import IncidentConfigError, default_incident, load_incident
+    from service.protocol.incident import (
+        IncidentConfigError,
+        default_incident,
+        load_incident,
+    )
 
     if engine not in ("fusion", "dr"):
         fail(f"--engine must be fusion or dr, got {engine!r}")

@@ -11,11 +11,16 @@ from pdr.io import load
 from pdr.io.errors import RecordingFormatError, RecordingWarning
 from pdr.steps import DEFAULT_DETECTOR, DETECTORS, make_detector
 from pdr.steps.scoring import StepCount, count_steps, mean_abs_error_pct
-from service.protocol.terminal import fail, out, parse_params, print_json, progress, warn
-from service.cli.eval import app
+from service.protocol.terminal import (
+    fail,
+    out,
+    parse_params,
+    print_json,
+    progress,
+    warn,
+)
 
 
-@app.command("steps")
 def eval_steps(
     files: list[Path] = typer.Argument(
         ..., help="Oxford walk directories (or their accelerometer.csv.gz), Oxford validation .csv.gz, IPIN logs"

@@ -28,14 +28,19 @@ from pathlib import Path
 import typer
 import zenoh
 
+from service.protocol.pacing import paced
+from service.protocol.session import DEFAULT_ENDPOINT, open_client
 from service.protocol.terminal import err, fail, progress, warn
 from service.protocol.terminal import out as console
 from service.review.recorder import (
-    INPUT_KINDS, KEY_ROOT, IncidentRecorder, RecordingWriteError, check_segment, read_recording,
+    INPUT_KINDS,
+    KEY_ROOT,
+    IncidentRecorder,
+    RecordingWriteError,
+    check_segment,
+    read_recording,
     recording_summary,
 )
-from service.protocol.pacing import paced
-from service.protocol.session import DEFAULT_ENDPOINT, open_client
 
 DEFAULT_CONNECT = DEFAULT_ENDPOINT
 POLL_S = 0.05  # how often the writer thread wakes without traffic: stop requests, timed chunk flushes

@@ -12,7 +12,11 @@ from service.protocol.terminal import err, fail, out, print_json
 
 
 def _cfg(config: Path | None):
-    from service.protocol.incident import IncidentConfigError, default_incident, load_incident
+    from service.protocol.incident import (
+        IncidentConfigError,
+        default_incident,
+        load_incident,
+    )
 
     try:
         return load_incident(config) if config else default_incident()
@@ -64,11 +68,12 @@ def reprocess_command(
 
 
 def _export(tracks: dict, cfg, folder: Path) -> None:
+    from pdr.floors import FloorElevations
     from service.review.export import to_csv, to_geojson, to_tum
 
     folder.mkdir(parents=True, exist_ok=True)
     origin = (cfg.origin.lat, cfg.origin.lon, cfg.origin.alt_m)
-    floors = cfg.floor_elevations()
+    floors = FloorElevations(cfg.elevations())
     (folder / "tracks.geojson").write_text(json.dumps(to_geojson(tracks, origin, floors)))
     to_csv(tracks, folder / "tracks.csv", origin, floors)
     for rid, tr in tracks.items():

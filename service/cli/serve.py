@@ -1,51 +1,34 @@
-"""``firetrack serve`` and ``firetrack wearable``: the live service and a replaying wearable."""
+"""``firetrack serve``: the live service of one incident (router, service, recorder, console).
+
+The console is the client layer's (``client/console``): the top of the house, where the
+``firetrack`` command is assembled (``client/cli.py``), hands its starter to
+:func:`set_console_starter`, so this module never imports the client.
+"""
 from __future__ import annotations
 
-import logging
 import math
-import signal
-import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import typer
 
-from service.protocol.terminal import err, fail, out
 from service.protocol.session import DEFAULT_ENDPOINT
+from service.protocol.terminal import (
+    err,
+    fail,
+    incident_or_exit,
+    out,
+    setup_logging,
+    stop_on_signals,
+)
+
+_console_starter: Callable | None = None  # (session, cfg, port) -> an object with close(); raises ValueError
 
 
-def _incident(config: Path | None, incident_id: str | None):
-    from service.protocol.incident import IncidentConfigError, default_incident, load_incident
-
-    try:
-        cfg = load_incident(config) if config else default_incident()
-    except IncidentConfigError as e:
-        fail(str(e))
-        raise typer.Exit(2)
-    if incident_id and incident_id != cfg.id:
-        cfg = cfg.model_copy(update={"id": incident_id})
-    return cfg
-
-
-def stop_on_signals() -> threading.Event:
-    """An event set by SIGINT or SIGTERM (Ctrl-C, systemd stop, docker stop)."""
-    stop = threading.Event()
-
-    def handler(signum, frame):
-        if stop.is_set():  # a second Ctrl-C: the user means it
-            raise KeyboardInterrupt
-        err.print(f"\n{signal.Signals(signum).name}: shutting down ...")
-        stop.set()
-
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
-    return stop
-
-
-def _logging(verbose: bool) -> None:
-    from rich.logging import RichHandler
-
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
-                        handlers=[RichHandler(console=err, show_path=False)])
+def set_console_starter(starter: Callable) -> None:
+    """Who serves the web console beside the service (set by ``client/cli.py``)."""
+    global _console_starter
+    _console_starter = starter
 
 
 def serve_command(
@@ -61,8 +44,8 @@ def serve_command(
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log every responder, fix and reject"),
 ):
     """Run the service for one incident: one pipeline per responder, poses and status out."""
-    _logging(verbose)
-    cfg = _incident(config, incident_id)
+    setup_logging(verbose)
+    cfg = incident_or_exit(config, incident_id)
     if workers < 1:
         fail(f"--workers must be at least 1, got {workers}")
         raise typer.Exit(2)
@@ -88,8 +71,8 @@ class running_service:
         self._closers: list = []
 
     def __enter__(self):
-        from service.shell.service import IncidentService
         from service.protocol.session import open_session
+        from service.shell.service import IncidentService
 
         try:
             session = open_session(self.listen, self.connect)
@@ -114,11 +97,13 @@ class running_service:
             if not pool.wait_ready(60):
                 err.print("[yellow]warning:[/] not every worker process started within 60 s")
         if self.console:
-            from client.console.server import ConsoleError, start_console
-
+            if _console_starter is None:
+                self.__exit__(None, None, None)
+                fail("the web console is not installed here (pip install 'firetrack[console]'), or run with --no-console")
+                raise typer.Exit(1)
             try:
-                handle = start_console(session, self.cfg, port=self.port)
-            except ConsoleError as e:
+                handle = _console_starter(session, self.cfg, self.port)
+            except ValueError as e:  # the console's own errors (port in use, ...) are ValueErrors
                 self.__exit__(None, None, None)  # the service and session already opened
                 fail(str(e))
                 raise typer.Exit(1)
@@ -134,121 +119,3 @@ class running_service:
             except Exception as e:  # shutting down: report, go on closing the rest
                 err.print(f"[yellow]warning:[/] while shutting down: {e}")
         return False
-
-
-def _client_session(connect: str):
-    """A zenoh client session to ``connect``, or a clear error and exit 1."""
-    from service.protocol.session import open_client
-
-    try:
-        return open_client(connect)
-    except ConnectionError as e:
-        fail(str(e))
-        raise typer.Exit(1)
-
-
-def wearable_command(
-    responder: str = typer.Option(..., "--responder", help="responder id (letters, digits, _ . -)"),
-    replay_file: Path = typer.Option(..., "--replay", help="recording to publish (IPIN, Oxford, PyShoe, ...)"),
-    speed: float = typer.Option(1.0, "--speed", help="times real time (0: as fast as possible)"),
-    connect: str = typer.Option(DEFAULT_ENDPOINT, "--connect", help="router endpoint"),
-    incident_id: str = typer.Option(None, "--incident", help="incident id (default: the config's)"),
-    config: Path = typer.Option(None, "--config", help="incident config, for the landmarks' local coordinates"),
-    landmark_every: int = typer.Option(0, "--landmark-every", help="also send every K-th landmark as a checkpoint fix (the first is always sent)"),
-    gnss: bool = typer.Option(True, "--gnss/--no-gnss", help="send the recording's GNSS fixes"),
-):
-    """Publish a real recording as a wearable would: IMU frames (10 per second), landmarks and GNSS as fixes."""
-    from client.wearable import replay
-    from pdr.io.errors import RecordingFormatError
-    from service.protocol import wire
-    from service.protocol.terminal import progress_bar
-
-    if not wire.is_valid_id(responder):
-        fail(f"--responder {responder!r}: use 1-64 letters, digits, '_', '.' or '-'")
-        raise typer.Exit(2)
-    cfg = _incident(config, incident_id)
-    stop = stop_on_signals()
-    session = _client_session(connect)
-    try:
-        with progress_bar(f"{responder} ← {replay_file.name}") as update:
-            sent = replay(replay_file, responder, session, cfg, speed, landmark_every, gnss, stop, update)
-    except (RecordingFormatError, OSError, ValueError) as e:
-        fail(str(e))
-        raise typer.Exit(1)
-    finally:
-        session.close()
-    out.print(f"{responder}: sent {sent['imu']} frames and {sent['fix']} fixes")
-
-
-def simulate_command(
-    responders: int = typer.Option(5, "--responders", "-n", help="simulated walkers"),
-    seconds: float = typer.Option(60.0, "--seconds", help="how long to walk, s"),
-    rate: float = typer.Option(100.0, "--rate", help="IMU rate, Hz"),
-    connect: str = typer.Option(DEFAULT_ENDPOINT, "--connect", help="router endpoint"),
-    incident_id: str = typer.Option(None, "--incident", help="incident id (default: the config's)"),
-    config: Path = typer.Option(None, "--config", help="incident config (the building the walkers roam)"),
-    seed: int = typer.Option(0, "--seed", help="random seed of the walkers"),
-    start_spread: float = typer.Option(5.0, "--start-spread", help="s over which the walkers start walking"),
-):
-    """Publish synthetic walkers in the incident's building; their true positions go on .../truth."""
-    from client.simulate import SimulationPublisher, building_bounds
-
-    cfg = _incident(config, incident_id)
-    stop = stop_on_signals()
-    session = _client_session(connect)
-    floors = (min(f.number for f in cfg.floors), max(f.number for f in cfg.floors)) if cfg.floors else (0, 0)
-    try:
-        pub = SimulationPublisher(session, cfg.id, responders, rate, seed, bounds=building_bounds(cfg), floors=floors,
-                                  start_spread_s=start_spread)
-        try:
-            frames = pub.run(seconds, stop)
-        finally:
-            pub.close()
-    finally:
-        session.close()
-    out.print(f"simulated {responders} responder(s): {frames} frames")
-
-
-def demo_command(
-    seconds: float = typer.Option(math.inf, "--seconds", help="stop after this long (default: until Ctrl-C)"),
-    responders: int = typer.Option(4, "--responders", "-n", help="simulated walkers besides the replayed ones"),
-    speed: float = typer.Option(1.0, "--speed", help="replay speed of the recorded walks"),
-    port: int = typer.Option(8080, "--port", help="web console port"),
-    listen: str = typer.Option(DEFAULT_ENDPOINT, "--listen", help="router endpoint"),
-):
-    """The whole system on this machine: router, service, console, replayed IPIN walks and simulated walkers."""
-    from client.simulate import SimulationPublisher, building_bounds
-    from client.wearable import replay
-    from service.protocol.incident import default_incident
-
-    _logging(False)
-    cfg = default_incident()
-    stop = stop_on_signals()
-    data = Path(__file__).resolve().parents[3] / "shared" / "data" / "ipin2023"
-    walks = sorted(data.glob("IPIN2023_T3_TrainingTrial*_repetition01.txt.gz"))[:3] if data.is_dir() else []
-    with running_service(cfg, [listen], None, None, True, port) as (svc, where):
-        session = _client_session(listen)
-        threads = []
-        for i, path in enumerate(walks):
-            th = threading.Thread(target=replay, args=(path, f"ipin-{i + 1}", session, cfg, speed, 3, False, stop),
-                                  daemon=True)
-            th.start()
-            threads.append(th)
-        pub = SimulationPublisher(session, cfg.id, responders, 50.0, 1, bounds=building_bounds(cfg), floors=(0, 0))
-        sim = threading.Thread(target=pub.run, args=(seconds if math.isfinite(seconds) else 24 * 3600.0, stop),
-                               daemon=True)
-        sim.start()
-        out.print(f"[bold]firetrack demo[/]: incident {cfg.id} ({cfg.name}), router {where}")
-        out.print(f"  {len(walks)} replayed IPIN walk(s) (ipin-1..), {responders} simulated walker(s) (sim-000..)")
-        out.print(f"  open the console: http://127.0.0.1:{port}/   (Ctrl-C to stop)")
-        stop.wait(None if math.isinf(seconds) else seconds)
-        stop.set()
-        sim.join(5)
-        for th in threads:
-            th.join(5)
-        pub.close()
-        summary = {rid: (r.tracker.steps, r.poses) for rid, r in sorted(svc.responders.items())}
-        session.close()
-    out.print(f"demo over: {len(summary)} responders")
-    for rid, (steps, poses) in summary.items():
-        out.print(f"  {rid}: {steps} steps, {poses} poses published")

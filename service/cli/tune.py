@@ -9,8 +9,8 @@ import typer
 from pdr.ahrs import FILTERS, settings_with
 from pdr.ahrs.tuning import sliding_grid_search
 from pdr.evaluation.orientation import pooled, score_orientation
+from service.cli.recordings import load_all
 from service.protocol.terminal import err, fail, out, parse_params, print_json
-from service.cli.eval import load_all
 
 app = typer.Typer(help="Tune algorithm settings on recordings with ground truth.", no_args_is_help=True)
 

@@ -39,11 +39,18 @@ from typing import NamedTuple
 import numpy as np
 
 from pdr.events import MotionEvent, bearing_deg
+from pdr.floors import FloorElevations
 from service.core import alarms
 from service.core.fix_types import FixRejected, fix_type_of
 from service.core.gate import FrameGate
 from service.core.responder import Responder, continues, frame_of
-from service.core.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings, tracker_settings_for
+from service.core.tracker import (
+    CheckpointFix,
+    PoseEstimate,
+    ResponderTracker,
+    TrackerSettings,
+    tracker_settings_for,
+)
 from service.protocol import wire
 from service.protocol.incident import IncidentConfig
 
@@ -224,7 +231,7 @@ class IncidentCore:
         until a checkpoint fix says where the responder is."""
         cfg, s = self.incident, self.settings
         entry = CheckpointFix(0.0, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)")
-        return ResponderTracker(rid, cfg.floor_elevations(), cfg.start_floor, s.tracker, entry=entry)
+        return ResponderTracker(rid, FloorElevations(cfg.elevations()), cfg.start_floor, s.tracker, entry=entry)
 
     def _on_presence(self, key: str, payload: bytes) -> None:
         try:

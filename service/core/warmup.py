@@ -29,7 +29,7 @@ def warm_up(incident, settings=None, seconds: float = WARMUP_SECONDS) -> WarmUp:
     """Run a simulated responder through a throwaway incident core (``settings``: its
     :class:`service.core.incident_core.CoreSettings`)."""
     from pdr.simulation import SimulatedWalker
-    from service.core.incident_core import IncidentCore, Inbound
+    from service.core.incident_core import Inbound, IncidentCore
     from service.protocol import wire
 
     started = time.perf_counter()

@@ -83,7 +83,10 @@ def bench_fusion(steps: int = 14000, fix_every: int = 100, seed: int = 0,
     when ``steps`` is a multiple of ``fix_every``); ``smoothed_rmse_m`` scores the whole
     smoothed track, frozen poses included.
     """
-    from service.fusion import CheckpointFix, TrackFusion  # gtsam: only when the benchmark runs
+    from service.fusion import (  # gtsam: only when the benchmark runs
+        CheckpointFix,
+        TrackFusion,
+    )
 
     walk = synthetic_walk(steps, seed)
     rng = np.random.default_rng(seed + 1)

@@ -41,7 +41,15 @@ from typing import Any
 
 import numpy as np
 import pymap3d
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    ValidationInfo,
+    model_validator,
+)
 from pydantic_core import PydanticCustomError
 
 from service.protocol.wire import ID_PATTERN, error_location
@@ -376,11 +384,10 @@ class IncidentConfig(_Config):
         lat, lon, alt = pymap3d.enu2geodetic(x, y, z, o.lat, o.lon, o.alt_m)
         return _scalar_or_array(lat), _scalar_or_array(lon), _scalar_or_array(alt)
 
-    def floor_elevations(self):
-        """The building's floors as :class:`pdr.floors.FloorElevations`."""
-        from pdr.floors import FloorElevations  # imported here: pdr.floors pulls numba, the console need not
-
-        return FloorElevations({f.number: float(f.elevation_m) for f in self.floors})
+    def elevations(self) -> dict[int, float]:
+        """Configured elevation (m) of each floor number: a prior for the floor tracker
+        (``pdr.floors.FloorElevations(cfg.elevations())``)."""
+        return {f.number: float(f.elevation_m) for f in self.floors}
 
     def floor(self, number: int) -> Floor:
         for f in self.floors:

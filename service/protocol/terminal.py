@@ -2,13 +2,22 @@
 from __future__ import annotations
 
 import json
+import logging
+import signal
 import sys
+import threading
 from collections.abc import Iterable, Iterator
 from typing import TypeVar
 
 import numpy as np
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+)
 
 T = TypeVar("T")
 
@@ -83,3 +92,64 @@ class progress_bar:
 
     def __exit__(self, *exc):
         return self._bar.__exit__(*exc)
+
+
+# ------------------------------------------------------------------------------------------
+# What every long-running command does the same way
+# ------------------------------------------------------------------------------------------
+def stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM (Ctrl-C, systemd stop). A second Ctrl-C interrupts
+    at once (KeyboardInterrupt, which the commands catch and end quietly)."""
+    stop = threading.Event()
+
+    def handler(signum, frame):
+        if stop.is_set():  # a second Ctrl-C: the user means it
+            raise KeyboardInterrupt
+        err.print(f"\n{signal.Signals(signum).name}: shutting down ...")
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return stop
+
+
+def setup_logging(verbose: bool) -> None:
+    """Log lines on stderr; INFO with ``--verbose``, else warnings and errors only."""
+    from rich.logging import RichHandler
+
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
+                        handlers=[RichHandler(console=err, show_path=False)])
+
+
+def incident_or_exit(config, incident_id: str | None = None):
+    """The incident config at ``config`` (default: the IPIN museum demo), under ``incident_id``
+    when given; a clear error and exit code 2 when it cannot be read."""
+    import typer
+
+    from service.protocol.incident import (
+        IncidentConfigError,
+        default_incident,
+        load_incident,
+    )
+
+    try:
+        cfg = load_incident(config) if config else default_incident()
+    except IncidentConfigError as e:
+        fail(str(e))
+        raise typer.Exit(2)
+    if incident_id and incident_id != cfg.id:
+        cfg = cfg.model_copy(update={"id": incident_id})
+    return cfg
+
+
+def client_or_exit(connect: str):
+    """A zenoh client session to ``connect``, or one clear line and exit code 1."""
+    import typer
+
+    from service.protocol.session import open_client
+
+    try:
+        return open_client(connect)
+    except ConnectionError as e:
+        fail(str(e))
+        raise typer.Exit(1)

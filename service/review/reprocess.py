@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.core.incident_core import INBOUND_KINDS, IncidentCore, Inbound
+from service.core.incident_core import INBOUND_KINDS, Inbound, IncidentCore
 from service.protocol import wire
 from service.review.recorder import IncidentRecorder, read_recording
 

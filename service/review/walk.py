@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from service.core.incident_core import CoreSettings, IncidentCore, Inbound
+from service.core.incident_core import CoreSettings, Inbound, IncidentCore
 from service.core.tracker import ResponderTracker
 from service.protocol import wire
 from service.protocol.messages import Outgoing

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from service.core.incident_core import CoreSettings, IncidentCore, Inbound, Outbound
+from service.core.incident_core import CoreSettings, Inbound, IncidentCore, Outbound
 from service.protocol import wire
 from service.protocol.incident import IncidentConfig
 from service.shell.sharding import in_shard

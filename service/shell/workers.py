@@ -21,11 +21,9 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
                 log_poses: bool = False) -> None:  # pragma: no cover - runs in a child process
     import signal
 
-    import zenoh
-
     from service.protocol.incident import incident_from_dict
-    from service.shell.service import IncidentService
     from service.protocol.session import open_client
+    from service.shell.service import IncidentService
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us through ``stop``
     cfg = incident_from_dict(config, base_dir=base_dir)
