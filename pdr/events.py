@@ -92,3 +92,23 @@ def yaw_from_bearing(bearing: float) -> float:
     """Compass bearing (degrees, CW from North) -> ENU yaw (rad, CCW from East), in (-π, π]."""
     y = math.radians(90.0 - bearing)
     return math.atan2(math.sin(y), math.cos(y))
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """Where a track estimator puts the responder after a step or a fix: the one pose type
+    from the estimator (dead reckoning, the factor graph) to the wire's ``Pose``.
+
+    ``x``, ``y`` local ENU (m); ``heading`` ENU yaw of travel (rad); ``cov`` (2, 2) m² of
+    (x, y) in ENU; ``source`` ``"pdr"`` before any accepted absolute fix, ``"fused"`` after.
+    """
+
+    t: float  # s, device clock
+    x: float
+    y: float
+    heading: float  # rad, ENU yaw (CCW from East)
+    cov: np.ndarray  # (2, 2) m²
+    floor: int
+    steps: int
+    source: str = "pdr"
+    heading_sigma: float = math.nan  # rad, 1-sigma of the heading, when the estimator knows it

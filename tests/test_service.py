@@ -145,7 +145,7 @@ def test_several_responders_each_get_their_poses_and_status(live):
     assert by["charlie"] == []  # standing still: no steps, no poses
     for r in ("alpha", "bravo"):
         steps = [p.steps for p in by[r]]
-        assert steps == sorted(steps) and steps[-1] == svc.responders[r].tracker.pipeline.steps
+        assert steps == sorted(steps) and steps[-1] == svc.responders[r].tracker.steps
     st = {s.responder: s for s in status.decoded()}
     assert st["charlie"].motion in ("still", "no_motion") and st["alpha"].frames > 0
     # the track queryable answers per responder

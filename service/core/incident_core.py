@@ -82,7 +82,8 @@ class CoreSettings:
     rejected_window_s: float = 10.0  # s
     rejected_burst: int = 5  # rejects within the window -> alarm
     reorder_window: int = 4  # frames a late frame may be overtaken by
-    entry_sigma_m: float = 50.0  # m: responders not yet placed by a checkpoint start at the origin with this σ
+    entry_sigma_m: float | None = 50.0  # m: responders not yet placed by a checkpoint start at the origin
+    # with this σ at their first step (None: no pose until a checkpoint places them)
     log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
     max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
 
@@ -230,7 +231,8 @@ class IncidentCore:
         """A fresh tracker; not yet placed, it starts at the incident origin with a wide σ
         until a checkpoint fix says where the responder is."""
         cfg, s = self.incident, self.settings
-        entry = CheckpointFix(0.0, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)")
+        entry = (None if s.entry_sigma_m is None
+                 else CheckpointFix(0.0, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)"))
         return ResponderTracker(rid, FloorElevations(cfg.elevations()), cfg.start_floor, s.tracker, entry=entry)
 
     def _on_presence(self, key: str, payload: bytes) -> None:
@@ -308,7 +310,7 @@ class IncidentCore:
         if not batches:
             return
         try:
-            outputs = r.tracker.on_frame(frame_of(batches))
+            outputs = r.tracker.on_frame(frame_of(batches), batches[0].carry)
         except ValueError as e:  # e.g. a frame the gate let through that the pipeline cannot take
             if len(batches) > 1:  # the check comes before any state changes: find the culprit alone
                 for b in batches:

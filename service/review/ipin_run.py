@@ -59,7 +59,8 @@ def run_ipin(rec: Recording, incident, fix_every: int = 0, use_gnss: bool = True
     gnss = use_gnss and settings.engine == "fusion"
     msgs = recording_messages(rec, RESPONDER, incident=incident, landmark_every=fix_every, gnss=gnss)
     cfg = incident.model_copy(update={"start_floor": int(lm.floor[0])})
-    run = run_walk(msgs, cfg, RESPONDER, CoreSettings(tracker=settings))
+    # the walk starts at its first landmark: no entry guess before it (entry_sigma_m=None)
+    run = run_walk(msgs, cfg, RESPONDER, CoreSettings(tracker=settings, entry_sigma_m=None))
     if run.errors:
         raise RuntimeError(f"{rec.source}: the incident core hit {run.errors} errors (see the log)")
     tracker = run.tracker
