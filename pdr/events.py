@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import enum
 import math
+from dataclasses import dataclass
 
 import numpy as np
-from dataclasses import dataclass
+
+from pdr.angles import bearing_deg, yaw_from_bearing  # noqa: F401  (re-exported)
 
 
 class MotionState(str, enum.Enum):
@@ -76,22 +78,6 @@ class MotionEvent:
     t: float
     state: MotionState
     since: float  # s, when the motion (or stillness) began
-
-
-def bearing_deg(yaw):
-    """ENU yaw (CCW from East, rad) -> compass bearing (CW from North, degrees in [0, 360)).
-
-    A float for a float, an array for an array. A yaw a rounding error past π/2 would come out
-    as 360.0 after the modulo; that is folded to 0 so the result stays in [0, 360)."""
-    b = np.mod(90.0 - np.degrees(yaw), 360.0)
-    b = np.where(b >= 360.0, 0.0, b)
-    return float(b) if b.ndim == 0 else b
-
-
-def yaw_from_bearing(bearing: float) -> float:
-    """Compass bearing (degrees, CW from North) -> ENU yaw (rad, CCW from East), in (-π, π]."""
-    y = math.radians(90.0 - bearing)
-    return math.atan2(math.sin(y), math.cos(y))
 
 
 @dataclass(frozen=True)

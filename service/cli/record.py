@@ -28,6 +28,7 @@ from pathlib import Path
 import typer
 import zenoh
 
+from service.protocol.keys import check_id
 from service.protocol.pacing import paced
 from service.protocol.session import DEFAULT_ENDPOINT, open_client
 from service.protocol.terminal import err, fail, progress, warn
@@ -37,7 +38,6 @@ from service.review.recorder import (
     KEY_ROOT,
     IncidentRecorder,
     RecordingWriteError,
-    check_segment,
     read_recording,
     recording_summary,
 )
@@ -93,7 +93,7 @@ def record(
     ``rejected`` and warned about once per key. A write failure raises
     :class:`RecordingWriteError` after the session is closed.
     """
-    check_segment(incident, "incident")
+    check_id("incident", incident)
     stop = stop_event or threading.Event()
     samples: queue.SimpleQueue = queue.SimpleQueue()
 
@@ -198,7 +198,7 @@ def replay(
     if not (speed >= 0):
         raise ValueError(f"speed must be >= 0 (0 or inf: as fast as possible), got {speed}")
     if incident is not None:
-        check_segment(incident, "incident")
+        check_id("incident", incident)
     kinds = None if kinds is None else tuple(kinds)
     responders = None if responders is None else tuple(responders)
     summary = recording_summary(path)
