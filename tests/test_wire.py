@@ -263,8 +263,8 @@ def test_missing_field_is_schema():
 
 
 @pytest.mark.parametrize("fix, words", [
-    ({"source": "gnss", "lat": 49.0, "lon": 11.0}, "missing: accuracy"),
-    ({"source": "uwb", "anchor": "A1", "range": 2.0}, "missing: sigma"),
+    ({"source": "gnss", "lat": 49.0, "lon": 11.0}, "accuracy: Field required"),
+    ({"source": "uwb", "anchor": "A1", "range": 2.0}, "sigma: Field required"),
     ({"source": "checkpoint"}, "a checkpoint name or x and y"),
     ({"source": "checkpoint", "x": 1.0}, "x and y together"),
     ({"source": "gnss", "lat": 49.0, "lon": 11.0, "accuracy": 3.0, "anchor": "A1"}, "anchor: not part of a gnss fix"),

@@ -7,6 +7,7 @@ import msgpack
 import numpy as np
 from pydantic import ValidationError
 
+from service.protocol import fixes  # noqa: F401  (registers the built-in fix sources before any decode)
 from service.protocol.keys import ID_PATTERN, KEY_ROOT
 from service.protocol.schema import (
     MAX_PAYLOAD_BYTES,
@@ -18,6 +19,7 @@ from service.protocol.schema import (
     SCHEMA_VERSION,
     WireError,
     WireMessage,
+    fix_json_schema,
 )
 
 
@@ -83,7 +85,7 @@ def decode(payload: bytes, expect: type | None = None, max_bytes: int = MAX_PAYL
     cls = MESSAGE_TYPES.get(kind) if isinstance(kind, str) else None
     if cls is None:
         raise WireError("kind", f"unknown kind {kind!r}; known: {', '.join(MESSAGE_TYPES)}")
-    if expect is not None and cls is not expect:
+    if expect is not None and not issubclass(cls, expect) and not issubclass(expect, cls):
         raise WireError("kind", f"expected {getattr(expect, 'KIND', expect)!s}, got {kind}")
     try:
         return cls.model_validate(data, strict=True, context={"wire": True})
@@ -119,6 +121,12 @@ def json_schema() -> dict:
     defs: dict[str, Any] = {}
     for kind, cls in MESSAGE_TYPES.items():
         s = cls.model_json_schema(mode="validation", ref_template="#/$defs/{model}")
+        if kind == "fix":  # the common fields, and one of the registered sources (discriminated by "source")
+            union = fix_json_schema()
+            defs.update(union.pop("$defs", {}))
+            s["oneOf"] = union.get("oneOf", [union])
+            if "discriminator" in union:
+                s["discriminator"] = union["discriminator"]
         defs.update(s.pop("$defs", {}))
         s["properties"] = {
             "v": {"const": SCHEMA_VERSION, "type": "integer", "description": "schema major version"},

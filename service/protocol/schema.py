@@ -6,10 +6,10 @@ decodes them.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 from pydantic_core import PydanticCustomError
 
 from pdr.frames import frame_bounds
@@ -152,82 +152,107 @@ def _check_increasing(name: str, t: np.ndarray, rate: bool = False) -> None:
                     f"[{MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}] Hz")
 
 
-_FIX_FIELDS = {
-    "checkpoint": {"x", "y", "floor", "name", "sigma"},
-    "gnss": {"lat", "lon", "accuracy"},
-    "uwb": {"anchor", "range", "sigma"},
-}
-_FIX_OPTIONAL = {"x", "y", "floor", "name", "sigma", "lat", "lon", "accuracy", "anchor", "range"}
-
-
 class Fix(WireMessage):
-    """An absolute observation of a responder (wearable, operator or anchor -> service).
+    """An absolute observation of a responder (wearable, operator, anchor or another system ->
+    service): the fields every fix carries. Each source is a subclass (a discriminated union
+    on ``source``, see :mod:`service.protocol.fixes`): ``Fix(source="gnss", ...)`` and
+    :meth:`decode` build the subclass of the source, and a new source is one subclass and one
+    :func:`service.protocol.fixes.register_fix_message` call.
 
-    One class for the three sources, so a subscriber has one type to check and one ``expect``
-    to pass to :func:`decode`; the validator below enforces each source's fields:
-
-    * ``checkpoint``: the responder stands at a known point: ``name`` (a checkpoint of the
-      incident) or ``x``, ``y`` (local ENU, m), optional ``floor`` and ``sigma`` (m, 1-sigma).
-    * ``gnss``: ``lat``, ``lon`` (deg, WGS-84), ``accuracy`` (m, the receiver's 1-sigma radius).
-    * ``uwb``: a range to anchor ``anchor`` (an id of the incident's anchors): ``range`` (m),
-      ``sigma`` (m).
-
-    ``t`` is on the responder's device clock. ``operator`` names who sent the fix. Build with
-    ``Fix(source=..., ...)`` or the :meth:`checkpoint`, :meth:`gnss`, :meth:`uwb` shortcuts.
+    ``t`` is the time of the observation: on the responder's device clock
+    (``time_base="device"``, what the wearable itself sends), or Unix seconds UTC
+    (``time_base="utc"``, what an outside system has: a GNSS receiver, a UWB server, an
+    operator's console); the service converts UTC with the device-clock offset each wearable
+    publishes (``ImuBatch.utc_offset``). ``operator`` names who or what sent the fix.
     """
 
     KIND: ClassVar[str] = "fix"
+    SOURCE: ClassVar[str] = ""
     responder: Id
-    t: Finite
-    source: Literal["checkpoint", "gnss", "uwb"]
-    x: Finite | None = None
-    y: Finite | None = None
-    floor: int | None = None
-    name: str | None = Field(None, min_length=1, max_length=128)
-    lat: Finite | None = Field(None, ge=-90.0, le=90.0)
-    lon: Finite | None = Field(None, ge=-180.0, le=180.0)
-    accuracy: Finite | None = Field(None, gt=0.0)
-    anchor: str | None = Field(None, min_length=1, max_length=128)
-    range: Finite | None = Field(None, ge=0.0)
-    sigma: Finite | None = Field(None, gt=0.0)
-    operator: str | None = Field(None, max_length=128)
+    t: Finite = Field(description="s: time of the observation, on the clock time_base names")
+    source: str = Field(description="what observed the responder: checkpoint, gnss, uwb, ...")
+    time_base: Literal["device", "utc"] = Field("device", description="the clock of t: the responder's device clock, "
+                                                                      "or Unix seconds UTC")
+    operator: str | None = Field(None, max_length=128, description="who or what sent the fix")
 
-    @model_validator(mode="after")
-    def _fields_of_source(self) -> Fix:
-        own = _FIX_FIELDS[self.source]
-        foreign = sorted(f for f in _FIX_OPTIONAL - own if getattr(self, f) is not None)
-        if foreign:
-            raise PydanticCustomError("fix_fields", f"{', '.join(foreign)}: not part of a {self.source} fix "
-                                                    f"(it takes {', '.join(sorted(own))})")
-        if self.source == "checkpoint":
-            if (self.x is None) != (self.y is None):
-                raise PydanticCustomError("fix_fields", "a checkpoint fix gives x and y together")
-            if self.name is None and self.x is None:
-                raise PydanticCustomError("fix_fields", "a checkpoint fix needs a checkpoint name or x and y")
-        else:
-            required = ("lat", "lon", "accuracy") if self.source == "gnss" else ("anchor", "range", "sigma")
-            missing = [f for f in required if getattr(self, f) is None]
-            if missing:
-                raise PydanticCustomError("fix_fields", f"a {self.source} fix needs {', '.join(required)}; "
-                                                        f"missing: {', '.join(missing)}")
-        return self
+    def __new__(cls, *args, **data):
+        if cls is Fix:  # Fix(source=..., ...) builds the subclass registered for the source
+            try:
+                cls = fix_message_class(data.get("source"))
+            except ValueError:
+                validate_fix(data)  # raises the union's ValidationError, which names the source
+        return super().__new__(cls)
 
     @classmethod
-    def checkpoint(cls, responder: str, t: float, *, name: str | None = None, x: float | None = None,
-                   y: float | None = None, floor: int | None = None, sigma: float | None = None,
-                   operator: str | None = None) -> Fix:
-        return cls(responder=responder, t=t, source="checkpoint", name=name, x=x, y=y, floor=floor, sigma=sigma,
-                   operator=operator)
+    def model_validate(cls, obj, *args, **kw):
+        if cls is Fix:
+            return validate_fix(obj, *args, **kw)
+        return super().model_validate(obj, *args, **kw)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_foreign_fields(cls, data: Any) -> Any:
+        if cls is not Fix and isinstance(data, dict):
+            foreign = foreign_fields(cls, data)
+            if foreign:
+                own = sorted(set(cls.model_fields) - set(Fix.model_fields))
+                raise PydanticCustomError("fix_fields", f"{', '.join(foreign)}: not part of a {cls.SOURCE} fix "
+                                                        f"(it takes {', '.join(own)})")
+        return data
 
     @classmethod
-    def gnss(cls, responder: str, t: float, *, lat: float, lon: float, accuracy: float,
-             operator: str | None = None) -> Fix:
-        return cls(responder=responder, t=t, source="gnss", lat=lat, lon=lon, accuracy=accuracy, operator=operator)
+    def checkpoint(cls, responder: str, t: float, **fields) -> Fix:
+        """A checkpoint fix: ``name`` or ``x``, ``y``; optional ``floor``, ``sigma``."""
+        return Fix(responder=responder, t=t, source="checkpoint", **fields)
 
     @classmethod
-    def uwb(cls, responder: str, t: float, *, anchor: str, range: float, sigma: float,
-            operator: str | None = None) -> Fix:
-        return cls(responder=responder, t=t, source="uwb", anchor=anchor, range=range, sigma=sigma, operator=operator)
+    def gnss(cls, responder: str, t: float, **fields) -> Fix:
+        """A GNSS fix: ``lat``, ``lon``, ``accuracy``."""
+        return Fix(responder=responder, t=t, source="gnss", **fields)
+
+    @classmethod
+    def uwb(cls, responder: str, t: float, **fields) -> Fix:
+        """A UWB range: ``anchor``, ``range``, ``sigma``."""
+        return Fix(responder=responder, t=t, source="uwb", **fields)
+
+
+FIX_MESSAGES: dict[str, type[Fix]] = {}  # source -> model (service.protocol.fixes registers the built-in ones)
+_fix_adapter: TypeAdapter | None = None
+
+
+def register_fix_message(model: type[Fix]) -> type[Fix]:
+    """Make ``model`` (a :class:`Fix` subclass with ``source: Literal[name]``) a fix source."""
+    global _fix_adapter
+    FIX_MESSAGES[model.SOURCE] = model
+    models = tuple(FIX_MESSAGES.values())
+    union = models[0] if len(models) == 1 else Annotated[Union[models], Field(discriminator="source")]  # noqa: UP007
+    _fix_adapter = TypeAdapter(union)
+    return model
+
+
+def fix_message_class(source: Any) -> type[Fix]:
+    try:
+        return FIX_MESSAGES[source]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown fix source {source!r}; known: {', '.join(FIX_MESSAGES)}") from None
+
+
+def validate_fix(obj: Any, *, strict: bool | None = None, context: Any = None, **kw) -> Fix:
+    """The union's validation: the model of ``obj["source"]``; a pydantic ValidationError naming
+    ``source`` for an unknown one."""
+    return _fix_adapter.validate_python(obj, strict=strict, context=context)
+
+
+def fix_json_schema() -> dict:
+    """The JSON Schema of the union of every registered fix source."""
+    return _fix_adapter.json_schema(mode="validation", ref_template="#/$defs/{model}")
+
+
+def foreign_fields(model: type[Fix], data: dict) -> list[str]:
+    """Keys of ``data`` that belong to another registered source (not to ``model``)."""
+    own = set(model.model_fields)
+    others = set().union(*(m.model_fields for m in FIX_MESSAGES.values())) - own
+    return sorted(k for k in data if k in others and data[k] is not None)
 
 
 class Pose(WireMessage):

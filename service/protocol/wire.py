@@ -50,6 +50,13 @@ from service.protocol.codec import (  # noqa: F401
     error_location,
     json_schema,
 )
+from service.protocol.fixes import (  # noqa: F401
+    FIX_MESSAGES,
+    CheckpointFixMessage,
+    GnssFixMessage,
+    UwbFixMessage,
+    register_fix_message,
+)
 from service.protocol.keys import (  # noqa: F401
     ID_PATTERN,
     KEY_KINDS,
