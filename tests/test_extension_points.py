@@ -82,3 +82,91 @@ def test_a_motion_model_registered_from_a_test_tracks_its_carry_position(metrono
     for p in arm:  # 0.8 m north per second from the checkpoint
         assert p.x == pytest.approx(10.0, abs=0.05) and p.y == pytest.approx(-5.0 + 0.8 * p.steps, abs=0.05)
     assert core.counters.errors == 0
+
+
+# -- a new fix type: a BLE beacon the responder passed close by ------------------------------
+import dataclasses  # noqa: E402
+from typing import ClassVar, Literal  # noqa: E402
+
+from service.core import fix_types  # noqa: E402
+from service.protocol import schema  # noqa: E402
+
+BEACONS = {"b-door": (12.0, 3.0), "b-stair": (-4.0, 20.0)}  # the test's own survey, ENU m
+
+
+class BeaconFixMessage(wire.Fix):
+    """Wire model: the responder's phone heard beacon ``beacon`` at about ``proximity_m``."""
+
+    SOURCE: ClassVar[str] = "beacon"
+    source: Literal["beacon"] = "beacon"
+    beacon: str
+    proximity_m: float
+
+
+@dataclasses.dataclass(frozen=True)
+class BeaconFix:
+    """Domain fix in the local frame, with its factor: a translation prior at the beacon."""
+
+    t: float
+    x: float
+    y: float
+    sigma: float
+    source: str = "beacon"
+
+    def factors(self, ctx):
+        import gtsam
+
+        p, cov = ctx.position_marginal()
+        if math.hypot(p[0] - self.x, p[1] - self.y) > 50.0:  # a gate of the type's own
+            ctx.reject("beacon_far", "more than 50 m from the track")
+            return None
+        noise = gtsam.noiseModel.Isotropic.Sigma(2, math.hypot(self.sigma, ctx.slip))
+        return [gtsam.PoseTranslationPrior2D(ctx.key, np.array([self.x, self.y]), noise)]
+
+
+def _beacon_to_local(msg, incident):
+    if msg.beacon not in BEACONS:
+        raise fix_types.FixRejected("unknown_reference", f"beacon {msg.beacon!r} is not surveyed")
+    x, y = BEACONS[msg.beacon]
+    return BeaconFix(msg.t, x, y, msg.proximity_m)
+
+
+@pytest.fixture
+def beacon_fix_type():
+    saved_msgs, saved_types = dict(schema.FIX_MESSAGES), dict(fix_types._TYPES)
+    schema.register_fix_message(BeaconFixMessage)
+    fix_types.register_fix_type(fix_types.FixType("beacon", _beacon_to_local))
+    yield
+    schema.FIX_MESSAGES.clear()
+    for m in saved_msgs.values():
+        schema.register_fix_message(m)
+    fix_types._TYPES.clear()
+    fix_types._TYPES.update(saved_types)
+
+
+def test_a_fix_type_registered_from_a_test_reaches_the_factor_graph(metronome_on_armband, beacon_fix_type):
+    cfg = default_incident()
+    core = IncidentCore(cfg)
+    key = {k: wire.key(cfg.id, "arm", k) for k in ("imu", "fix")}
+    start = wire.Fix.checkpoint("arm", 100.0, x=10.0, y=-5.0, floor=0, sigma=0.2)
+    beacon = wire.Fix(responder="arm", t=108.0, source="beacon", beacon="b-door", proximity_m=0.5)
+    assert isinstance(wire.decode(wire.encode(beacon), expect=wire.Fix), BeaconFixMessage)  # on the wire
+    unknown = wire.Fix(responder="arm", t=109.0, source="beacon", beacon="b-attic", proximity_m=0.5)
+    frames = _frames("arm", "armband")
+    items = [Inbound("fix", key["fix"], wire.encode(start), 0.0)]
+    for b in frames:
+        items.append(Inbound("imu", key["imu"], wire.encode(b), 0.0))
+        if b.t[-1] >= 110.0 and beacon is not None:  # the walk has passed both fix times
+            items += [Inbound("fix", key["fix"], wire.encode(m), 0.0) for m in (beacon, unknown)]
+            beacon = None
+    poses = [o.message for o in core.feed_round(items) if isinstance(o.message, wire.Pose)]
+    tracker = core.responders["arm"].tracker
+    assert tracker.fixes_applied == 2  # the checkpoint that placed it, and the beacon
+    assert core.responders["arm"].fixes_rejected == {"unknown_reference": 1}
+    # the metronome walks north from (10, -5); the beacon at (12, 3) at t = 108 pulls the track to it
+    assert poses[-1].source == "fused"
+    sm = tracker.smoothed_track()
+    i = int(np.argmin(np.abs(sm["t"] - 108.0)))
+    fused = math.hypot(sm["x"][i] - 12.0, sm["y"][i] - 3.0)
+    alone = math.hypot(10.0 - 12.0, -5.0 + 0.8 * 8 - 3.0)  # where dead reckoning alone had it at t = 108
+    assert fused < 0.75 * alone
