@@ -73,7 +73,8 @@ class SimulationPublisher:
             p_t = b.pressure_t if len(b.pressure_t) else None
             p_v = b.pressure if len(b.pressure_t) else None
             msg = wire.ImuBatch(responder=w.responder, device=f"sim:{w.responder}", seq=int(self.seq[i]), t=b.t,
-                                acc=b.acc, gyr=b.gyr, mag=b.mag, pressure_t=p_t, pressure=p_v, carry="handheld")
+                                acc=b.acc, gyr=b.gyr, mag=b.mag, pressure_t=p_t, pressure=p_v, carry="handheld",
+                                utc_offset=time.time() - float(b.t[-1]))
             w.send("imu", msg)
             if on_frame is not None:
                 on_frame(i, int(self.seq[i]), time.time())

@@ -11,6 +11,7 @@ clock, so a replay at ``speed=10`` lasts a tenth of the recording.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 
 import zenoh
@@ -33,7 +34,12 @@ class Wearable:
         self.sent = {"imu": 0, "fix": 0, "truth": 0}
 
     def send(self, kind: str, msg_or_payload) -> None:
-        payload = msg_or_payload if isinstance(msg_or_payload, bytes) else wire.encode(msg_or_payload)
+        """Publish one message; a frame without a clock offset gets this machine's: UTC now
+        minus the device time of its last sample (how a phone relates its sensor clock to UTC)."""
+        msg = msg_or_payload
+        if isinstance(msg, wire.ImuBatch) and msg.utc_offset is None:
+            msg = msg.model_copy(update={"utc_offset": time.time() - float(msg.t[-1])})
+        payload = msg if isinstance(msg, bytes) else wire.encode(msg)
         self._pub[kind].put(payload)
         self.sent[kind] += 1
 

@@ -86,6 +86,7 @@ class CoreSettings:
     # with this σ at their first step (None: no pose until a checkpoint places them)
     log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
     max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
+    fix_future_s: float = 2.0  # s: a fix this far ahead of the newest sample is from the future (a wrong clock)
 
 
 @dataclass
@@ -160,15 +161,16 @@ class IncidentCore:
         heard = r.gate.last_heard if r.gate.last_heard is not None else r.first_heard
         motion, since = r.tracker.motion
         rejected = dict(r.gate.counts)
-        for reason, n in r.fixes_rejected.items():
-            rejected[f"fix_{reason}"] = n
-        for reason, n in (("fix_gated", r.tracker.fixes_rejected), ("fix_unused", r.tracker.fixes_unused)):
-            if n:
-                rejected[reason] = n
+        tr = r.tracker
+        for reasons in (r.fixes_rejected, tr.fix_rejects, {"unused": tr.fixes_unused}):
+            for reason, n in reasons.items():
+                if n:
+                    rejected[f"fix_{reason}"] = rejected.get(f"fix_{reason}", 0) + n
         return wire.Status(
-            responder=r.id, t=r.tracker.device_time, motion=motion.value, motion_since=since,
+            responder=r.id, t=tr.device_time, motion=motion.value, motion_since=since,
             alarms=alarms.of_responder(r, now, self.settings, self.recording_failed), rejected=rejected,
-            frames=r.gate.accepted, gaps=r.gate.gaps, last_heard=heard, steps=r.tracker.steps,
+            frames=r.gate.accepted, gaps=r.gate.gaps, last_heard=heard, steps=tr.steps,
+            fixes={"applied": tr.fixes_applied, "queued": tr.fixes_queued}, utc_offset=r.utc_offset,
         )
 
     def track(self, rid: str) -> dict | None:
@@ -273,6 +275,8 @@ class IncidentCore:
         if batch.responder != r.id:
             self._reject(r, "schema", f"responder {batch.responder!r} in a frame on the key of {r.id!r}", now)
             return
+        if batch.utc_offset is not None:
+            r.utc_offset = batch.utc_offset
         rejected_before = r.gate.rejected
         released = r.gate.offer(batch, now)
         if r.gate.rejected > rejected_before:  # the gate records why in its newest event
@@ -334,24 +338,47 @@ class IncidentCore:
             return
         try:
             fix = wire.decode(payload, expect=wire.Fix)
-            domain = fix_type_of(fix.source).to_domain(fix, self.incident)
         except wire.WireError as e:
             self._count_fix_reject(r, e.reason, e.detail)
             return
+        if fix.responder != r.id:
+            self._count_fix_reject(r, "schema", f"responder {fix.responder!r} in a fix on the key of {r.id!r}")
+            return
+        self._run_backlog(r)  # the frames that came before the fix go first (its time is judged against them)
+        try:
+            fix = self._on_device_clock(r, fix)
+            domain = fix_type_of(fix.source).to_domain(fix, self.incident)
         except FixRejected as e:
             self._count_fix_reject(r, e.reason, str(e))
             return
         except ValueError as e:  # a domain fix that checks itself (service.fusion.fixes)
             self._count_fix_reject(r, "unknown_reference", str(e))
             return
-        if fix.responder != r.id:
-            self._count_fix_reject(r, "schema", f"responder {fix.responder!r} in a fix on the key of {r.id!r}")
-            return
-        self._run_backlog(r)  # the frames that came before the fix go first
         pose = r.tracker.on_fix(domain)
         log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
         if pose is not None:
             self._answer_pose(r, pose)
+
+    def _on_device_clock(self, r: Responder, fix: wire.Fix) -> wire.Fix:
+        """The fix with ``t`` on the responder's device clock, or :class:`FixRejected`: a UTC
+        time before the wearable has said its clock offset (``clock_unknown``), a time ahead of
+        the newest sample (``future``: a wrong clock), or older than the estimator's window
+        (``too_old``)."""
+        if fix.time_base == "utc":
+            if r.utc_offset is None:
+                raise FixRejected("clock_unknown", f"{fix.source} fix in UTC, but the wearable of {r.id} has not "
+                                                   "said its clock offset yet (ImuBatch.utc_offset)")
+            fix = fix.model_copy(update={"t": fix.t - r.utc_offset, "time_base": "device"})
+        tr = r.tracker
+        if math.isfinite(tr.model.last_time):  # judged against the samples taken so far
+            ahead = fix.t - tr.device_time
+            if ahead > self.settings.fix_future_s:
+                raise FixRejected("future", f"{fix.source} fix {ahead:.1f} s ahead of the newest sample "
+                                            f"(device time {tr.device_time:.2f} s): check its clock and time_base")
+            if -ahead > tr.max_fix_age_s:
+                raise FixRejected("too_old", f"{fix.source} fix {-ahead:.1f} s behind the newest sample; the "
+                                             f"estimator keeps {tr.max_fix_age_s:.0f} s")
+        return fix
 
     def _count_fix_reject(self, r: Responder, reason: str, detail: str) -> None:
         r.fixes_rejected[reason] = r.fixes_rejected.get(reason, 0) + 1
@@ -372,5 +399,6 @@ class IncidentCore:
             responder=r.id, t=p.t, x=p.x, y=p.y, floor=int(p.floor), lat=float(lat), lon=float(lon),
             heading_deg=bearing_deg(p.heading) if math.isfinite(p.heading) else 0.0, cov=cov, steps=p.steps,
             source=p.source, seq=max(r.seq, 0), published_at=self._now,
+            utc=None if r.utc_offset is None else p.t + r.utc_offset,
         )
 

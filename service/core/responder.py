@@ -29,6 +29,7 @@ class Responder:
     rejects: deque = field(default_factory=lambda: deque(maxlen=1024))  # service times of rejects
     fixes_rejected: dict = field(default_factory=dict)
     present: bool | None = None  # liveliness: None unknown, True token alive, False token gone
+    utc_offset: float | None = None  # s, UTC minus the device clock, as the wearable last said
     logged: deque = field(default_factory=lambda: deque(maxlen=64))
 
 

@@ -86,7 +86,8 @@ class ResponderTracker:
         self.live: PoseEstimate | None = None
         self.last_step: StepEvent | None = None
         self.fixes_applied = 0
-        self.fixes_rejected = 0  # refused by the estimator's gates
+        self.fixes_rejected = 0  # refused by the estimator's gates ...
+        self.fix_rejects: dict[str, int] = {}  # ... by the estimator's reason (gnss_gate, too_old, ...)
         self.fixes_unused = 0  # nothing to apply them to (see _apply_fix)
         self._first_step_after_placement = True
 
@@ -132,6 +133,20 @@ class ResponderTracker:
             if p is not None:
                 out.append(p)
         return out
+
+    @property
+    def fixes_queued(self) -> int:
+        """Fixes waiting for a step to pass their time."""
+        return len(self._pending_fixes)
+
+    @property
+    def max_fix_age_s(self) -> float:
+        """How far behind the newest sample a fix may be and still be used (the estimator's window)."""
+        if self.settings.engine != "fusion":
+            return math.inf
+        from service.fusion.settings import FusionSettings
+
+        return (self.settings.fusion or FusionSettings()).lag_s
 
     @property
     def fix_waiting(self) -> bool:
@@ -226,6 +241,8 @@ class ResponderTracker:
             return None
         if outcome.verdict == "rejected":
             self.fixes_rejected += 1
+            reason = outcome.reason or "gated"
+            self.fix_rejects[reason] = self.fix_rejects.get(reason, 0) + 1
             return None
         self.fixes_applied += 1
         self.live = self._published(outcome.pose, self.live.steps if self.live else 0)

@@ -95,7 +95,11 @@ class ImuBatch(WireMessage):
     mag: Mag | None = None
     pressure_t: Seconds | None = None
     pressure: Hpa | None = None
-    carry: Literal["handheld", "pocket", "bag", "armband", "waist", "foot", "unknown"] = "unknown"
+    carry: Literal["handheld", "pocket", "bag", "armband", "waist", "foot", "unknown"] = Field(
+        "unknown", description="where the device is worn; chooses the motion model (foot: the ZUPT INS)")
+    utc_offset: Finite | None = Field(
+        None, description="s: UTC (Unix seconds) minus the device clock, the wearable's latest estimate; "
+                          "a time t on the device clock is t + utc_offset in UTC")
 
     @model_validator(mode="after")
     def _consistent(self) -> ImuBatch:
@@ -266,18 +270,19 @@ class Pose(WireMessage):
 
     KIND: ClassVar[str] = "pose"
     responder: Id
-    t: Finite
-    x: Finite
-    y: Finite
-    floor: int
-    lat: Finite = Field(ge=-90.0, le=90.0)
-    lon: Finite = Field(ge=-180.0, le=180.0)
-    heading_deg: Finite = Field(ge=0.0, lt=360.0)
+    t: Finite = Field(description="s, device clock: the time of the step (or fix) this pose is at")
+    x: Finite = Field(description="m, local ENU east of the incident origin")
+    y: Finite = Field(description="m, local ENU north of the incident origin")
+    floor: int = Field(description="floor number of the incident config (0 ground, negative below)")
+    lat: Finite = Field(ge=-90.0, le=90.0, description="deg, WGS-84 latitude of (x, y)")
+    lon: Finite = Field(ge=-180.0, le=180.0, description="deg, WGS-84 longitude of (x, y)")
+    heading_deg: Finite = Field(ge=0.0, lt=360.0, description="deg, compass bearing of travel, clockwise from North")
     cov: Cov2
-    steps: int = Field(ge=0)
-    source: Literal["pdr", "fused"]
-    seq: int = Field(ge=0)
-    published_at: Finite
+    steps: int = Field(ge=0, description="steps (strides) counted since the track started")
+    source: Literal["pdr", "fused"] = Field(description="pdr: dead reckoning only so far; fused: a fix was applied")
+    seq: int = Field(ge=0, description="the ImuBatch seq this pose reflects")
+    published_at: Finite = Field(description="s, Unix time UTC of the service's clock when it published")
+    utc: Finite | None = Field(None, description="s, Unix time UTC of t (device time + the wearable's clock offset)")
 
     @model_validator(mode="after")
     def _covariance(self) -> Pose:
@@ -297,15 +302,19 @@ class Status(WireMessage):
 
     KIND: ClassVar[str] = "status"
     responder: Id
-    t: Finite
-    motion: Literal["walking", "still", "no_motion"]
-    motion_since: Finite
+    t: Finite = Field(description="s, device clock: the newest sample the service has taken")
+    motion: Literal["walking", "still", "no_motion"] = Field(description="the motion state as of the newest frame")
+    motion_since: Finite = Field(description="s, device clock: when the motion state began")
     alarms: list[str] = Field(default_factory=list, description='e.g. "man_down", "lost_contact", "rejected_frames"')
-    rejected: dict[str, int] = Field(default_factory=dict)
-    frames: int = Field(0, ge=0)
-    gaps: int = Field(0, ge=0)
-    last_heard: Finite
-    steps: int = Field(0, ge=0)
+    rejected: dict[str, int] = Field(default_factory=dict, description="frames and fixes turned away, by reason "
+                                                                       "(fixes as fix_<reason>)")
+    frames: int = Field(0, ge=0, description="frames accepted")
+    gaps: int = Field(0, ge=0, description="discontinuities: runs of lost frames and device-time jumps")
+    last_heard: Finite = Field(description="s, Unix time UTC of the service's clock when the last frame arrived")
+    steps: int = Field(0, ge=0, description="steps (strides) counted")
+    fixes: dict[str, int] = Field(default_factory=dict, description="fixes applied and queued (waiting for a step); "
+                                                                    "the rejected ones are in rejected")
+    utc_offset: Finite | None = Field(None, description="s: UTC minus the device clock, as the wearable last said")
 
 
 MESSAGE_TYPES: dict[str, type[WireMessage]] = {m.KIND: m for m in (ImuBatch, Fix, Pose, Status)}
