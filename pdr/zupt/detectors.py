@@ -1,0 +1,137 @@
+"""Streaming zero-velocity detectors for a boot-mounted IMU: SHOE, ARED, MV and adaptive.
+
+A foot comes to rest at every stance; recognising those instants is the whole art of a
+zero-velocity-aided INS (Foxlin 2005; Skog, Händel, Nilsson, Rantakokko, "Zero-velocity
+detection — an algorithm evaluation", IEEE Trans. Biomed. Eng. 57(11), 2010). Over a window
+``W`` of samples centred on sample k, with specific force ``a_j`` (m/s²), angular rate
+``ω_j`` (rad/s) and ``ā`` the window's mean specific force:
+
+* **SHOE** (stance hypothesis optimal detector, the GLRT of Skog et al. 2010 eq. 13)::
+
+      T = (1/W) Σ_j ( ‖a_j − g ā/‖ā‖‖² / σ_a²  +  ‖ω_j‖² / σ_ω² )  <  γ
+
+* **ARED** (angular rate energy, eq. 16): ``(1/W) Σ_j ‖ω_j‖² < γ_ω²``;
+* **MV** (acceleration moving variance, eq. 15): ``(1/W) Σ_j ‖a_j − ā‖² < γ_a²``;
+* **adaptive**: SHOE whose threshold rises with the gait's intensity (see
+  :class:`pdr.zupt.settings.DetectorSettings`). Wagstaff, Peretroukhin and Kelly
+  ("Improving foot-mounted inertial navigation through real-time motion classification",
+  IPIN 2017) showed that one SHOE threshold cannot serve walking and running, and switched
+  thresholds on an SVM's motion class; Wagstaff and Kelly (2018, LSTM-based zero-velocity
+  detection) learned the detector instead. Here the switch is a continuous law of one
+  physical feature, the largest specific force of the last stride(s). SHOE tests for
+  gravity along the window's own mean direction, so a boot resting on its toe (crawling)
+  is tested like an upright one.
+
+The window is a time window (``|t_j − t_k| ≤ window_s/2``), so the detector works at any
+rate; a sample is decided once a sample past its window has arrived, half a window after
+it. Every statistic is summed over its own window in sample order (compiled, see
+:mod:`pdr.zupt._detector_kernel`): a stream cut into batches of any size gives the same
+decisions, bit for bit, as the whole recording at once.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from pdr.windows import norm3
+from pdr.zupt import _detector_kernel as _k
+from pdr.zupt.settings import DetectorSettings
+
+_KIND = {"shoe": _k.KIND_SHOE, "ared": _k.KIND_ARED, "mv": _k.KIND_MV, "adaptive": _k.KIND_ADAPTIVE}
+_STAT_COL = {"shoe": _k.SHOE, "ared": _k.ARED, "mv": _k.MV, "adaptive": _k.SHOE}
+
+
+@dataclass(frozen=True)
+class Decisions:
+    """Samples the detector has decided, in time order, with what the INS needs of them."""
+
+    t: np.ndarray  # (m,) s
+    acc: np.ndarray  # (m, 3) m/s², body
+    gyr: np.ndarray  # (m, 3) rad/s, body
+    stationary: np.ndarray  # (m,) bool
+    statistic: np.ndarray  # (m,) the detector's test statistic (SHOE: dimensionless; ARED rad²/s²; MV m²/s⁴)
+    threshold: np.ndarray  # (m,) what it was compared with
+    intensity: np.ndarray  # (m,) m/s², the gait intensity A (largest ‖f‖ of the trailing window)
+    ared: np.ndarray  # (m,) rad²/s², mean squared angular rate of the window (for ZARU)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @staticmethod
+    def empty() -> Decisions:
+        z = np.empty(0)
+        return Decisions(z, np.empty((0, 3)), np.empty((0, 3)), np.empty(0, bool), z, z, z, z)
+
+
+class ZeroVelocityDetector:
+    """``decided = detector.update(t, acc, gyr)``; ``detector.finish()`` decides the rest.
+
+    ``t`` (n,) s increasing, ``acc`` (n, 3) m/s² and ``gyr`` (n, 3) rad/s in the body frame.
+    Returns the samples decided by this call (those whose window is complete), which lag
+    the newest sample by half a window.
+    """
+
+    def __init__(self, settings: DetectorSettings | None = None):
+        self.settings = s = settings or DetectorSettings()
+        self._half = 0.5 * s.window_s
+        self._kind = _KIND[s.detector]
+        self._col = _STAT_COL[s.detector]
+        self._n_bins = max(1, int(round(s.intensity_window_s / s.intensity_bin_s)))
+        self._state = np.full(_k.state_size(self._n_bins), np.nan)
+        self._t = np.empty(0)
+        self._acc = np.empty((0, 3))
+        self._gyr = np.empty((0, 3))
+        self._start = 0  # index in the buffer of the first undecided sample
+        self._t_last = -math.inf
+
+    @property
+    def name(self) -> str:
+        return self.settings.detector
+
+    def update(self, t, acc, gyr) -> Decisions:
+        t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+        acc = np.ascontiguousarray(acc, dtype=np.float64).reshape(-1, 3)
+        gyr = np.ascontiguousarray(gyr, dtype=np.float64).reshape(-1, 3)
+        if acc.shape[0] != t.shape[0] or gyr.shape[0] != t.shape[0]:
+            raise ValueError(f"t has {t.shape[0]} samples, acc {acc.shape[0]}, gyr {gyr.shape[0]}")
+        if t.size == 0:
+            return Decisions.empty()
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(acc)) and np.all(np.isfinite(gyr))):
+            raise ValueError("non-finite time, acceleration or angular rate in the batch")
+        if t[0] <= self._t_last or np.any(np.diff(t) <= 0):
+            raise ValueError(f"sample times must increase (batch starts at {t[0]:.6f} s, previous sample at "
+                             f"{self._t_last:.6f} s)")
+        self._t_last = float(t[-1])
+        self._t = np.concatenate([self._t, t])
+        self._acc = np.concatenate([self._acc, acc])
+        self._gyr = np.concatenate([self._gyr, gyr])
+        return self._decide(final=False)
+
+    def finish(self) -> Decisions:
+        """The stream has ended: the last half window is decided on the samples there are."""
+        return self._decide(final=True)
+
+    def _decide(self, final: bool) -> Decisions:
+        s = self.settings
+        stats, m = _k.window_statistics(self._t, self._acc, self._gyr, self._start, final, self._half, s.gravity,
+                                        1.0 / s.acc_sigma ** 2, 1.0 / s.gyro_sigma ** 2)
+        lo, hi = self._start, self._start + m
+        t, acc, gyr = self._t[lo:hi], self._acc[lo:hi], self._gyr[lo:hi]
+        zv, thr, inten = _k.decide(
+            t, stats, norm3(acc), self._kind, self._state, self._n_bins, s.intensity_bin_s, s.shoe_threshold,
+            s.adaptive_reference_m_s2, s.adaptive_exponent, s.adaptive_max_threshold, s.adaptive_floor_factor,
+            s.adaptive_ceiling, s.ared_threshold_rad_s ** 2, s.mv_threshold_m_s2 ** 2)
+        out = Decisions(t.copy(), acc.copy(), gyr.copy(), zv, stats[:, self._col].copy(), thr, inten,
+                        stats[:, _k.ARED].copy())
+        self._start = hi
+        # keep the undecided samples and the half window before them
+        if hi < self._t.size:
+            keep = int(np.searchsorted(self._t, self._t[hi] - self._half, side="left"))
+        else:
+            keep = self._t.size
+        keep = min(keep, hi)
+        self._t, self._acc, self._gyr = self._t[keep:], self._acc[keep:], self._gyr[keep:]
+        self._start -= keep
+        return out
