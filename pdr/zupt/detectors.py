@@ -55,6 +55,7 @@ class Decisions:
     threshold: np.ndarray  # (m,) what it was compared with
     intensity: np.ndarray  # (m,) m/s², the gait intensity A (largest ‖f‖ of the trailing window)
     ared: np.ndarray  # (m,) rad²/s², mean squared angular rate of the window (for ZARU)
+    quiet: np.ndarray  # (m,) bool, motionless by the strict test (SHOE below shoe_threshold; else stationary)
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -62,7 +63,7 @@ class Decisions:
     @staticmethod
     def empty() -> Decisions:
         z = np.empty(0)
-        return Decisions(z, np.empty((0, 3)), np.empty((0, 3)), np.empty(0, bool), z, z, z, z)
+        return Decisions(z, np.empty((0, 3)), np.empty((0, 3)), np.empty(0, bool), z, z, z, z, np.empty(0, bool))
 
 
 class ZeroVelocityDetector:
@@ -123,8 +124,10 @@ class ZeroVelocityDetector:
             t, stats, norm3(acc), self._kind, self._state, self._n_bins, s.intensity_bin_s, s.shoe_threshold,
             s.adaptive_reference_m_s2, s.adaptive_exponent, s.adaptive_max_threshold, s.adaptive_floor_factor,
             s.adaptive_ceiling, s.ared_threshold_rad_s ** 2, s.mv_threshold_m_s2 ** 2)
+        shoe_like = self._kind in (_k.KIND_SHOE, _k.KIND_ADAPTIVE)
+        quiet = stats[:, _k.SHOE] < s.shoe_threshold if shoe_like else zv
         out = Decisions(t.copy(), acc.copy(), gyr.copy(), zv, stats[:, self._col].copy(), thr, inten,
-                        stats[:, _k.ARED].copy())
+                        stats[:, _k.ARED].copy(), quiet)
         self._start = hi
         # keep the undecided samples and the half window before them
         if hi < self._t.size:

@@ -85,8 +85,7 @@ class InsOutput:
     position: np.ndarray  # (m, 3) m, ENU; NaN before the INS started
     stationary: np.ndarray  # (m,) bool, the detector's decision
     threshold: np.ndarray  # (m,) the detector's threshold at each sample
-    acc_norm: np.ndarray  # (m,) m/s², ‖f‖ of each sample
-    gyr_norm: np.ndarray  # (m,) rad/s, ‖ω‖ of each sample
+    quiet: np.ndarray  # (m,) bool, motionless by the detector's strict test (the man-down clock)
     stances: Stances
 
     def __len__(self) -> int:
@@ -244,16 +243,12 @@ class ZuptIns:
         zr = self.settings.ins.zaru_max_rate
         zaru = d.stationary & (d.ared < zr * zr) if zr > 0 else np.zeros(len(d), np.bool_)
         pos, ev, _ = _k.ins_run(self._x, self._P, self._aux, self._par, d.t, d.acc, d.gyr, d.stationary, zaru)
-        return InsOutput(d.t, pos, d.stationary, d.threshold, _norm(d.acc), _norm(d.gyr), Stances.from_events(ev))
+        return InsOutput(d.t, pos, d.stationary, d.threshold, d.quiet,
+                         Stances.from_events(ev) if ev.shape[0] else _NO_STANCES)
 
     @staticmethod
     def _outputs_before_start(d: Decisions) -> InsOutput:
-        return InsOutput(d.t, np.full((len(d), 3), np.nan), d.stationary, d.threshold, _norm(d.acc), _norm(d.gyr),
-                         Stances.empty())
-
-
-def _norm(a: np.ndarray) -> np.ndarray:
-    return np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2])
+        return InsOutput(d.t, np.full((len(d), 3), np.nan), d.stationary, d.threshold, d.quiet, _NO_STANCES)
 
 
 def _trailing_run(zv: np.ndarray) -> int:
@@ -269,9 +264,12 @@ def _split(d: Decisions, i: int) -> tuple[Decisions, Decisions]:
     return (Decisions(*(getattr(d, k)[:i] for k in f)), Decisions(*(getattr(d, k)[i:] for k in f)))
 
 
+_NO_STANCES = Stances.empty()
+
+
 def _empty_output() -> InsOutput:
     z = np.empty(0)
-    return InsOutput(z, np.empty((0, 3)), np.empty(0, bool), z, z, z, Stances.empty())
+    return InsOutput(z, np.empty((0, 3)), np.empty(0, bool), z, np.empty(0, bool), _NO_STANCES)
 
 
 def _concat(parts: list[InsOutput]) -> InsOutput:
@@ -282,6 +280,5 @@ def _concat(parts: list[InsOutput]) -> InsOutput:
         return parts[0]
     st = [p.stances for p in parts]
     stances = Stances(*(np.concatenate([getattr(x, k) for x in st]) for k in Stances.__dataclass_fields__))
-    return InsOutput(*(np.concatenate([getattr(p, k) for p in parts]) for k in ("t", "position", "stationary",
-                                                                            "threshold", "acc_norm", "gyr_norm")),
-                     stances)
+    return InsOutput(*(np.concatenate([getattr(p, k) for p in parts])
+                       for k in ("t", "position", "stationary", "threshold", "quiet")), stances)

@@ -131,10 +131,12 @@ class StrideSettings:
     length_sigma_frac: float = 0.02  # of the stride length (ZUPT INS strides read about 2 % short on Vicon)
     dz_sigma_m: float = 0.02  # m, floor of the vertical sigma
     heading_min_length_m: float = 0.1  # m, a shorter stride keeps the previous direction of travel
+    heading_change_sigma_floor: float = math.radians(0.5)  # rad, per stride
     unaligned_heading_sigma: float = math.pi  # rad, absolute heading sigma when no compass aligned the start
 
     def __post_init__(self) -> None:
-        for name in ("settle_s", "min_stance_s", "min_swing_s", "heading_min_length_m", "unaligned_heading_sigma"):
+        for name in ("settle_s", "min_stance_s", "min_swing_s", "heading_min_length_m", "heading_change_sigma_floor",
+                     "unaligned_heading_sigma"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"StrideSettings.{name} must be a positive number, got {v!r}")
