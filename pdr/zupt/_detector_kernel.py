@@ -5,6 +5,9 @@ Each sample ``k`` gets the statistics of the samples ``j`` with ``|t_j - t_k| <=
 samples, never on where a batch began. A sample is decided once a sample later than
 ``t_k + half`` has arrived (or the stream has ended), so the detector lags the newest
 sample by half a window.
+
+The samples sit in one buffer ``buf`` (n, 7): time (s), specific force (3, m/s²), angular
+rate (3, rad/s).
 """
 from __future__ import annotations
 
@@ -15,10 +18,11 @@ from numba import njit
 
 SHOE, ARED, MV = 0, 1, 2  # columns of the statistics
 STAT_COLS = 3
+BUF_COLS = 7  # t, acc (3), gyr (3)
 
 
 @njit(cache=True)
-def window_statistics(t, acc, gyr, start, final, half, gravity, inv_var_a, inv_var_w):  # pragma: no cover
+def window_statistics(buf, start, final, half, gravity, inv_var_a, inv_var_w):  # pragma: no cover
     """Statistics of the windows centred on samples ``start, start+1, ...`` while decidable.
 
     With ``W`` the samples of the window, ``ā`` their mean specific force (m/s²):
@@ -39,6 +43,7 @@ def window_statistics(t, acc, gyr, start, final, half, gravity, inv_var_a, inv_v
     Returns ``(stats (m, STAT_COLS), m)``: the number of
     samples decided is ``m`` (all of the rest when ``final``).
     """
+    t = buf[:, 0]
     n = t.shape[0]
     out = np.empty((max(n - start, 0), STAT_COLS))
     lo = 0
@@ -57,9 +62,9 @@ def window_statistics(t, acc, gyr, start, final, half, gravity, inv_var_a, inv_v
         s1 = 0.0
         s2 = 0.0
         for j in range(lo, hi + 1):
-            s0 += acc[j, 0]
-            s1 += acc[j, 1]
-            s2 += acc[j, 2]
+            s0 += buf[j, 1]
+            s1 += buf[j, 2]
+            s2 += buf[j, 3]
         m0, m1, m2 = s0 / cnt, s1 / cnt, s2 / cnt
         nm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
         u0, u1, u2 = (m0 / nm, m1 / nm, m2 / nm) if nm > 0.0 else (0.0, 0.0, 0.0)
@@ -67,8 +72,8 @@ def window_statistics(t, acc, gyr, start, final, half, gravity, inv_var_a, inv_v
         ared = 0.0
         mv = 0.0
         for j in range(lo, hi + 1):
-            a0, a1, a2 = acc[j, 0], acc[j, 1], acc[j, 2]
-            w0, w1, w2 = gyr[j, 0], gyr[j, 1], gyr[j, 2]
+            a0, a1, a2 = buf[j, 1], buf[j, 2], buf[j, 3]
+            w0, w1, w2 = buf[j, 4], buf[j, 5], buf[j, 6]
             d0, d1, d2 = a0 - gravity * u0, a1 - gravity * u1, a2 - gravity * u2
             ww = w0 * w0 + w1 * w1 + w2 * w2
             shoe += (d0 * d0 + d1 * d1 + d2 * d2) * inv_var_a + ww * inv_var_w
@@ -96,9 +101,12 @@ def state_size(n_bins: int) -> int:
 
 
 @njit(cache=True)
-def decide(t, stats, acc_norm, kind, state, n_bins, bin_s, g0, a_ref, kappa, g_max, floor_factor, ceiling,
+def decide(rows, stats, kind, state, n_bins, bin_s, g0, a_ref, kappa, g_max, floor_factor, ceiling,
            ared_th2, mv_th2):  # pragma: no cover - compiled
-    """Stationary or not, per decided sample; returns (zv (m,) bool, threshold (m,), intensity (m,)).
+    """Stationary or not, per decided sample (``rows``: their buffer rows).
+
+    Returns ``zv`` (m,) bool, ``threshold`` (m,), ``quiet`` (m,) bool — motionless by the
+    strict test: the SHOE statistic below ``g0`` for SHOE and adaptive, else ``zv``.
 
     ``kind``: SHOE ``T < g0``; ARED ``T < ared_th2``; MV ``T < mv_th2``; adaptive: SHOE
     against
@@ -110,10 +118,11 @@ def decide(t, stats, acc_norm, kind, state, n_bins, bin_s, g0, a_ref, kappa, g_m
     previous bins (the floor the last stance reached; ``c`` = ``floor_factor``). Bins are
     counted from the first sample, so the same samples always fall in the same bins.
     """
+    t = rows[:, 0]
     m = t.shape[0]
     zv = np.zeros(m, np.bool_)
+    quiet = np.zeros(m, np.bool_)
     thr = np.empty(m)
-    inten = np.empty(m)
     mins = D_BINS + n_bins
     for k in range(m):
         if math.isnan(state[D_T0]):
@@ -135,8 +144,9 @@ def decide(t, stats, acc_norm, kind, state, n_bins, bin_s, g0, a_ref, kappa, g_m
             state[mins + int(cur) % n_bins] = math.inf
         state[D_BIN] = cur
         slot = int(cur) % n_bins
-        if acc_norm[k] > state[D_BINS + slot]:
-            state[D_BINS + slot] = acc_norm[k]
+        fn = math.sqrt(rows[k, 1] * rows[k, 1] + rows[k, 2] * rows[k, 2] + rows[k, 3] * rows[k, 3])
+        if fn > state[D_BINS + slot]:
+            state[D_BINS + slot] = fn
         a = 0.0
         floor = math.inf
         for j in range(n_bins):
@@ -144,7 +154,6 @@ def decide(t, stats, acc_norm, kind, state, n_bins, bin_s, g0, a_ref, kappa, g_m
                 a = state[D_BINS + j]
             if j != slot and state[mins + j] < floor:
                 floor = state[mins + j]
-        inten[k] = a
         shoe, ared, mv = stats[k, SHOE], stats[k, ARED], stats[k, MV]
         if shoe < state[mins + slot]:
             state[mins + slot] = shoe
@@ -162,4 +171,5 @@ def decide(t, stats, acc_norm, kind, state, n_bins, bin_s, g0, a_ref, kappa, g_m
             gam = min(max(gam, floor_factor * floor), ceiling)
             thr[k] = gam
             zv[k] = shoe < gam
-    return zv, thr, inten
+        quiet[k] = shoe < g0 if (kind == KIND_SHOE or kind == KIND_ADAPTIVE) else zv[k]
+    return zv, thr, quiet

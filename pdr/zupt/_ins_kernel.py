@@ -35,7 +35,8 @@ K_MAX_DT = 7  # s, a longer interval counts as this long
 K_SETTLE_S = 8  # s of stance after which the stride is emitted
 K_MIN_STANCE_S = 9  # s: a shorter stationary spell makes no stride
 K_MIN_SWING_S = 10  # s: a shorter motion does not end the stance
-PAR_SIZE = 11
+K_ZARU_MAX_MS = 11  # (rad/s)², a stationary sample whose window's mean squared rate is below gets ZARU
+PAR_SIZE = 12
 
 # the columns of a stride event (the state at one stance sample)
 E_T = 0  # s
@@ -193,7 +194,7 @@ def _snapshot(dst, o, t, x, P, peak, up0, up1, up2):
 
 
 @njit(cache=True)
-def ins_run(x, P, aux, par, t, acc, gyr, zv, zaru):  # pragma: no cover - compiled
+def ins_run(x, P, aux, par, rows, zv, ared):  # pragma: no cover - compiled
     """Run the INS over one batch; returns per-sample position (n, 3) and the stance events.
 
     Per sample k (interval Δt = t_k - t_{k-1}, clipped to [0, max_dt]):
@@ -205,17 +206,23 @@ def ins_run(x, P, aux, par, t, acc, gyr, zv, zaru):  # pragma: no cover - compil
        with ``g = (0, 0, -g)`` in ENU;
     2. covariance ``P ← F P Fᵀ + Q`` (:func:`_propagate_cov`);
     3. when ``zv[k]``: zero-velocity update ``0 = v + δv + n`` (Foxlin 2005), and when
-       ``zaru[k]`` too, zero angular rate ``0 = ω̃ - b_g - δb_g + n`` (the gyro bias
-       becomes observable while the foot rests), each injected at once.
+       also ``ared[k]`` (the window's mean squared rate) is below ``par[K_ZARU_MAX_MS]``,
+       zero angular rate ``0 = ω̃ - b_g - δb_g + n`` (the gyro bias becomes observable
+       while the foot rests), each injected at once.
 
     Stances: a stance starts at a stationary sample and ends once the foot has moved for
     ``min_swing_s`` (a shorter flicker of motion inside a stance does not split it). Each
     stance of at least ``min_stance_s`` makes one event: the state ``settle_s`` into it, or
-    at its last stationary sample if it was shorter. Returns ``pos`` (n, 3), ``events``
-    (m, EVENT_COLS) and ``event_k`` (m,), the batch sample of each event (-1 and below:
-    a sample of an earlier batch).
+    at its last stationary sample if it was shorter.
+
+    ``rows`` (n, 7): time (s), specific force (3, m/s²), angular rate (3, rad/s), body frame.
+    Returns ``pos`` (n, 3), ``events`` (m, EVENT_COLS) and ``event_k`` (m,), the batch
+    sample of each event (-1 and below: a sample of an earlier batch).
     """
-    n = t.shape[0]
+    n = rows.shape[0]
+    t = rows[:, 0]
+    acc = rows[:, 1:4]
+    gyr = rows[:, 4:7]
     pos = np.empty((n, 3))
     events = np.empty((n + 1, EVENT_COLS))
     event_k = np.empty(n + 1, np.int64)
@@ -226,6 +233,7 @@ def ins_run(x, P, aux, par, t, acc, gyr, zv, zaru):  # pragma: no cover - compil
     qv_psd, qe_psd, qa_psd, qg_psd = par[K_ACC_PSD], par[K_GYR_PSD], par[K_BA_PSD], par[K_BG_PSD]
     zupt_var, zaru_var, grav, max_dt = par[K_ZUPT_VAR], par[K_ZARU_VAR], par[K_GRAVITY], par[K_MAX_DT]
     settle_s, min_stance_s, min_swing_s = par[K_SETTLE_S], par[K_MIN_STANCE_S], par[K_MIN_SWING_S]
+    zaru_ms = par[K_ZARU_MAX_MS]
     up0, up1, up2 = aux[A_UP0], aux[A_UP0 + 1], aux[A_UP0 + 2]
     for k in range(n):
         dt = 0.0 if math.isnan(aux[A_T_PREV]) else min(max(t[k] - aux[A_T_PREV], 0.0), max_dt)
@@ -274,7 +282,7 @@ def ins_run(x, P, aux, par, t, acc, gyr, zv, zaru):  # pragma: no cover - compil
                 aux[A_EMITTED] = 0.0
             _update3(P, 3, -x[3], -x[4], -x[5], zupt_var, dx, Kw, Hw)
             _inject(x, dx)
-            if zaru[k]:
+            if ared[k] < zaru_ms:
                 _update3(P, 12, gyr[k, 0] - x[13], gyr[k, 1] - x[14], gyr[k, 2] - x[15], zaru_var, dx, Kw, Hw)
                 _inject(x, dx)
             aux[A_LAST_ZV_T] = t[k]

@@ -47,23 +47,40 @@ _STAT_COL = {"shoe": _k.SHOE, "ared": _k.ARED, "mv": _k.MV, "adaptive": _k.SHOE}
 class Decisions:
     """Samples the detector has decided, in time order, with what the INS needs of them."""
 
-    t: np.ndarray  # (m,) s
-    acc: np.ndarray  # (m, 3) m/s², body
-    gyr: np.ndarray  # (m, 3) rad/s, body
+    rows: np.ndarray  # (m, 7): t (s), specific force (3, m/s², body), angular rate (3, rad/s, body)
     stationary: np.ndarray  # (m,) bool
     statistic: np.ndarray  # (m,) the detector's test statistic (SHOE: dimensionless; ARED rad²/s²; MV m²/s⁴)
     threshold: np.ndarray  # (m,) what it was compared with
-    intensity: np.ndarray  # (m,) m/s², the gait intensity A (largest ‖f‖ of the trailing window)
     ared: np.ndarray  # (m,) rad²/s², mean squared angular rate of the window (for ZARU)
     quiet: np.ndarray  # (m,) bool, motionless by the strict test (SHOE below shoe_threshold; else stationary)
 
     def __len__(self) -> int:
-        return int(self.t.shape[0])
+        return int(self.rows.shape[0])
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.rows[:, 0]
+
+    @property
+    def acc(self) -> np.ndarray:
+        return self.rows[:, 1:4]
+
+    @property
+    def gyr(self) -> np.ndarray:
+        return self.rows[:, 4:7]
 
     @staticmethod
     def empty() -> Decisions:
         z = np.empty(0)
-        return Decisions(z, np.empty((0, 3)), np.empty((0, 3)), np.empty(0, bool), z, z, z, z, np.empty(0, bool))
+        return Decisions(np.empty((0, _k.BUF_COLS)), np.empty(0, bool), z, z, z, np.empty(0, bool))
+
+    def split(self, i: int) -> tuple[Decisions, Decisions]:
+        f = Decisions.__dataclass_fields__
+        return Decisions(*(getattr(self, k)[:i] for k in f)), Decisions(*(getattr(self, k)[i:] for k in f))
+
+    @staticmethod
+    def concatenate(a: Decisions, b: Decisions) -> Decisions:
+        return Decisions(*(np.concatenate([getattr(a, k), getattr(b, k)]) for k in Decisions.__dataclass_fields__))
 
 
 class ZeroVelocityDetector:
@@ -81,33 +98,39 @@ class ZeroVelocityDetector:
         self._col = _STAT_COL[s.detector]
         self._n_bins = max(1, int(round(s.intensity_window_s / s.intensity_bin_s)))
         self._state = np.full(_k.state_size(self._n_bins), np.nan)
-        self._t = np.empty(0)
-        self._acc = np.empty((0, 3))
-        self._gyr = np.empty((0, 3))
+        self._buf = np.empty((0, _k.BUF_COLS))  # the undecided samples and the half window before them
         self._start = 0  # index in the buffer of the first undecided sample
         self._t_last = -math.inf
+        self._args = (s.gravity, 1.0 / s.acc_sigma ** 2, 1.0 / s.gyro_sigma ** 2)
+        self._decide_args = (self._kind, self._state, self._n_bins, s.intensity_bin_s, s.shoe_threshold,
+                             s.adaptive_reference_m_s2, s.adaptive_exponent, s.adaptive_max_threshold,
+                             s.adaptive_floor_factor, s.adaptive_ceiling, s.ared_threshold_rad_s ** 2,
+                             s.mv_threshold_m_s2 ** 2)
 
     @property
     def name(self) -> str:
         return self.settings.detector
 
     def update(self, t, acc, gyr) -> Decisions:
-        t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
-        acc = np.ascontiguousarray(acc, dtype=np.float64).reshape(-1, 3)
-        gyr = np.ascontiguousarray(gyr, dtype=np.float64).reshape(-1, 3)
-        if acc.shape[0] != t.shape[0] or gyr.shape[0] != t.shape[0]:
-            raise ValueError(f"t has {t.shape[0]} samples, acc {acc.shape[0]}, gyr {gyr.shape[0]}")
-        if t.size == 0:
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        n = t.shape[0]
+        if n == 0:
             return Decisions.empty()
-        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(acc)) and np.all(np.isfinite(gyr))):
+        rows = np.empty((n, _k.BUF_COLS))
+        rows[:, 0] = t
+        try:
+            rows[:, 1:4] = acc
+            rows[:, 4:7] = gyr
+        except ValueError:
+            raise ValueError(f"t has {n} samples but acc is {np.shape(acc)} and gyr {np.shape(gyr)}; "
+                             f"expected ({n}, 3) each") from None
+        if not math.isfinite(float(rows.sum())):
             raise ValueError("non-finite time, acceleration or angular rate in the batch")
-        if t[0] <= self._t_last or np.any(np.diff(t) <= 0):
+        if t[0] <= self._t_last or (n > 1 and bool((t[1:] <= t[:-1]).any())):
             raise ValueError(f"sample times must increase (batch starts at {t[0]:.6f} s, previous sample at "
                              f"{self._t_last:.6f} s)")
         self._t_last = float(t[-1])
-        self._t = np.concatenate([self._t, t])
-        self._acc = np.concatenate([self._acc, acc])
-        self._gyr = np.concatenate([self._gyr, gyr])
+        self._buf = np.concatenate((self._buf, rows)) if self._buf.shape[0] else rows
         return self._decide(final=False)
 
     def finish(self) -> Decisions:
@@ -115,26 +138,15 @@ class ZeroVelocityDetector:
         return self._decide(final=True)
 
     def _decide(self, final: bool) -> Decisions:
-        s = self.settings
-        stats, m = _k.window_statistics(self._t, self._acc, self._gyr, self._start, final, self._half, s.gravity,
-                                        1.0 / s.acc_sigma ** 2, 1.0 / s.gyro_sigma ** 2)
+        buf = self._buf
+        stats, m = _k.window_statistics(buf, self._start, final, self._half, *self._args)
         lo, hi = self._start, self._start + m
-        t, acc, gyr = self._t[lo:hi], self._acc[lo:hi], self._gyr[lo:hi]
-        zv, thr, inten = _k.decide(
-            t, stats, norm3(acc), self._kind, self._state, self._n_bins, s.intensity_bin_s, s.shoe_threshold,
-            s.adaptive_reference_m_s2, s.adaptive_exponent, s.adaptive_max_threshold, s.adaptive_floor_factor,
-            s.adaptive_ceiling, s.ared_threshold_rad_s ** 2, s.mv_threshold_m_s2 ** 2)
-        shoe_like = self._kind in (_k.KIND_SHOE, _k.KIND_ADAPTIVE)
-        quiet = stats[:, _k.SHOE] < s.shoe_threshold if shoe_like else zv
-        out = Decisions(t.copy(), acc.copy(), gyr.copy(), zv, stats[:, self._col].copy(), thr, inten,
-                        stats[:, _k.ARED].copy(), quiet)
-        self._start = hi
+        rows = buf[lo:hi]
+        zv, thr, quiet = _k.decide(rows, stats, *self._decide_args)
+        out = Decisions(rows, zv, stats[:, self._col], thr, stats[:, _k.ARED], quiet)
         # keep the undecided samples and the half window before them
-        if hi < self._t.size:
-            keep = int(np.searchsorted(self._t, self._t[hi] - self._half, side="left"))
-        else:
-            keep = self._t.size
-        keep = min(keep, hi)
-        self._t, self._acc, self._gyr = self._t[keep:], self._acc[keep:], self._gyr[keep:]
-        self._start -= keep
+        keep = hi if hi >= buf.shape[0] else min(int(np.searchsorted(buf[:, 0], buf[hi, 0] - self._half)), hi)
+        if keep:
+            self._buf = buf[keep:]
+        self._start = hi - keep
         return out

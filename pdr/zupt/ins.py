@@ -176,12 +176,14 @@ class ZuptIns:
             i0 = self._start_index(d)
             if i0 < 0:  # no start yet: hold the stationary run at the end, give out the rest
                 run = _trailing_run(d.stationary)
-                head, self._pending = _split(d, len(d) - run)
+                head, self._pending = d.split(len(d) - run)
                 return self._outputs_before_start(head)
-            head, d = _split(d, i0)
+            head, d = d.split(i0)
             parts.append(self._outputs_before_start(head))
             self._start(d)
         if len(d):
+            if not parts:
+                return self._integrate(d)
             parts.append(self._integrate(d))
         return _concat(parts) if parts else _empty_output()
 
@@ -190,7 +192,7 @@ class ZuptIns:
             return d
         p = self._pending
         self._pending = None
-        return Decisions(*(np.concatenate([getattr(p, f), getattr(d, f)]) for f in Decisions.__dataclass_fields__))
+        return Decisions.concatenate(p, d)
 
     def _start_index(self, d: Decisions) -> int:
         """First sample of the first stationary run lasting ``init_still_s`` (-1: none yet)."""
@@ -236,13 +238,12 @@ class ZuptIns:
         par[_k.K_SETTLE_S] = s.stride.settle_s
         par[_k.K_MIN_STANCE_S] = s.stride.min_stance_s
         par[_k.K_MIN_SWING_S] = s.stride.min_swing_s
+        par[_k.K_ZARU_MAX_MS] = ins.zaru_max_rate ** 2  # 0: never
         self.started = True
         self.t_start = float(d.t[0])
 
     def _integrate(self, d: Decisions) -> InsOutput:
-        zr = self.settings.ins.zaru_max_rate
-        zaru = d.stationary & (d.ared < zr * zr) if zr > 0 else np.zeros(len(d), np.bool_)
-        pos, ev, _ = _k.ins_run(self._x, self._P, self._aux, self._par, d.t, d.acc, d.gyr, d.stationary, zaru)
+        pos, ev, _ = _k.ins_run(self._x, self._P, self._aux, self._par, d.rows, d.stationary, d.ared)
         return InsOutput(d.t, pos, d.stationary, d.threshold, d.quiet,
                          Stances.from_events(ev) if ev.shape[0] else _NO_STANCES)
 
@@ -257,11 +258,6 @@ def _trailing_run(zv: np.ndarray) -> int:
         return 0
     false = np.flatnonzero(~zv)
     return int(zv.size - (false[-1] + 1)) if false.size else int(zv.size)
-
-
-def _split(d: Decisions, i: int) -> tuple[Decisions, Decisions]:
-    f = Decisions.__dataclass_fields__
-    return (Decisions(*(getattr(d, k)[:i] for k in f)), Decisions(*(getattr(d, k)[i:] for k in f)))
 
 
 _NO_STANCES = Stances.empty()
