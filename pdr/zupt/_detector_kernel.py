@@ -168,7 +168,8 @@ def decide(rows, stats, kind, state, n_bins, bin_s, g0, a_ref, kappa, g_max, flo
             zv[k] = mv < mv_th2
         else:
             gam = min(max(g0 * (a / a_ref) ** kappa, g0), g_max)
-            gam = min(max(gam, floor_factor * floor), ceiling)
+            if floor < math.inf:  # no previous bin yet: no floor
+                gam = min(max(gam, floor_factor * floor), ceiling)
             thr[k] = gam
             zv[k] = shoe < gam
         quiet[k] = shoe < g0 if (kind == KIND_SHOE or kind == KIND_ADAPTIVE) else zv[k]

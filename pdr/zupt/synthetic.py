@@ -4,8 +4,9 @@ For tests and benchmarks (never for tuning). The foot rests for ``stance_s`` bet
 swings of ``swing_s``; during swing ``i`` it travels the stride vector
 ``D_i = (L_i cos ψ_i, L_i sin ψ_i, dz_i)`` with a minimum-jerk profile (Flash and Hogan,
 J. Neurosci. 5(7), 1985) ``s(τ) = 10τ³ − 15τ⁴ + 6τ⁵``, lifted by ``clearance·sin²(πτ)``,
-while its yaw turns by the stride's turn along the same profile and it pitches by
-``pitch·sin(2πτ)·sin²(πτ)`` (toe-off and heel strike, back to flat at both ends). Position,
+while its yaw turns by the stride's turn along the same profile and its pitch goes from
+the previous rest's to this rest's (0, flat, unless a stride says otherwise: a boot resting
+on its toe) plus ``pitch·sin(2πτ)·sin²(πτ)`` (toe-off and heel strike). Position,
 velocity and attitude are smooth, and so are the IMU signals:
 
 * attitude of the foot ``q_f = q_z(ψ) ⊗ q_y(θ)`` (ZYX Euler, no roll), of the IMU
@@ -63,14 +64,19 @@ def foot_walk(strides, rate_hz: float = 200.0, stance_s: float = 0.45, swing_s: 
               pitch_rad: float = 0.9, yaw0: float = 0.0, mount: np.ndarray | None = None,
               acc_bias=(0.0, 0.0, 0.0), gyr_bias=(0.0, 0.0, 0.0), acc_noise: float = 0.0, gyr_noise: float = 0.0,
               gravity: float = GRAVITY, seed: int = 0, t0: float = 0.0) -> FootWalk:
-    """Synthesise a walk of ``strides``: a sequence of ``(length m, turn rad, dz m)``.
+    """Synthesise a walk of ``strides``: a sequence of ``(length m, turn rad, dz m)`` or
+    ``(length, turn, dz, rest pitch rad)``.
 
     ``mount`` (w, x, y, z) is the IMU's attitude on the foot (foot ← IMU; default: the
     3DM-GX3 of the PyShoe data, z down, a half turn about x). ``acc_noise`` (m/s²) and
     ``gyr_noise`` (rad/s) are per-sample standard deviations.
     """
-    strides = np.asarray(strides, dtype=float).reshape(-1, 3)
+    strides = np.asarray(strides, dtype=float)
+    strides = strides.reshape(-1, strides.shape[-1] if strides.size else 3)
+    if strides.shape[1] == 3:
+        strides = np.column_stack((strides, np.zeros(strides.shape[0])))
     k = strides.shape[0]
+    rest_pitch = np.concatenate(([0.0], strides[:, 3]))
     mount = np.array([0.0, 1.0, 0.0, 0.0]) if mount is None else np.asarray(mount, float)
     # rest positions and headings
     yaw = yaw0 + np.concatenate(([0.0], np.cumsum(strides[:, 1])))
@@ -98,7 +104,10 @@ def foot_walk(strides, rate_hz: float = 200.0, stance_s: float = 0.45, swing_s: 
         y0 = yaw[np.maximum(i, 0)]
         y1 = yaw[np.maximum(i, 0) + (i >= 0)]
         psi = np.where(i >= 0, y0 + s * (y1 - y0), yaw[0])
-        theta = np.where(swinging, pitch_rad * np.sin(2 * np.pi * tau) * np.sin(np.pi * tau) ** 2, 0.0)
+        p0 = rest_pitch[np.maximum(i, 0)]
+        p1 = rest_pitch[np.maximum(i, 0) + (i >= 0)]
+        theta = np.where(i >= 0, p0 + s * (p1 - p0), rest_pitch[0])
+        theta = theta + np.where(swinging, pitch_rad * np.sin(2 * np.pi * tau) * np.sin(np.pi * tau) ** 2, 0.0)
         return pos, psi, theta, swinging
 
     h1, h2 = 1e-5, 1e-4
