@@ -39,15 +39,15 @@ def test_se2_fit_cannot_align_a_mirror_image():
 
 
 def test_cross_validation_scores_the_choice_on_held_out_files():
-    # config 0 is best on files 0-2, config 1 on file 3: held out, file 3 gets config 0's error
-    errors = np.array([[0.1, 0.1, 0.1, 0.5],
+    errors = np.array([[0.1, 0.1, 0.1, 0.2],
                        [0.3, 0.3, 0.3, 0.0]])
+    # leave one out: config 0 wins on every set of three files
     cv = cross_validate(errors)
-    np.testing.assert_allclose(cv["held_out"], [0.1, 0.1, 0.1, 0.5])
-    assert cv["mean"] == pytest.approx(0.2)
-    # leave a group out: on b alone config 1 wins (means 0.3 vs 0.15), on a alone config 0
-    groups = np.array(["a", "a", "b", "b"])
-    np.testing.assert_allclose(cross_validate(errors, groups)["held_out"], [0.3, 0.3, 0.1, 0.5])
+    np.testing.assert_allclose(cv["held_out"], [0.1, 0.1, 0.1, 0.2])
+    assert cv["mean"] == pytest.approx(0.125) and list(cv["chosen"]) == [0, 0, 0, 0]
+    # leave a group out: chosen on file 3 alone, the first three files get config 1
+    groups = np.array(["a", "a", "a", "b"])
+    np.testing.assert_allclose(cross_validate(errors, groups)["held_out"], [0.3, 0.3, 0.3, 0.2])
     with pytest.raises(ValueError, match="two groups"):
         cross_validate(errors, np.zeros(4))
 
