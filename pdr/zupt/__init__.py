@@ -8,9 +8,10 @@
 """
 from pdr.zupt.detectors import Decisions, ZeroVelocityDetector
 from pdr.zupt.ins import InsOutput, Stances, ZuptIns, initial_attitude
+from pdr.zupt.motion_model import ZuptMotionModel
 from pdr.zupt.settings import DETECTORS, DetectorSettings, GaitSettings, InsSettings, StrideSettings, ZuptSettings
 
 __all__ = [
     "DETECTORS", "Decisions", "DetectorSettings", "GaitSettings", "InsOutput", "InsSettings", "Stances",
-    "StrideSettings", "ZeroVelocityDetector", "ZuptIns", "ZuptSettings", "initial_attitude",
+    "StrideSettings", "ZeroVelocityDetector", "ZuptIns", "ZuptMotionModel", "ZuptSettings", "initial_attitude",
 ]

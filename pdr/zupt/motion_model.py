@@ -26,8 +26,9 @@ Per frame:
 4. **Motion state** on a grid of ``state_grid_s`` of data time, decided up to
    ``min_swing_s`` behind the INS (a stride is known by then):
 
-   * the gait class of the latest stride (walking, running, crawling, stairs) while a
-     stride came within ``still_after_s``;
+   * the gait class most frequent among the last ``vote_strides`` strides (walking,
+     running, crawling, stairs; a tie goes to the latest) while a stride came within
+     ``still_after_s``;
    * ``no_motion`` after ``no_motion_after_s`` (30 s) without a moving sample — moving
      meaning the detector's strict test (SHOE above its base threshold, about 0.17 rad/s
      RMS or 1 m/s² off gravity) failed;
@@ -82,7 +83,8 @@ class ZuptMotionModel:
         self._lm_before = -math.inf  # the last-moving time of the samples pruned from _lm_*
         self._first_sample = math.nan
         self._decided_t = -math.inf  # newest sample the INS has run
-        self._recent: list[tuple[float, MotionState, float]] = []  # (t, class, run start) of recent strides
+        self._recent: list[tuple[float, MotionState, float]] = []  # (t, voted class, run start) of recent strides
+        self._votes: list[MotionState] = []  # gait classes of the last strides of the current bout
         self._last_z = math.nan
         self.state = MotionState.STILL
         self.state_since = math.nan
@@ -170,8 +172,12 @@ class ZuptMotionModel:
                 mag_heading=math.nan, mag_heading_sigma=math.inf,
             ))
             prev = self._recent[-1] if self._recent else None
-            same_run = prev is not None and prev[1] is st.gait and st.t - prev[0] < s.gait.still_after_s
-            self._recent.append((st.t, st.gait, prev[2] if same_run else st.t))
+            if prev is None or st.t - prev[0] >= s.gait.still_after_s:
+                self._votes = []
+            self._votes = (self._votes + [st.gait])[-s.gait.vote_strides:]
+            gait = max(reversed(self._votes), key=self._votes.count)  # most frequent; a tie goes to the latest
+            same_run = prev is not None and prev[1] is gait and st.t - prev[0] < s.gait.still_after_s
+            self._recent.append((st.t, gait, prev[2] if same_run else st.t))
         return events
 
     def _update_motion(self, out: InsOutput, final: bool) -> list[MotionEvent]:

@@ -154,13 +154,15 @@ class GaitSettings:
     tilted by more than ``crawl_tilt`` from its attitude at the first
     still window (on the knees the boot rests on its toe, sole nearly vertical); ``running`` when the stride
     takes less than ``run_max_stride_s`` or its impact exceeds ``run_min_peak_m_s2``;
-    else ``walking``. The state holds while a stride came within ``still_after_s``.
+    else ``walking``. The state is the class most frequent among the last ``vote_strides``
+    strides and holds while a stride came within ``still_after_s``.
     """
 
     stairs_min_dz_m: float = 0.15  # m per stride
-    crawl_tilt: float = math.radians(50.0)  # rad from the boot's attitude at the start (standing)
+    crawl_tilt: float = math.radians(60.0)  # rad from the boot's attitude at the start (standing)
     run_max_stride_s: float = 0.85  # s (walking strides take 1.0-1.7 s, running 0.7-0.8 s on PyShoe's data)
     run_min_peak_m_s2: float = 55.0  # m/s² (walking heel strikes 2-5 g, running 5-8 g)
+    vote_strides: int = 3  # the state is the class most frequent among this many last strides
     still_after_s: float = 2.0  # s without a stride -> still
     no_motion_after_s: float = 30.0  # s motionless -> no motion (man-down; NFPA 1982 PASS alarm time)
     motionless_window_s: float = 1.0  # s
@@ -169,6 +171,8 @@ class GaitSettings:
     state_grid_s: float = 0.5  # s, the state is decided on this grid of data time
 
     def __post_init__(self) -> None:
+        if self.vote_strides < 1:
+            raise ValueError("GaitSettings.vote_strides must be at least 1")
         for name in ("stairs_min_dz_m", "crawl_tilt", "run_max_stride_s", "run_min_peak_m_s2", "still_after_s",
                      "no_motion_after_s", "motionless_window_s", "motionless_acc_std", "motionless_gyr", "state_grid_s"):
             v = getattr(self, name)
