@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from pdr.evaluation.zupt import cross_validate, se2_apply, se2_fit, score_track
 from pdr.zupt.synthetic import foot_walk, square_strides
-from service.cli import app
+from client.cli import app
 
 runner = CliRunner()
 
