@@ -20,9 +20,23 @@ from pdr.angles import bearing_deg, yaw_from_bearing  # noqa: F401  (re-exported
 
 
 class MotionState(str, enum.Enum):
+    """What a commander reads about a responder's motion.
+
+    The handheld pipeline tells walking, still and no motion; a boot-mounted INS
+    (:mod:`pdr.zupt`) also tells running, crawling and climbing stairs, each a kind of
+    moving (:attr:`moving`).
+    """
+
     WALKING = "walking"
     STILL = "still"
     NO_MOTION = "no_motion"  # still for the configured time (30 s): the basis of man-down
+    RUNNING = "running"
+    CRAWLING = "crawling"
+    STAIRS = "stairs"  # climbing or descending stairs
+
+    @property
+    def moving(self) -> bool:
+        return self not in (MotionState.STILL, MotionState.NO_MOTION)
 
 
 @dataclass(frozen=True)

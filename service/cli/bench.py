@@ -72,3 +72,56 @@ def _live_prefix(name, imu, batch, m):
     f = make_filter(name)
     for i in range(0, m, batch):
         f.update(imu.t[i:i + batch], imu.acc[i:i + batch], imu.gyr[i:i + batch], imu.mag[i:i + batch])
+
+
+@app.command("zupt")
+def bench_zupt(
+    seconds: float = typer.Option(1800.0, help="length of the synthetic boot recording, s"),
+    rate: float = typer.Option(200.0, help="IMU rate, Hz"),
+    batch: int = typer.Option(10, help="live batch size (samples per update call)"),
+    repeats: int = typer.Option(3, help="best of this many runs"),
+):
+    """Throughput (samples/s on one core, thread CPU time) of the boot INS: detector + filter
+    (:class:`pdr.zupt.ZuptIns`) and the whole motion model, at once and in live batches."""
+    from pdr.pipeline import ImuFrame
+    from pdr.zupt import ZuptIns
+    from pdr.zupt.motion_model import ZuptMotionModel
+    from pdr.zupt.synthetic import foot_walk
+
+    n_strides = max(1, int((seconds - 4.0) / 1.1))
+    rng = np.random.default_rng(1)
+    strides = np.column_stack((rng.uniform(0.9, 1.5, n_strides), rng.normal(0.0, 0.3, n_strides), np.zeros(n_strides)))
+    err.print(f"synthesising {n_strides} strides at {rate:.0f} Hz ...")
+    w = foot_walk(strides, rate_hz=rate, acc_noise=0.02, gyr_noise=float(np.radians(0.5)), seed=1)
+    n = len(w.t)
+    ZuptIns().update(w.t[:2000], w.acc[:2000], w.gyr[:2000])  # compile outside the clock
+    m = min(n, int(600 * rate))  # live batches over at most 10 minutes of data
+
+    def ins_once():
+        f = ZuptIns()
+        f.update(w.t, w.acc, w.gyr)
+        f.finish()
+
+    def ins_live():
+        f = ZuptIns()
+        for i in range(0, m, batch):
+            f.update(w.t[i:i + batch], w.acc[i:i + batch], w.gyr[i:i + batch])
+
+    def model_live():
+        f = ZuptMotionModel()
+        for i in range(0, m, batch):
+            f.update(ImuFrame(w.t[i:i + batch], w.acc[i:i + batch], w.gyr[i:i + batch]))
+
+    one = min(_cpu_seconds(ins_once) for _ in range(repeats))
+    live = min(_cpu_seconds(ins_live) for _ in range(repeats))
+    model = min(_cpu_seconds(model_live) for _ in range(repeats))
+    report = {
+        "samples": n, "rate_hz": rate, "batch": batch, "cpu": os.cpu_count(),
+        "ins_detector_samples_per_s": n / one,
+        "ins_detector_samples_per_s_live_batches": m / live,
+        "motion_model_samples_per_s_live_batches": m / model,
+        "realtime_factor_live": (m / model) / rate,
+    }
+    err.print(f"INS + detector: {n / one:,.0f} samples/s at once, {m / live:,.0f} in batches of {batch}; "
+              f"motion model {m / model:,.0f} samples/s in batches of {batch}")
+    print_json(report)
