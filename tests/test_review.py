@@ -111,3 +111,41 @@ def test_reprocess_reads_a_recording_of_another_incident_id(tmp_path):
             rec.write(wire.key("drill-7", "ff1", "imu"), wire.encode(b), 1000.0 + 0.1 * k)
     rep = reprocess(path, cfg)
     assert rep["inputs"] == 50 and set(rep["responders"]) == {"ff1"}
+
+
+@pytest.mark.recording
+@pytest.mark.bitexact
+def test_handheld_and_boot_mounted_wearers_live_then_reprocessed_give_identical_poses(tmp_path, shared_data):
+    """Issue 16: an IPIN walk (phone in the hand) and a PyShoe walk (IMU on the boot), built into
+    one exercise, replayed at 20x through a live service that records, then reprocessed."""
+    from pdr.events import MotionState
+    from service.cli.record import replay
+    from service.review.reprocess import build_exercise
+
+    cfg = default_incident()
+    ipin = shared_data("ipin2023/IPIN2023_T3_TrainingTrial21_repetition01.txt.gz")
+    boot = shared_data("pyshoe-vicon/2017-11-22-11-26-05_LLIO.mat")
+    exercise = tmp_path / "two.mcap"
+    build_exercise([("hand", ipin), ("boot", boot)], exercise, cfg, landmark_every=3, gnss=False)
+    session, endpoint = router()
+    live = tmp_path / "live.mcap"
+    recorder = IncidentRecorder(live, cfg.id)
+    svc = IncidentService(session, cfg, ServiceSettings(), recorder=recorder).start()
+    sent = replay(exercise, endpoint, speed=20.0, quiet=True, wait_for_subscribers_s=5.0)
+    frames = sum(n for k, n in sent["keys"].items() if k.endswith("/imu"))
+    assert wait_until(lambda: svc.frames_processed >= frames, 60)
+    svc.wait_idle(10)
+    boot_tracker = svc.responders["boot"].tracker
+    assert type(boot_tracker.model).__name__ == "ZuptMotionModel"  # carry="foot" chose the INS
+    assert type(svc.responders["hand"].tracker.model).__name__ == "PdrPipeline"
+    svc.close()
+    recorder.close()
+    session.close()
+    rep = reprocess(live, cfg)
+    assert set(rep["responders"]) == {"hand", "boot"}
+    for rid in ("hand", "boot"):
+        r = rep["responders"][rid]
+        assert r["steps"] > 10 and r["recorded_poses"] == r["poses"] > 10, (rid, r)
+        assert r["max_deviation_m"] == 0.0, rid  # bit for bit, under 20x load
+    assert rep["responders"]["boot"]["distance_m"] > 10  # strides walked, not a standing boot
+    assert MotionState.NO_MOTION is not boot_tracker.motion[0]

@@ -87,6 +87,7 @@ def load_pyshoe(path: str | Path) -> Recording:
     }
     if peer is not None:
         meta["pyshoe_trajectory"] = peer
+    meta["carry"] = "foot"  # a boot-mounted IMU (the wire's carry name)
     meta["position_frame"] = "x = the file's y, y = the file's x (the file's x, y are of a z-down frame), m"
     if gt is not None:
         meta["position_ref_frame"] = "Vicon room frame, axes swapped to right-handed z-up (see position_frame), m"

@@ -8,7 +8,10 @@ floors, fixes, alarms and console work the same for all of them.
 ==============================  ==============================================================
 carry                           model
 ==============================  ==============================================================
-anything not registered         handheld / pocket / waist PDR: :class:`pdr.pipeline.PdrPipeline`
+``foot``                        boot-mounted IMU: the zero-velocity-aided INS,
+                                :class:`pdr.zupt.motion_model.ZuptMotionModel` (a stride event
+                                at every stance)
+anything else                   handheld / pocket / waist PDR: :class:`pdr.pipeline.PdrPipeline`
 ==============================  ==============================================================
 
 A new model is a class with the :class:`MotionModel` methods and one
@@ -53,8 +56,16 @@ def _handheld(settings, floors: FloorElevations, start_floor: int) -> MotionMode
     return PdrPipeline(settings.pipeline, floors, start_floor)
 
 
+def _foot(settings, floors: FloorElevations, start_floor: int) -> MotionModel:
+    from pdr.zupt.motion_model import ZuptMotionModel
+
+    pipeline = settings.pipeline  # the barometer and floor settings are the handheld pipeline's
+    return ZuptMotionModel(floors=floors, start_floor=start_floor, floor_settings=pipeline.floor,
+                           altimeter=pipeline.altimeter)
+
+
 DEFAULT_CARRY = "handheld"
-_MODELS: dict[str, MotionFactory] = {DEFAULT_CARRY: _handheld}
+_MODELS: dict[str, MotionFactory] = {DEFAULT_CARRY: _handheld, "foot": _foot}
 
 
 def register_motion_model(carry: str, factory: MotionFactory) -> None:

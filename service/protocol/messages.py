@@ -38,13 +38,17 @@ def frames_per_batch(rate_hz: float, frames_per_s: float = FRAMES_PER_SECOND) ->
 
 def recording_messages(rec: Recording, responder: str, device: str | None = None, incident=None,
                        landmark_every: int = 0, gnss: bool = True, frames_per_s: float = FRAMES_PER_SECOND,
-                       carry: str = "unknown") -> list[Outgoing]:
+                       carry: str | None = None) -> list[Outgoing]:
     """Every message a wearable would send for ``rec``, in device-time order.
 
     Landmarks (with an ``incident`` to put them in its ENU frame): the first always — the
     responder is placed where the walk starts — and every ``landmark_every``-th after it
     when that is positive. GNSS fixes with a finite, positive accuracy go as they are.
+    ``carry`` (where the device is worn) defaults to the recording's own (``meta["carry"]``:
+    ``foot`` for a boot-mounted PyShoe walk), else ``unknown``.
     """
+    if carry is None:
+        carry = rec.meta.get("carry") if rec.meta.get("carry") in wire.CARRY_POSITIONS else "unknown"
     imu = rec.imu_samples()
     device = device or f"replay:{responder}"
     per = frames_per_batch(rec.acc.rate_hz, frames_per_s)

@@ -303,7 +303,8 @@ class Status(WireMessage):
     KIND: ClassVar[str] = "status"
     responder: Id
     t: Finite = Field(description="s, device clock: the newest sample the service has taken")
-    motion: Literal["walking", "still", "no_motion"] = Field(description="the motion state as of the newest frame")
+    motion: Literal["walking", "running", "crawling", "stairs", "still", "no_motion"] = Field(
+        description="the motion state as of the newest frame (running, crawling, stairs: boot-mounted units)")
     motion_since: Finite = Field(description="s, device clock: when the motion state began")
     alarms: list[str] = Field(default_factory=list, description='e.g. "man_down", "lost_contact", "rejected_frames"')
     rejected: dict[str, int] = Field(default_factory=dict, description="frames and fixes turned away, by reason "
