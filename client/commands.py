@@ -11,11 +11,13 @@ from service.cli.serve import running_service
 from service.protocol.session import DEFAULT_ENDPOINT
 from service.protocol.terminal import (
     client_or_exit,
+    err,
     fail,
     incident_or_exit,
     out,
     setup_logging,
     stop_on_signals,
+    warn,
 )
 
 
@@ -28,6 +30,7 @@ def wearable_command(
     config: Path = typer.Option(None, "--config", help="incident config, for the landmarks' local coordinates"),
     landmark_every: int = typer.Option(0, "--landmark-every", help="also send every K-th landmark as a checkpoint fix (the first is always sent)"),
     gnss: bool = typer.Option(True, "--gnss/--no-gnss", help="send the recording's GNSS fixes"),
+    wait_router: float = typer.Option(30.0, "--wait-router", help="s to wait for a router that is not up yet"),
 ):
     """Publish a real recording as a wearable would: IMU frames (10 per second), landmarks and GNSS as fixes."""
     from client.wearable import replay
@@ -40,16 +43,36 @@ def wearable_command(
         raise typer.Exit(2)
     cfg = incident_or_exit(config, incident_id)
     stop = stop_on_signals()
-    session = client_or_exit(connect)
+    session = client_or_exit(connect, wait_router)
+    key = wire.key(cfg.id, responder, "imu").rsplit("/", 1)[0] + "/{imu,fix}"
+
+    def started(msgs):
+        n_imu = sum(m.kind == "imu" for m in msgs)
+        span = msgs[-1].t - msgs[0].t if msgs else 0.0
+        err.print(f"{responder}: publishing {replay_file.name} ({n_imu} frames, {len(msgs) - n_imu} fixes, "
+                  f"{span:.0f} s of recording at {speed:g}x) on {key} via {connect}", highlight=False)
+
+    def matching(listening: bool):
+        if listening:
+            err.print(f"{responder}: a service is listening on incident {cfg.id!r}", highlight=False)
+        else:
+            warn(f"{responder}: no service is subscribed to incident {cfg.id!r} — frames go nowhere "
+                 f"(is `firetrack serve` running, and for this --incident?)")
+
     try:
         with progress_bar(f"{responder} ← {replay_file.name}") as update:
-            sent = replay(replay_file, responder, session, cfg, speed, landmark_every, gnss, stop, update)
+            sent = replay(replay_file, responder, session, cfg, speed, landmark_every, gnss, stop, update,
+                          on_matching=matching, on_start=started)
     except (RecordingFormatError, OSError, ValueError) as e:
         fail(str(e))
         raise typer.Exit(1)
     finally:
         session.close()
-    out.print(f"{responder}: sent {sent['imu']} frames and {sent['fix']} fixes")
+    unheard = sent["unheard"]["imu"]
+    out.print(f"{responder}: sent {sent['imu']} frames and {sent['fix']} fixes"
+              + (f"; {unheard} frames went out while no service was subscribed" if unheard else ""))
+    if unheard and unheard == sent["imu"]:
+        raise typer.Exit(1)  # nobody heard any of it: say so in the exit code too
 
 
 def simulate_command(

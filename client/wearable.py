@@ -22,16 +22,37 @@ from service.protocol.messages import recording_messages
 from service.protocol.pacing import paced
 
 
-class Wearable:
-    """A zenoh client publishing one responder's messages; ``close()`` withdraws its presence."""
+MATCHING_WAIT_S = 1.5  # s a replay waits for a service to match its frames before it warns
 
-    def __init__(self, session: zenoh.Session, incident_id: str, responder: str):
+
+class Wearable:
+    """A zenoh client publishing one responder's messages; ``close()`` withdraws its presence.
+
+    It knows whether anybody listens: zenoh's matching status of the frame publisher says
+    whether a subscriber (the service) matches ``firetrack/{incident}/{responder}/imu``.
+    ``on_matching(bool)`` is called when that changes, and frames published while nobody
+    listened are counted in ``unheard`` (they went nowhere).
+    """
+
+    def __init__(self, session: zenoh.Session, incident_id: str, responder: str, on_matching=None):
         self.session = session
         self.responder = responder
         qos = dict(congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE)
         self._pub = {k: session.declare_publisher(wire.key(incident_id, responder, k), **qos) for k in ("imu", "fix", "truth")}
         self._token = session.liveliness().declare_token(wire.key(incident_id, responder, "presence"))
         self.sent = {"imu": 0, "fix": 0, "truth": 0}
+        self.unheard = {"imu": 0, "fix": 0}
+        self._on_matching = on_matching
+        self._listener = self._pub["imu"].declare_matching_listener(self._matching_changed) if on_matching else None
+
+    @property
+    def heard(self) -> bool:
+        """True while a subscriber (the service) matches this wearable's frames."""
+        return bool(self._pub["imu"].matching_status.matching)
+
+    def _matching_changed(self, status) -> None:
+        if self._on_matching is not None:
+            self._on_matching(bool(status.matching))
 
     def send(self, kind: str, msg_or_payload) -> None:
         """Publish one message; a frame without a clock offset gets this machine's: UTC now
@@ -40,21 +61,35 @@ class Wearable:
         if isinstance(msg, wire.ImuBatch) and msg.utc_offset is None:
             msg = msg.model_copy(update={"utc_offset": time.time() - float(msg.t[-1])})
         payload = msg if isinstance(msg, bytes) else wire.encode(msg)
+        if kind in self.unheard and not self._pub[kind].matching_status.matching:
+            self.unheard[kind] += 1
         self._pub[kind].put(payload)
         self.sent[kind] += 1
 
     def close(self) -> None:
+        if self._listener is not None:
+            self._listener.undeclare()
         self._token.undeclare()
         for p in self._pub.values():
             p.undeclare()
 
 
 def replay(path, responder: str, session: zenoh.Session, incident, speed: float = 1.0, landmark_every: int = 0,
-           gnss: bool = True, stop: threading.Event | None = None, on_progress: Callable[[int, int], None] | None = None) -> dict:
-    """Publish recording ``path`` as responder ``responder``; returns the counts sent."""
+           gnss: bool = True, stop: threading.Event | None = None, on_progress: Callable[[int, int], None] | None = None,
+           on_matching: Callable[[bool], None] | None = None, on_start: Callable[[list], None] | None = None) -> dict:
+    """Publish recording ``path`` as responder ``responder``; returns the counts sent and, in
+    ``unheard``, how many went out while no service was subscribed."""
     rec = load(path)
     msgs = recording_messages(rec, responder, incident=incident, landmark_every=landmark_every, gnss=gnss)
-    w = Wearable(session, incident.id, responder)
+    w = Wearable(session, incident.id, responder, on_matching=on_matching)
+    if on_start is not None:
+        on_start(msgs)
+    if on_matching is not None:  # the listener speaks on changes: say now if nobody listens yet
+        deadline = time.monotonic() + MATCHING_WAIT_S
+        while not w.heard and time.monotonic() < deadline and not (stop is not None and stop.is_set()):
+            time.sleep(0.05)
+        if not w.heard:
+            on_matching(False)
     try:
         for i, m in enumerate(paced(msgs, speed, stop)):
             w.send(m.kind, m.msg)
@@ -62,4 +97,4 @@ def replay(path, responder: str, session: zenoh.Session, incident, speed: float 
                 on_progress(i + 1, len(msgs))
     finally:
         w.close()
-    return dict(w.sent)
+    return {**w.sent, "unheard": dict(w.unheard)}

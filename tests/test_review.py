@@ -149,3 +149,28 @@ def test_handheld_and_boot_mounted_wearers_live_then_reprocessed_give_identical_
         assert r["max_deviation_m"] == 0.0, rid  # bit for bit, under 20x load
     assert rep["responders"]["boot"]["distance_m"] > 10  # strides walked, not a standing boot
     assert MotionState.NO_MOTION is not boot_tracker.motion[0]
+
+
+@pytest.mark.recording
+def test_replaying_an_exercise_the_service_already_has_says_what_to_do(tmp_path, shared_data):
+    """Issue 18: the same frames twice are rejected as duplicates; the replay says so up front."""
+    from service.cli.record import replay
+    from service.review.reprocess import build_exercise
+
+    cfg = default_incident()
+    exercise = tmp_path / "one.mcap"
+    build_exercise([("r1", shared_data("ipin2023/IPIN2023_T3_TrainingTrial21_repetition01.txt.gz"))], exercise, cfg,
+                   gnss=False)
+    session, endpoint = router()
+    svc = IncidentService(session, cfg, ServiceSettings(), recorder=None).start()
+    try:
+        sent = replay(exercise, endpoint, speed=0.0, quiet=True, wait_for_subscribers_s=5.0)
+        frames = sum(n for k, n in sent["keys"].items() if k.endswith("/imu"))
+        assert wait_until(lambda: svc.frames_processed >= frames, 60)
+        with pytest.raises(ValueError, match=r"already tracks r1 .*--as-incident"):
+            replay(exercise, endpoint, speed=0.0, quiet=True)
+        again = replay(exercise, endpoint, speed=0.0, quiet=True, incident=f"{cfg.id}-replay")
+        assert again["messages"] == sent["messages"]  # under a new incident id it goes out
+    finally:
+        svc.close()
+        session.close()

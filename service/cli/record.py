@@ -184,6 +184,7 @@ def replay(
     incident: str | None = None,
     wait_for_subscribers_s: float = 2.0,
     quiet: bool = False,
+    force: bool = False,
 ) -> dict:
     """Publish a recording's messages to a router with the recorded timing divided by ``speed``.
 
@@ -212,6 +213,16 @@ def replay(
     counts: Counter[str] = Counter()
     session = open_client(connect)
     try:
+        if not force and any(k.endswith("/imu") for k in keys):  # frames: the service keeps their seqs
+            target = incident or summary["incident"] or keys[0].split("/")[1]
+            tracked = _already_tracked(session, target, {r for r in summary["responders"]
+                                                         if responders is None or r in responders}, stop)
+            if tracked:
+                names = ", ".join(f"{r} ({n} frames)" for r, n in sorted(tracked.items()))
+                raise ValueError(
+                    f"the service already tracks {names} in incident {target!r}: the same frames again would be "
+                    f"rejected as duplicates. Replay under a new incident id (--as-incident {target}-replay), "
+                    f"or restart the service; --force replays anyway")
         publishers = {k: session.declare_publisher(
             _retarget(k, incident), encoding=MSGPACK, congestion_control=zenoh.CongestionControl.BLOCK,
             reliability=zenoh.Reliability.RELIABLE) for k in keys}
@@ -250,6 +261,32 @@ def _retarget(key: str, incident: str | None) -> str:
     return f"{root}/{incident}/{responder}/{kind}"
 
 
+STATUS_LISTEN_S = 1.5  # s a replay listens for the service's Status before it publishes (Status comes at 1 Hz)
+
+
+def _already_tracked(session, incident: str, responders: set[str], stop: threading.Event) -> dict[str, int]:
+    """Responders of the recording that a live service already tracks in ``incident``, with the
+    frames it has of them (from its once-a-second Status)."""
+    from service.protocol import wire
+
+    seen: dict[str, int] = {}
+
+    def on_status(sample) -> None:
+        try:
+            st = wire.decode(sample.payload.to_bytes(), expect=wire.Status)
+        except wire.WireError:
+            return
+        if st.responder in responders and st.frames > 0:
+            seen[st.responder] = st.frames
+
+    sub = session.declare_subscriber(wire.key_all(incident, "status"), on_status)
+    try:
+        stop.wait(STATUS_LISTEN_S)
+    finally:
+        sub.undeclare()
+    return dict(seen)
+
+
 def _wait_for_subscribers(publishers: dict, timeout: float, stop: threading.Event) -> list[str]:
     deadline = time.monotonic() + timeout
     while True:
@@ -286,11 +323,12 @@ def replay_command(
     kind: list[str] = typer.Option(None, "--kind", help="kinds to publish (default: imu, fix); repeat for more"),
     connect: str = typer.Option(DEFAULT_CONNECT, "--connect", help="zenoh router endpoint"),
     as_incident: str = typer.Option(None, "--as-incident", help="publish under this incident name instead"),
+    force: bool = typer.Option(False, "--force", help="replay even when the service already tracks these responders"),
 ):
     """Publish a recording's inputs (imu, fix) back to a router with their recorded timing."""
     try:
         replay(file, connect, speed, from_s, responder or None, tuple(kind) if kind else INPUT_KINDS,
-               incident=as_incident)
+               incident=as_incident, force=force)
     except (ConnectionError, ValueError, OSError) as e:
         fail(str(e))
         raise typer.Exit(1)

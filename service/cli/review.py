@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from service.protocol.terminal import err, fail, out, print_json
+from service.protocol.terminal import err, fail, out, print_json, warn
 
 
 def _cfg(config: Path | None):
@@ -38,11 +38,17 @@ def reprocess_command(
         fail(f"{file}: no such recording")
         raise typer.Exit(2)
     cfg = _cfg(config)
+    import warnings
+
     try:
-        rep = reprocess(file, cfg)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rep = reprocess(file, cfg)
     except (ValueError, OSError) as e:
-        fail(f"{file}: {e}")
+        fail(str(e))
         raise typer.Exit(1)
+    for w in caught:  # a torn recording: one clear line, not a Python warning
+        warn(str(w.message))
     tracks = rep.pop("tracks")
     if rep["errors"]:
         fail(f"{file}: {rep['errors']} message(s) raised an error while reprocessing (see the log above); "

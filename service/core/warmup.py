@@ -11,6 +11,7 @@ encoding, the track reply — on a throwaway incident core whose output is dropp
 """
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 
@@ -28,11 +29,21 @@ class WarmUp:
 def warm_up(incident, settings=None, seconds: float = WARMUP_SECONDS) -> WarmUp:
     """Run a simulated responder through a throwaway incident core (``settings``: its
     :class:`service.core.incident_core.CoreSettings`)."""
+    started = time.perf_counter()
+    quiet = logging.getLogger("firetrack.service")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)  # the throwaway responder is nobody's business
+    try:
+        return _walk(incident, settings, seconds, started)
+    finally:
+        quiet.setLevel(level)
+
+
+def _walk(incident, settings, seconds: float, started: float) -> WarmUp:
     from pdr.simulation import SimulatedWalker
-    from service.core.incident_core import Inbound, IncidentCore
+    from service.core.incident_core import IncidentCore, Inbound
     from service.protocol import wire
 
-    started = time.perf_counter()
     core = IncidentCore(incident, settings)
     rid = "warm-up"
     walker = SimulatedWalker(rid, attitude=False)

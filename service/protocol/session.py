@@ -76,7 +76,21 @@ def open_session(listen: list[str] | None = None, connect: list[str] | str | Non
         raise ConnectionError(f"{where}: {zenoh_error(e)}") from None
 
 
-def open_client(connect: list[str] | str | None = None) -> zenoh.Session:
-    """A client session to ``connect`` (default the local demo endpoint); ``ConnectionError``
-    with one clear line when the router cannot be reached."""
-    return open_session(None, connect or DEFAULT_ENDPOINT)
+def open_client(connect: list[str] | str | None = None, wait_s: float = 0.0, on_wait=None) -> zenoh.Session:
+    """A client session to ``connect`` (default the local demo endpoint). A router that is not
+    up yet is retried for up to ``wait_s`` seconds (``on_wait(message)`` is told once), then
+    ``ConnectionError`` with one clear line."""
+    import time
+
+    deadline = time.monotonic() + max(0.0, wait_s)
+    told = False
+    while True:
+        try:
+            return open_session(None, connect or DEFAULT_ENDPOINT)
+        except ConnectionError as e:
+            if time.monotonic() >= deadline:
+                raise
+            if on_wait is not None and not told:
+                on_wait(f"{e}; retrying for up to {wait_s:.0f} s ...")
+                told = True
+            time.sleep(min(0.5, max(0.0, deadline - time.monotonic())))

@@ -114,11 +114,20 @@ def stop_on_signals() -> threading.Event:
 
 
 def setup_logging(verbose: bool) -> None:
-    """Log lines on stderr; INFO with ``--verbose``, else warnings and errors only."""
-    from rich.logging import RichHandler
+    """Log lines on stderr; INFO with ``--verbose``, else warnings and errors only. On a
+    terminal they are coloured; into a file or journal (systemd) each record is one plain,
+    unwrapped line with its time and level."""
+    level = logging.INFO if verbose else logging.WARNING
+    if sys.stderr.isatty():
+        from rich.logging import RichHandler
 
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
-                        handlers=[RichHandler(console=err, show_path=False)])
+        handler: logging.Handler = RichHandler(console=err, show_path=False)
+        fmt = "%(message)s"
+    else:
+        handler = logging.StreamHandler(sys.stderr)
+        fmt = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+    handler.setFormatter(logging.Formatter(fmt))
+    logging.basicConfig(level=level, handlers=[handler], force=True)
 
 
 def incident_or_exit(config, incident_id: str | None = None):
@@ -142,14 +151,15 @@ def incident_or_exit(config, incident_id: str | None = None):
     return cfg
 
 
-def client_or_exit(connect: str):
-    """A zenoh client session to ``connect``, or one clear line and exit code 1."""
+def client_or_exit(connect: str, wait_s: float = 0.0):
+    """A zenoh client session to ``connect`` (a router not up yet is waited for up to
+    ``wait_s``), or one clear line and exit code 1."""
     import typer
 
     from service.protocol.session import open_client
 
     try:
-        return open_client(connect)
+        return open_client(connect, wait_s, on_wait=warn)
     except ConnectionError as e:
         fail(str(e))
         raise typer.Exit(1)

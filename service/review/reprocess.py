@@ -35,6 +35,7 @@ class ResponderReview:
 
 
 def reprocess(path: Path, incident_cfg, progress=None) -> dict:
+    check_is_recording(path)
     core = IncidentCore(incident_cfg)
     published: list = []
     recorded: dict[str, list[tuple[float, float, float]]] = {}
@@ -102,6 +103,17 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         "recording_s": duration,
         "realtime_factor": duration / cpu if cpu > 0 and duration else None,
     }
+
+
+def check_is_recording(path: Path) -> None:
+    """ValueError unless ``path`` starts like an MCAP file (what firetrack records)."""
+    from mcap.writer import MCAP0_MAGIC
+
+    with open(path, "rb") as f:
+        head = f.read(len(MCAP0_MAGIC))
+    if head != MCAP0_MAGIC:
+        raise ValueError(f"{path} is not a firetrack recording (not an MCAP file: it does not start with the MCAP "
+                         "magic bytes); record one with `firetrack serve --record` or `firetrack record`")
 
 
 ROUND = 500  # recorded messages fed together: what the live worker does when it has a backlog
