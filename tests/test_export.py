@@ -62,7 +62,8 @@ def test_csv_columns_and_quoting(tmp_path):
     assert n == 25
     with open(tmp_path / "t.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    assert list(rows[0]) == ["responder", "t", "x", "y", "floor", "heading_deg", "lat", "lon"]
+    assert list(rows[0]) == ["responder", "utc", "t", "x", "y", "floor", "heading_deg", "lat", "lon", "cov_xx", "cov_xy",
+                             "cov_yy"]
     assert [r["responder"] for r in rows] == ["ff1"] * 20 + ["crew, B"] * 5
     got = np.array([[float(r[k]) for k in ("t", "x", "y", "heading_deg")] for r in rows[:20]])
     tr = tracks["ff1"]
@@ -115,3 +116,41 @@ def test_bad_tracks_are_named():
         to_geojson({"ff1": {k: v for k, v in _track(3).items() if k != "heading"}}, ORIGIN)
     with pytest.raises(ValueError, match="WGS84"):
         to_geojson({"ff1": _track(3)}, (123.0, 14.0, 0.0))
+
+
+def _start_then_steps():
+    """What the service's smoothed track looks like at its start: the placement pose, then the
+    first step 1 µs later and half a metre away (the placement took the step's time)."""
+    tr = _track(30, 4)
+    tr["t"] = np.concatenate([[tr["t"][0] - 1e-6], tr["t"]])
+    for k in ("x", "y", "heading"):
+        tr[k] = np.concatenate([[tr[k][0] - (0.47 if k == "x" else 0.0)], tr[k]])
+    tr["floor"] = np.concatenate([[0], tr["floor"]])
+    return tr
+
+
+def test_tum_times_strictly_increase_with_plausible_speeds(tmp_path):
+    """What ``evo_traj tum --full_check`` checks: increasing stamps, no 1 µs jumps of half a metre."""
+    assert to_tum(_start_then_steps(), tmp_path / "ff1.tum") == 30  # the near-duplicate start pose is thinned
+    t, x, y = np.loadtxt(tmp_path / "ff1.tum")[:, :3].T
+    dt = np.diff(t)
+    assert np.all(dt >= 0.01)
+    assert np.max(np.hypot(np.diff(x), np.diff(y)) / dt) < 10.0  # m/s: a running firefighter, at most
+
+
+def test_exports_place_every_sample_in_utc(tmp_path):
+    tr = _start_then_steps()
+    tr["utc_offset"] = 1_795_458_000.0  # device clock + offset = Unix time UTC
+    gj = to_geojson({"ff1": tr}, ORIGIN)
+    props = gj["features"][0]["properties"]
+    n = len(gj["features"][0]["geometry"]["coordinates"])
+    assert len(props["times"]) == len(props["coordTimes"]) == n == 30
+    first = np.datetime64(props["coordTimes"][0][:-1])
+    assert props["coordTimes"][0].endswith("Z")
+    assert abs((first - np.datetime64("1970-01-01T00:00:00")) / np.timedelta64(1, "ms") / 1e3
+               - (tr["t"][1] + tr["utc_offset"])) < 1e-3
+    to_csv({"ff1": tr}, tmp_path / "t.csv", origin=ORIGIN)
+    with open(tmp_path / "t.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 30 and rows[0]["utc"] == props["coordTimes"][0]
+    assert rows[0]["cov_xx"] == ""  # this track carries no covariance

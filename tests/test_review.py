@@ -66,7 +66,7 @@ def test_exercise_and_reprocess_commands(tmp_path, shared_data):
     rep = json.loads(r.stdout)
     assert rep["max_deviation_m"] is None  # an exercise has no live poses to compare with
     for rid in ("ff0", "ff1"):
-        assert rep["responders"][rid]["steps"] > 50 and rep["responders"][rid]["distance_m"] > 30
+        assert rep["responders"][rid]["steps"] > 50 and rep["responders"][rid]["distance_smoothed_m"] > 30 and rep["responders"][rid]["distance_live_m"] > 30
     geo = json.loads((tmp_path / "exp" / "tracks.geojson").read_text())
     assert {f["properties"]["responder"] for f in geo["features"]} == {"ff0", "ff1"}
     assert (tmp_path / "exp" / "ff0.tum").read_text().count("\n") > 50
@@ -147,7 +147,7 @@ def test_handheld_and_boot_mounted_wearers_live_then_reprocessed_give_identical_
         r = rep["responders"][rid]
         assert r["steps"] > 10 and r["recorded_poses"] == r["poses"] > 10, (rid, r)
         assert r["max_deviation_m"] == 0.0, rid  # bit for bit, under 20x load
-    assert rep["responders"]["boot"]["distance_m"] > 10  # strides walked, not a standing boot
+    assert rep["responders"]["boot"]["distance_smoothed_m"] > 10  # strides walked, not a standing boot
     assert MotionState.NO_MOTION is not boot_tracker.motion[0]
 
 

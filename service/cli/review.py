@@ -64,11 +64,13 @@ def reprocess_command(
         return
     table = Table(title=f"reprocessed {file.name}: {rep['inputs']} inputs in {rep['cpu_s']:.2f} s CPU"
                         + (f" ({rep['realtime_factor']:.0f}x real time)" if rep["realtime_factor"] else ""))
-    for col in ("responder", "steps", "distance m", "poses", "recorded", "max deviation m"):
+    for col in ("responder", "steps", "live track m", "smoothed track m", "poses", "recorded", "max deviation m"):
         table.add_column(col, justify="left" if col == "responder" else "right")
     for rid, r in rep["responders"].items():
         dev = r["max_deviation_m"]
-        table.add_row(rid, str(r["steps"]), f"{r['distance_m']:.1f}", str(r["poses"]), str(r["recorded_poses"]),
+        smoothed = r["distance_smoothed_m"]
+        table.add_row(rid, str(r["steps"]), f"{r['distance_live_m']:.1f}", "—" if smoothed is None else f"{smoothed:.1f}",
+                      str(r["poses"]), str(r["recorded_poses"]),
                       "—" if dev is None else f"{dev:.3g}")
     out.print(table)
 

@@ -6,6 +6,12 @@ A track is a mapping of equal-length arrays, the service's smoothed estimate of 
 - ``x``, ``y`` — m, East and North in the incident's local ENU frame
 - ``heading`` — rad, yaw of the body, counter-clockwise from East (gtsam Pose2's theta)
 - ``floor`` — integer floor number
+- ``utc_offset`` (optional, a number) — s, UTC minus the device clock (the wearable's), so
+  that every sample can be placed in UTC and two responders' exports lined up
+
+Times are thinned before export (:func:`thinned`): a sample less than
+:data:`MIN_DT_S` after the one before it (a track's start pose right before its first step)
+is dropped, so times strictly increase and no tool sees a 1 µs, 0.5 m jump as a speed.
 
 Geodetic coordinates come from the incident origin (``lat``, ``lon`` in degrees, ``alt`` in m
 above the WGS84 ellipsoid) with ``pymap3d.enu2geodetic``; the up coordinate is the floor's
@@ -29,6 +35,7 @@ from pdr.events import bearing_deg
 from pdr.floors import FloorElevations
 
 COORD_DECIMALS = 7  # degrees: 1e-7 deg is ~1.1 cm at the equator, finer than any track here
+MIN_DT_S = 0.01  # s: samples closer in time than this to the previous one are near-duplicates
 
 
 class IncidentOrigin(NamedTuple):
@@ -70,7 +77,34 @@ def _track_arrays(track: Mapping, name: str) -> dict[str, np.ndarray]:
     if n > 1 and np.any(np.diff(cols["t"]) <= 0):
         raise ValueError(f"track {name!r}: t must increase, it does not at sample {int(np.argmax(np.diff(cols['t']) <= 0)) + 1}")
     cols["floor"] = floor.astype(np.int64)
-    return cols
+    off = track.get("utc_offset") if hasattr(track, "get") else None
+    cols["utc_offset"] = float(off) if off is not None and math.isfinite(float(off)) else None
+    return thinned(cols)
+
+
+def thinned(c: dict, min_dt: float = MIN_DT_S) -> dict:
+    """The samples at least ``min_dt`` after the sample kept before them (the later of two
+    near-duplicates wins: it is the estimate after the step, the earlier one the pose it
+    started from)."""
+    t = c["t"]
+    if len(t) < 2:
+        return c
+    keep = np.ones(len(t), dtype=bool)
+    last = len(t) - 1
+    for i in range(len(t) - 2, -1, -1):  # from the end: keep i unless the kept one after it is too close
+        if t[last] - t[i] < min_dt:
+            keep[i] = False
+        else:
+            last = i
+    return {k: (v[keep] if isinstance(v, np.ndarray) else v) for k, v in c.items()}
+
+
+def utc_iso(t: np.ndarray, utc_offset: float | None) -> list[str] | None:
+    """ISO 8601 UTC times (millisecond, ``Z``) of device times ``t``, or None without an offset."""
+    if utc_offset is None:
+        return None
+    ms = np.round((np.asarray(t, dtype=np.float64) + utc_offset) * 1000.0).astype("int64")
+    return [str(x) + "Z" for x in ms.astype("datetime64[ms]")]
 
 
 def _up(floor: np.ndarray, floors: FloorElevations | None) -> np.ndarray:
@@ -100,7 +134,9 @@ def to_geojson(tracks: Mapping[str, Mapping], origin, floors: FloorElevations | 
     estimate) a Point; positions are ``[lon, lat]`` in degrees (RFC 7946 §3.1.1, longitude
     first) rounded to :data:`COORD_DECIMALS`. Each feature's properties: ``responder``,
     ``floor``, ``elevation_m`` (if floors are given), ``t_start``, ``t_end`` (s, device clock),
-    ``bearing_deg_end`` (compass bearing at the stretch's last sample).
+    ``bearing_deg_end`` (compass bearing at the stretch's last sample), and a time per point:
+    ``times`` (s, device clock) and, when the track knows its UTC offset, ``coordTimes`` (ISO
+    8601 UTC, the convention of GPX converters and Mapbox tools).
     """
     o = _origin(origin)
     features = []
@@ -123,7 +159,11 @@ def to_geojson(tracks: Mapping[str, Mapping], origin, floors: FloorElevations | 
                 "t_start": float(c["t"][a]),
                 "t_end": float(c["t"][b]),
                 "bearing_deg_end": round(float(bearing[b]), 1),
+                "times": [round(float(x), 3) for x in c["t"][seg]],
             }
+            iso = utc_iso(c["t"][seg], c["utc_offset"])
+            if iso is not None:
+                props["coordTimes"] = iso
             if floors is not None:
                 props["elevation_m"] = floors.elevation(int(c["floor"][a]))
             features.append({"type": "Feature", "geometry": geometry, "properties": props})
@@ -133,15 +173,19 @@ def to_geojson(tracks: Mapping[str, Mapping], origin, floors: FloorElevations | 
 # ------------------------------------------------------------------------------------------
 # CSV
 # ------------------------------------------------------------------------------------------
-CSV_COLUMNS = ("responder", "t", "x", "y", "floor", "heading_deg", "lat", "lon")
+CSV_COLUMNS = ("responder", "utc", "t", "x", "y", "floor", "heading_deg", "lat", "lon", "cov_xx", "cov_xy", "cov_yy")
 
 
 def to_csv(tracks: Mapping[str, Mapping], path: str | os.PathLike, origin=None,
            floors: FloorElevations | None = None) -> int:
-    """One row per sample: ``responder,t,x,y,floor,heading_deg,lat,lon``; returns the row count.
+    """One row per sample: ``responder,utc,t,x,y,floor,heading_deg,lat,lon,cov_xx,cov_xy,cov_yy``;
+    returns the row count.
 
-    ``heading_deg`` is the compass bearing (CW from North); ``lat``/``lon`` are empty when no
-    origin is given. Times to the microsecond, positions to the millimetre.
+    ``utc`` is ISO 8601 (empty when the track has no UTC offset), ``t`` the device clock (s);
+    ``heading_deg`` the compass bearing (CW from North); ``lat``/``lon`` empty when no origin is
+    given; ``cov_*`` (m², ENU) the position covariance when the track carries one (columns
+    ``cov_xx``, ``cov_xy``, ``cov_yy``), else empty. Times to the microsecond, positions to
+    the millimetre.
     """
     o = None if origin is None else _origin(origin)
     rows = 0
@@ -159,14 +203,29 @@ def to_csv(tracks: Mapping[str, Mapping], path: str | os.PathLike, origin=None,
                 geo = np.full(n, ",")
             name = io.StringIO()
             csv.writer(name, lineterminator="").writerow([responder])  # quoted if it needs to be
-            body = np.char.add(np.char.add(np.char.mod("%.6f", c["t"]), ","), np.char.mod("%.3f", c["x"]))
+            iso = utc_iso(c["t"], c["utc_offset"])
+            utc = np.array(iso if iso is not None else [""] * n)
+            body = np.char.add(np.char.add(utc, ","), np.char.mod("%.6f", c["t"]))
+            body = np.char.add(np.char.add(body, ","), np.char.mod("%.3f", c["x"]))
             body = np.char.add(np.char.add(body, ","), np.char.mod("%.3f", c["y"]))
             body = np.char.add(np.char.add(body, ","), c["floor"].astype(str))
             body = np.char.add(np.char.add(body, ","), np.char.mod("%.2f", bearing_deg(c["heading"])))
             lines = np.char.add(np.char.add(np.char.add(name.getvalue() + ",", body), ","), geo)
+            cov = _cov_columns(track, c, n)
+            lines = np.char.add(np.char.add(lines, ","), cov)
             f.write("\n".join(lines.tolist()) + "\n")
             rows += n
     return rows
+
+
+def _cov_columns(track: Mapping, c: dict, n: int) -> np.ndarray:
+    """``cov_xx,cov_xy,cov_yy`` per kept sample (``%.4g``), or empty fields."""
+    if not all(k in track for k in ("cov_xx", "cov_xy", "cov_yy")):
+        return np.full(n, ",,")
+    t_all = np.asarray(track["t"], dtype=np.float64).ravel()
+    idx = np.searchsorted(t_all, c["t"])  # the kept samples among the track's own
+    parts = [np.char.mod("%.4g", np.asarray(track[k], dtype=np.float64).ravel()[idx]) for k in ("cov_xx", "cov_xy", "cov_yy")]
+    return np.char.add(np.char.add(np.char.add(np.char.add(parts[0], ","), parts[1]), ","), parts[2])
 
 
 # ------------------------------------------------------------------------------------------
@@ -186,7 +245,8 @@ def to_tum(track: Mapping, path: str | os.PathLike, floors: FloorElevations | No
     """Write ``t x y z qx qy qz qw`` per line (TUM RGB-D format, read by ``evo``); returns lines.
 
     z is the floor's elevation when ``floors`` is given, else 0; the orientation is the yaw
-    alone (the smoothed track carries no tilt).
+    alone (the smoothed track carries no tilt). Times strictly increase, near-duplicates
+    thinned (``evo_traj --full_check`` finds no jumps or repeated stamps).
     """
     c = _track_arrays(track, "track")
     z = _up(c["floor"], floors)

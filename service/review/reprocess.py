@@ -27,7 +27,7 @@ from service.review.recorder import IncidentRecorder, read_recording
 @dataclass
 class ResponderReview:
     steps: int = 0
-    distance_m: float = 0.0
+    distance_m: float = 0.0  # of the live track, as published (with its jumps at fixes)
     poses: int = 0
     recorded_poses: int = 0
     max_deviation_m: float | None = None
@@ -91,9 +91,11 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         tr = resp.tracker.smoothed_track()
         if tr is not None and len(tr["t"]):
             tracks[rid] = {k: np.asarray(tr[k]) for k in ("t", "x", "y", "floor", "heading")}
+            tracks[rid]["utc_offset"] = resp.utc_offset
     return {
         "tracks": tracks,
-        "responders": {rid: {"steps": r.steps, "distance_m": r.distance_m, "poses": r.poses,
+        "responders": {rid: {"steps": r.steps, "distance_live_m": r.distance_m,
+                             "distance_smoothed_m": _walked(tracks.get(rid)), "poses": r.poses,
                              "recorded_poses": r.recorded_poses, "max_deviation_m": r.max_deviation_m}
                        for rid, r in sorted(out.items())},
         "max_deviation_m": worst,
@@ -103,6 +105,13 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         "recording_s": duration,
         "realtime_factor": duration / cpu if cpu > 0 and duration else None,
     }
+
+
+def _walked(track: dict | None) -> float | None:
+    """Length (m) of a smoothed track's horizontal path (None without one)."""
+    if track is None or len(track["t"]) < 2:
+        return None
+    return float(np.sum(np.hypot(np.diff(track["x"]), np.diff(track["y"]))))
 
 
 def check_is_recording(path: Path) -> None:
