@@ -69,7 +69,8 @@ S_MAG_CAND_ON = 60  # 1 while a candidate is held
 S_MAG_CAND_T = 61  # time the candidate has held while the sensor turned, s
 S_MAG_UNDIST_T = 62  # time the field has matched the reference without a break, s
 S_MAG_REJECT_T = 63  # time the heading correction has been held back, s
-N_STATE = 64
+S_Q0_GIVEN = 64  # 1 when the filter started from a given orientation
+N_STATE = 65
 
 SQRT2 = math.sqrt(2.0)
 HEAD_P_UNKNOWN = 1e12  # initial heading variance without a start orientation: the first field sample decides
@@ -160,6 +161,7 @@ def decoupled_start(s, q0, has_q0):  # pragma: no cover - compiled
     if has_q0:
         s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3] = q0[0], q0[1], q0[2], q0[3]
         s[S_HEAD_P] = 0.0  # the given heading is trusted; the magnetometer takes over at τ_mag
+        s[S_Q0_GIVEN] = 1.0
 
 
 @njit(cache=True)
@@ -251,7 +253,17 @@ def decoupled_run(s, p, t, acc, gyr, mag, use_mag, turn, out):  # pragma: no cov
             an = math.sqrt(ax * ax + ay * ay + az * az)
             if an > 0.0:
                 aix, aiy, aiz = _rotate(gw, gx, gy, gz, ax, ay, az)
-                if s[S_ACC_INIT_T] < tau_acc:
+                starting = s[S_ACC_INIT_T] < tau_acc
+                if starting and s[S_Q0_GIVEN] == 1.0:
+                    # a given start orientation: the memory of gravity starts at its vertical
+                    # (I = ENU at that instant), so its inclination is kept and then corrected
+                    s[S_ACC_LP], s[S_ACC_LP + 1], s[S_ACC_LP + 2] = 0.0, 0.0, an
+                    if dt > 0.0:
+                        _butter_hold(s, S_ACC_LP, c_acc, 0.0, 0.0, an)
+                        _butter_step(s, S_ACC_LP, c_acc, aix, aiy, aiz)
+                        s[S_ACC_INIT_T] = tau_acc
+                    starting = False
+                elif starting:
                     # the first tau_acc seconds: the running mean, so the start needs no settling
                     m_n = s[S_ACC_INIT_N] + 1.0
                     s[S_ACC_INIT_N] = m_n
@@ -270,8 +282,8 @@ def decoupled_run(s, p, t, acc, gyr, mag, use_mag, turn, out):  # pragma: no cov
                 if hn > 1e-12 * an:
                     # turn about (e × z)/|e × z| = (e_y, −e_x, 0)/h by ∠(e, z), at most the rate limit
                     turn_angle = math.atan2(hn, ez)
-                    if rate_limit > 0.0 and turn_angle > rate_limit * dt:
-                        turn_angle = rate_limit * dt
+                    if rate_limit > 0.0 and not starting and turn_angle > rate_limit * dt:
+                        turn_angle = rate_limit * dt  # the start levels at once, later tilts are slewed
                     sh = math.sin(0.5 * turn_angle) / hn
                     qw, qx, qy, qz = _qmul(math.cos(0.5 * turn_angle), ey * sh, -ex * sh, 0.0, qw, qx, qy, qz)
                     qw, qx, qy, qz = _unit4(qw, qx, qy, qz)

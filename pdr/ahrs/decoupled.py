@@ -18,9 +18,10 @@ rate-limited. Quaternions are scalar first, Hamilton, body -> frame. Per sample,
    correction ``q_a`` (I -> E6, a turn about a horizontal axis) is then turned so that
    ``R(q_a) ā_I`` points up: by the whole angle ∠(R(q_a) ā_I, z) (VQF), but by at most
    ``acc_rate_max·dt`` (ours: a long, one-sided acceleration, e.g. a lift or a car, can
-   then tilt the estimate only that fast). The first
-   ``tau_acc`` seconds use the running mean of ``a_I`` instead, so the start needs no
-   settling. The 6D orientation is ``q_6 = q_a ⊗ q_g``.
+   then tilt the estimate only that fast). The first ``tau_acc`` seconds use the running
+   mean of ``a_I`` instead, turned onto z in full (no rate limit), so the start needs no
+   settling; a filter given a start orientation ``q0`` instead starts the low-pass at
+   q0's vertical, so it keeps q0 and corrects it like any later error. The 6D orientation is ``q_6 = q_a ⊗ q_g``.
 
 3. **Gyroscope bias at rest** (VQF's rest-phase bias estimation). Gyroscope and accelerometer are
    low-passed (``tau_rest``); the sensor is at rest when for ``rest_time`` seconds every
