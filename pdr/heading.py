@@ -112,8 +112,9 @@ class HeadingSettings:
     """Every number with its unit. Defaults: see the module's evaluation notes (IPIN 2023 set)."""
 
     # orientation basis
-    ahrs: str = "fscf"  # magnetometer-free AHRS used for levelling and gyro heading
-    ahrs_params: tuple[tuple[str, float], ...] = (("gain_acc", 0.2),)  # its settings (fscf: rad/s)
+    ahrs: str = "decoupled"  # magnetometer-free AHRS used for levelling and gyro heading
+    # its settings: shipped defaults, but no rest detection of its own (the bias is this module's)
+    ahrs_params: tuple[tuple[str, float], ...] = (("rest_time", math.inf),)
     forward_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # body axis taken as "forward"
     declination: float = 0.0  # rad, east positive (Nuremberg 2023: +3.6° = 0.0628 rad)
     # gyro bias at standstill

@@ -48,9 +48,9 @@ def test_eval_ahrs_compares_filters_side_by_side(vicon_file):
 
 
 def test_a_parameter_changes_the_result(vicon_file):
-    base = json.loads(runner.invoke(app, ["eval", "ahrs", str(vicon_file), "--json"]).stdout)["mae_deg"]
+    base = json.loads(runner.invoke(app, ["eval", "ahrs", str(vicon_file), "-f", "fscf", "--json"]).stdout)["mae_deg"]
     no_correction = json.loads(runner.invoke(
-        app, ["eval", "ahrs", str(vicon_file), "--json", "-p", "gain_acc=0", "-p", "gain_mag=0"]).stdout)["mae_deg"]
+        app, ["eval", "ahrs", str(vicon_file), "-f", "fscf", "--json", "-p", "gain_acc=0", "-p", "gain_mag=0"]).stdout)["mae_deg"]
     assert no_correction != base
 
 
@@ -58,6 +58,10 @@ def test_bad_parameter_and_bad_file_give_clear_errors(vicon_file, tmp_path):
     r = runner.invoke(app, ["eval", "ahrs", str(vicon_file), "-p", "gain_acc"])
     assert r.exit_code == 2 and "--param expects name=value" in r.output
     r = runner.invoke(app, ["eval", "ahrs", str(vicon_file), "-p", "speed=3"])
+    assert r.exit_code == 2 and "unknown parameter 'speed'" in r.output
+    r = runner.invoke(app, ["eval", "ahrs", str(vicon_file), "-f", "kalman"])
+    assert r.exit_code == 2 and "unknown filter 'kalman'" in r.output
+    r = runner.invoke(app, ["eval", "ahrs", str(vicon_file), "-f", "fscf", "-p", "speed=3"])
     assert r.exit_code == 2 and "unknown parameter 'speed'" in r.output
     broken = tmp_path / "broken.mat"
     broken.write_bytes(b"not a mat file at all")
@@ -70,5 +74,32 @@ def test_tune_improves_on_a_poor_start(vicon_file):
     r = runner.invoke(app, ["tune", "ahrs", str(vicon_file), "-f", "fscf", "-p", "gain_acc=0.005", "-p", "gain_mag=0.001", "--json"])
     assert r.exit_code == 0, r.output
     report = json.loads(r.stdout)
-    start = json.loads(runner.invoke(app, ["eval", "ahrs", str(vicon_file), "--json", "-p", "gain_acc=0.005", "-p", "gain_mag=0.001"]).stdout)
+    start = json.loads(runner.invoke(app, ["eval", "ahrs", str(vicon_file), "-f", "fscf", "--json", "-p", "gain_acc=0.005", "-p", "gain_mag=0.001"]).stdout)
     assert report["mae_deg"] < start["mae_deg"]
+
+
+def test_tune_grid_with_cross_validation(vicon_file, tmp_path):
+    other = tmp_path / "second.mat"
+    imu = rotating_imu(seconds=30, rate_hz=100, seed=9)
+    scipy.io.savemat(other, {
+        "Accelerometer": imu.acc / GRAVITY, "Gyroscope": imu.gyr,
+        "Magnetometer": imu.mag / np.linalg.norm(imu.mag, axis=1, keepdims=True),
+        "qViconReference": quat.multiply(quat.conjugate(_NWU_TO_ENU), imu.q_true), "time": imu.t[None, :],
+    })
+    cache = tmp_path / "cache.json"
+    args = ["tune", "ahrs", str(vicon_file), str(other), "-f", "decoupled", "-g", "tau_mag=5,40",
+            "-g", "tau_acc=0.5,2", "--cv", "--cache", str(cache), "--json"]
+    r = runner.invoke(app, args)
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.stdout)
+    assert len(rep["top"]) == 4 and rep["chosen"]["params"] in [t["params"] for t in rep["top"]]
+    cv = rep["cross_validation"]
+    assert [f["held_out"] for f in cv["folds"]] == ["synthetic_vicon.mat", "second.mat"]
+    assert cv["held_out_mean_deg"] == sum(f["held_out_deg"] for f in cv["folds"]) / 2
+    assert cache.exists() and len(json.loads(cache.read_text())) == 8
+    again = json.loads(runner.invoke(app, args).stdout)  # from the cache: the same figures
+    assert again["cross_validation"] == cv
+    r = runner.invoke(app, ["tune", "ahrs", str(vicon_file), "-f", "decoupled", "-g", "nope=1,2"])
+    assert r.exit_code == 2 and "unknown parameter 'nope'" in r.output
+    r = runner.invoke(app, ["tune", "ahrs", str(vicon_file), "--cv"])
+    assert r.exit_code == 2 and "--cv needs a --grid" in r.output

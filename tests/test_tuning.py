@@ -15,3 +15,36 @@ def test_sliding_grid_search_finds_a_minimum_deterministically():
 def test_absolute_step_lets_a_parameter_leave_zero():
     r = sliding_grid_search(lambda p: (p["k"] - 0.3) ** 2, {"k": 0.0}, absolute={"k": 0.05})
     assert abs(r.params["k"] - 0.3) < 0.03
+
+
+def test_grid_points_cover_every_combination():
+    from pdr.ahrs.tuning import grid_points
+
+    pts = grid_points({"a": [1, 2], "b": [10, 20, 30]})
+    assert len(pts) == 6 and pts[0] == {"a": 1.0, "b": 10.0} and pts[-1] == {"a": 2.0, "b": 30.0}
+
+
+def test_leave_one_out_scores_each_recording_with_a_choice_made_without_it():
+    import numpy as np
+
+    from pdr.ahrs.tuning import leave_one_out
+
+    # point 0 is best on recordings 0-2 but terrible on 3; point 1 is decent everywhere
+    table = np.array([[1.0, 1.0, 1.0, 9.0],
+                      [2.0, 2.0, 2.0, 2.0]])
+    cv = leave_one_out(table)
+    assert cv.chosen == 1  # mean 3.0 against 2.0
+    # holding out 3, point 0 looks best (mean 1.0 on the others) and scores 9 there
+    assert cv.folds[3] == (3, 0, 9.0)
+    # holding out 0, point 1 wins (means 3.67 against 2.0)
+    assert cv.folds[0] == (0, 1, 2.0)
+    assert cv.held_out_mean == (2.0 + 2.0 + 2.0 + 9.0) / 4
+
+
+def test_leave_one_out_needs_two_recordings():
+    import pytest
+
+    from pdr.ahrs.tuning import leave_one_out
+
+    with pytest.raises(ValueError, match=">= 2 recordings"):
+        leave_one_out([[1.0], [2.0]])

@@ -10,6 +10,7 @@ out-of-order timestamps) are kept in ``Recording.warnings`` and raised as
 * :func:`load_oxford` - walk directory or ``.csv.gz`` (Oxford step counter, smartphone);
 * :func:`load_pyshoe` - ``.mat`` with ``imu_data`` (PyShoe / LLIO, foot IMU with Vicon);
 * :func:`load_vicon_ahrs` - ``.mat`` with ``qViconReference`` (Justa AHRS set with Vicon);
+* :func:`load_broad` - ``.mat`` with ``imu_gyr`` and ``opt_quat`` (BROAD benchmark trial);
 * :func:`load` - any of the above, chosen from the name and content.
 """
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 
 from pdr.io._mat import mat_fields
 from pdr.io._text import GZIP_MAGIC, inflate_member
+from pdr.io.broad import is_broad, load_broad, load_broad_groups
 from pdr.io.errors import RecordingFormatError, RecordingWarning
 from pdr.io.ipin import load_ipin
 from pdr.io.oxford import load_oxford
@@ -28,6 +30,8 @@ from pdr.recording import Recording
 
 __all__ = [
     "load",
+    "load_broad",
+    "load_broad_groups",
     "load_ipin",
     "load_oxford",
     "load_pyshoe",
@@ -46,6 +50,7 @@ def load(path: str | Path) -> Recording:
 
     * a directory holding ``accelerometer.csv(.gz)`` -> Oxford (optimisation layout);
     * ``.mat`` with ``imu_data`` -> PyShoe; with ``qViconReference`` -> Vicon AHRS;
+      with ``imu_gyr``, ``imu_acc`` and ``opt_quat`` -> BROAD;
     * text (plain or gzip) with the GetSensorData header or its line types -> IPIN;
     * text whose rows are 5 or 7 comma-separated numbers -> Oxford.
     """
@@ -62,8 +67,11 @@ def load(path: str | Path) -> Recording:
             return load_pyshoe(p)
         if "qViconReference" in fields:
             return load_vicon_ahrs(p)
+        if is_broad(fields):
+            return load_broad(p)
         raise RecordingFormatError(
-            p, f"a .mat file with neither 'imu_data' (PyShoe) nor 'qViconReference' (Vicon AHRS); fields: {fields}"
+            p, "a .mat file with none of 'imu_data' (PyShoe), 'qViconReference' (Vicon AHRS) or "
+               f"'imu_gyr' + 'imu_acc' + 'opt_quat' (BROAD); fields: {fields}"
         )
     head = _head(p)
     if "GetSensorData" in head or _IPIN_LINE.search(head):
@@ -71,7 +79,7 @@ def load(path: str | Path) -> Recording:
     first = next((ln for ln in head.splitlines() if ln.strip() and not ln.startswith("#")), "")
     if _CSV_NUMBERS.match(first) and first.count(",") + 1 in (5, 7):
         return load_oxford(p)
-    raise RecordingFormatError(p, "unknown recording format (not IPIN, Oxford, PyShoe or Vicon AHRS)")
+    raise RecordingFormatError(p, "unknown recording format (not IPIN, Oxford, PyShoe, Vicon AHRS or BROAD)")
 
 
 def _head(p: Path) -> str:
