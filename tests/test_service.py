@@ -215,6 +215,8 @@ def test_motionless_responder_raises_man_down(live):
     for b in wire.imu_batches_from_arrays("echo", "dev", imu.t, imu.acc, imu.gyr, imu.mag, per_batch=5):
         w.send("imu", b)
     assert wait_until(lambda: "echo" in svc.responders and svc.responders["echo"].gate.accepted == 200, 20)
+    # the gate counts a frame before the round's end runs it through the tracker: wait for the tracker
+    assert wait_until(lambda: svc.responders["echo"].tracker.device_time >= imu.t[-1], 20)
     st = svc.core.status_of(svc.responders["echo"], time.time())
     assert st.motion == "no_motion" and "man_down" in st.alarms
     w.close()
