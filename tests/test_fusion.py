@@ -479,3 +479,17 @@ def test_fusion_command_prints_json():
     for key in ("median_update_ms", "p99_update_ms", "first_1000_median_ms", "last_1000_median_ms",
                 "ratio_last_first", "total_s", "final_error_m"):
         assert math.isfinite(report[key])
+
+
+def test_a_3d_uwb_range_becomes_the_horizontal_distance_for_the_tags_height():
+    from service.fusion.fixes import UwbRange
+
+    r = UwbRange(t=1.0, anchor_x=0.0, anchor_y=0.0, range=5.0, sigma=0.1, anchor="A1", anchor_z=4.2)
+    h = r.at_height(1.2)  # 3 m below the anchor: a 3-4-5 triangle
+    assert h.range == pytest.approx(4.0) and math.isnan(h.anchor_z)
+    assert h.sigma == pytest.approx(0.1 * 5.0 / 4.0)  # dr_h/dr = r / r_h
+    assert h.at_height(0.0) is h  # horizontal already: unchanged
+    short = r.at_height(-10.0)  # noise made the range shorter than the height difference
+    assert short.range == 0.0 and short.sigma >= 0.1
+    flat = UwbRange(t=1.0, anchor_x=0.0, anchor_y=0.0, range=5.0, sigma=0.1)
+    assert flat.at_height(1.2) is flat  # no anchor height configured: taken as horizontal

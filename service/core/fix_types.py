@@ -1,7 +1,9 @@
 """Fix types: how a wire ``Fix`` of each source becomes a fix in the incident's local frame.
 
 A fix type is registered under its wire ``source`` name (:func:`register_fix_type`); the
-incident core looks it up for every fix message. ``to_domain`` raises :class:`FixRejected`
+incident core looks it up for every fix message. A domain fix that depends on the responder's
+height (a 3D UWB range) has ``at_height(z)``: the core calls it with the tag's height (the
+responder's floor elevation + the incident's ``uwb_tag_height_m``). ``to_domain`` raises :class:`FixRejected`
 with a counted reason when the fix cannot be used (an unknown checkpoint or anchor).
 """
 from __future__ import annotations
@@ -63,7 +65,8 @@ def _uwb(fix, cfg) -> UwbRange:
     if anchor is None:
         known = ", ".join(a.id for a in cfg.uwb_anchors) or "none configured"
         raise FixRejected("unknown_reference", f"UWB anchor {fix.anchor!r} is not in the incident config (known: {known})")
-    return UwbRange(t=fix.t, anchor_x=anchor.x, anchor_y=anchor.y, range=fix.range, sigma=fix.sigma, anchor=anchor.id)
+    return UwbRange(t=fix.t, anchor_x=anchor.x, anchor_y=anchor.y, range=fix.range, sigma=fix.sigma, anchor=anchor.id,
+                    anchor_z=anchor.z)
 
 
 for _ft in (FixType("checkpoint", _checkpoint), FixType("gnss", _gnss), FixType("uwb", _uwb)):

@@ -348,6 +348,8 @@ class IncidentCore:
         try:
             fix = self._on_device_clock(r, fix)
             domain = fix_type_of(fix.source).to_domain(fix, self.incident)
+            if hasattr(domain, "at_height"):  # a 3D measurement: the tag is on the responder's floor
+                domain = domain.at_height(self._tag_height(r))
         except FixRejected as e:
             self._count_fix_reject(r, e.reason, str(e))
             return
@@ -379,6 +381,13 @@ class IncidentCore:
                 raise FixRejected("too_old", f"{fix.source} fix {-ahead:.1f} s behind the newest sample; the "
                                              f"estimator keeps {tr.max_fix_age_s:.0f} s")
         return fix
+
+    def _tag_height(self, r: Responder) -> float:
+        """m: where a responder's tag is, the floor's configured elevation + the tag height."""
+        elevations = self.incident.elevations()
+        floor = r.tracker.floor
+        base = elevations.get(floor, floor * self.incident.floor_height_m)
+        return base + self.incident.uwb_tag_height_m
 
     def _count_fix_reject(self, r: Responder, reason: str, detail: str) -> None:
         r.fixes_rejected[reason] = r.fixes_rejected.get(reason, 0) + 1

@@ -10,6 +10,7 @@ a malformed fix is reported where it was made instead of poisoning the factor gr
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 from dataclasses import dataclass
@@ -85,12 +86,25 @@ class UwbRange:
     range: float
     sigma: float
     anchor: str = ""
+    anchor_z: float = math.nan  # m, the anchor's height; NaN: the range is already horizontal
 
     def __post_init__(self) -> None:
         _finite("UwbRange", t=self.t, anchor_x=self.anchor_x, anchor_y=self.anchor_y, range=self.range)
         _positive("UwbRange", sigma=self.sigma)
         if self.range < 0.0:
             raise ValueError(f"UwbRange.range must be >= 0, got {self.range!r}")
+
+    def at_height(self, tag_z: float) -> UwbRange:
+        """The horizontal distance equivalent to this 3D range, for a tag at height ``tag_z`` (m,
+        same datum as ``anchor_z``): ``r_h = √(r² − Δz²)``, ``σ_h = σ·r / r_h`` (first order; a
+        range shorter than the height difference, noise, gives ``r_h = 0``). A range that is
+        already horizontal (``anchor_z`` NaN) is returned as it is."""
+        if not math.isfinite(self.anchor_z):
+            return self
+        dz = self.anchor_z - tag_z
+        r_h = math.sqrt(max(self.range * self.range - dz * dz, 0.0))
+        sigma = self.sigma * self.range / max(r_h, self.sigma)
+        return dataclasses.replace(self, range=r_h, sigma=max(sigma, self.sigma), anchor_z=math.nan)
 
 
 Fix = CheckpointFix | GnssFix | UwbRange

@@ -101,13 +101,17 @@ class Checkpoint(_Config):
 
 
 class UwbAnchor(_Config):
-    """A UWB anchor at ENU ``x, y, z`` (m)."""
+    """A surveyed UWB anchor. Ranges to it are 3D: the service takes the anchor's height and the
+    tag's (the responder's floor elevation + ``uwb_tag_height_m``) to get the horizontal distance.
 
-    id: str = Field(pattern=ID_PATTERN)
-    x: float
-    y: float
-    z: float = 0.0
-    floor: int | None = None
+    Config: ``{"id": "A1", "x": 12.5, "y": -3.0, "z": 2.4, "floor": 0}``.
+    """
+
+    id: str = Field(pattern=ID_PATTERN, description="the id UWB fixes name in their 'anchor' field")
+    x: float = Field(description="m, local ENU east of the incident origin")
+    y: float = Field(description="m, local ENU north of the incident origin")
+    z: float = Field(0.0, description="m, height above the incident origin's altitude (the datum of floors' elevation_m)")
+    floor: int | None = Field(None, description="the floor it is mounted on (informative)")
 
 
 class IncidentConfig(_Config):
@@ -125,6 +129,8 @@ class IncidentConfig(_Config):
     start_floor: int = 0
     checkpoints: list[Checkpoint] = Field(default_factory=list)
     uwb_anchors: list[UwbAnchor] = Field(default_factory=list)
+    uwb_tag_height_m: float = Field(1.2, ge=0.0, le=3.0, description="m, height of a responder's UWB tag above the "
+                                                                       "floor (shoulder or helmet)")
     floor_plans: list[FloorPlan] = Field(default_factory=list)
 
     _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
