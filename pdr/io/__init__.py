@@ -7,6 +7,7 @@ out-of-order timestamps) are kept in ``Recording.warnings`` and raised as
 :class:`RecordingWarning`.
 
 * :func:`load_ipin` - GetSensorData ``.txt`` / ``.txt.gz`` (IPIN 2023 Track 3, smartphone);
+* :func:`load_ipin_mat` - the organisers' ``.mat`` parse of such a log (``Acce``, ``Gyro``, ``Posi``, ...);
 * :func:`load_oxford` - walk directory or ``.csv.gz`` (Oxford step counter, smartphone);
 * :func:`load_pyshoe` - ``.mat`` with ``imu_data`` (PyShoe / LLIO, foot IMU with Vicon);
 * :func:`load_vicon_ahrs` - ``.mat`` with ``qViconReference`` (Justa AHRS set with Vicon);
@@ -21,6 +22,8 @@ from pdr.io._mat import mat_fields
 from pdr.io._text import GZIP_MAGIC, inflate_member
 from pdr.io.errors import RecordingFormatError, RecordingWarning
 from pdr.io.ipin import load_ipin
+from pdr.io.ipin_mat import SIGNATURE as _IPIN_MAT_FIELDS
+from pdr.io.ipin_mat import load_ipin_mat
 from pdr.io.oxford import load_oxford
 from pdr.io.pyshoe import load_pyshoe
 from pdr.io.vicon_ahrs import load_vicon_ahrs
@@ -29,6 +32,7 @@ from pdr.recording import Recording
 __all__ = [
     "load",
     "load_ipin",
+    "load_ipin_mat",
     "load_oxford",
     "load_pyshoe",
     "load_vicon_ahrs",
@@ -45,7 +49,8 @@ def load(path: str | Path) -> Recording:
     """Load any supported recording, choosing the loader from the name and content.
 
     * a directory holding ``accelerometer.csv(.gz)`` -> Oxford (optimisation layout);
-    * ``.mat`` with ``imu_data`` -> PyShoe; with ``qViconReference`` -> Vicon AHRS;
+    * ``.mat`` with ``imu_data`` -> PyShoe; with ``qViconReference`` -> Vicon AHRS; with
+      ``Acce``, ``Gyro`` and ``Posi`` -> IPIN (the organisers' parse of a GetSensorData log);
     * text (plain or gzip) with the GetSensorData header or its line types -> IPIN;
     * text whose rows are 5 or 7 comma-separated numbers -> Oxford.
     """
@@ -62,8 +67,11 @@ def load(path: str | Path) -> Recording:
             return load_pyshoe(p)
         if "qViconReference" in fields:
             return load_vicon_ahrs(p)
+        if _IPIN_MAT_FIELDS <= set(fields):
+            return load_ipin_mat(p)
         raise RecordingFormatError(
-            p, f"a .mat file with neither 'imu_data' (PyShoe) nor 'qViconReference' (Vicon AHRS); fields: {fields}"
+            p, "a .mat file with neither 'imu_data' (PyShoe), 'qViconReference' (Vicon AHRS) nor "
+               f"'Acce'/'Gyro'/'Posi' (IPIN); fields: {fields}"
         )
     head = _head(p)
     if "GetSensorData" in head or _IPIN_LINE.search(head):
