@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pdr.dead_reckoning import DeadReckoning
-from pdr.events import MotionEvent, StepEvent
+from pdr.events import FloorEvent, MotionEvent, StepEvent
 from pdr.floors import FloorElevations
 from pdr.pipeline import ImuFrame, PdrPipeline, PipelineSettings
 from service.fusion import TrackFusion
@@ -111,7 +111,10 @@ class ResponderTracker:
         pipeline's floor (and may place the track) between two frames, so until then frames
         must come one at a time for the result not to depend on how they were batched. GNSS
         and UWB fixes only touch the factor graph, which sees the same sequence of steps and
-        fixes however the frames were batched."""
+        fixes however the frames were batched. Placement at an incident's entry point waits the
+        same way for the first step (it anchors the floor too)."""
+        if self._placed_at is None and self._entry is not None and self._entry.floor is not None:
+            return True
         return any(isinstance(f, CheckpointFix) for _, _, f in self._pending_fixes)
 
     def on_fix(self, fix) -> PoseEstimate | None:
@@ -129,6 +132,11 @@ class ResponderTracker:
         for ev in events:
             if isinstance(ev, MotionEvent):
                 out.append(ev)
+                continue
+            if isinstance(ev, FloorEvent):
+                p = self._floor_changed(ev)
+                if p is not None:
+                    out.append(p)
                 continue
             while self._pending_fixes and self._pending_fixes[0][0] < ev.t:
                 _, _, fix = self._pending_fixes.pop(0)
@@ -171,6 +179,19 @@ class ResponderTracker:
                               p0.floor if p0.floor is not None else ev.floor)
         fp = self.engine.add_step(ev)
         self.live = self._from_fused(fp, ev.index)
+        return self.live
+
+    def _floor_changed(self, ev: FloorEvent) -> PoseEstimate | None:
+        """The barometer moved the responder to another floor without a step (a lift): the
+        latest pose again, on the new floor, at the time of the change."""
+        if self.live is None or self.dr.point is None:
+            return None  # not placed, or no step yet: the next step carries the floor
+        p = self.dr.point
+        self.dr.point = dataclasses.replace(p, t=max(p.t, ev.t), floor=ev.floor)
+        self.pdr_track.append((max(p.t, ev.t), p.x, p.y, ev.floor))
+        if self.settings.engine == "fusion" and self.engine is not None:
+            self.engine.set_floor(ev.t, ev.floor)
+        self.live = dataclasses.replace(self.live, t=max(self.live.t, ev.t), floor=ev.floor)
         return self.live
 
     def _from_fused(self, fp, steps: int) -> PoseEstimate:

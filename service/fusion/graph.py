@@ -154,8 +154,11 @@ class TrackFusion:
         self._steps = 0
         self._last_index = 0
         self._floor_offset = 0
+        self._live_floor: int | None = None  # floor set by set_floor() since the newest pose
+        self._floor_marks: list[tuple[float, int, int]] = []  # (t, row, floor) of set_floor() calls
         self._floor_fix_row = -1  # row of the latest checkpoint that set the floor
         self._last_mag_t = -math.inf
+        self._last_gnss_t = -math.inf
         self._scale_n = -1  # index of the current step-length scale variable (-1: not estimated)
         self._scale_t0 = -math.inf  # s, when the current scale variable was opened
         self._scale = 1.0  # its latest estimate
@@ -254,6 +257,15 @@ class TrackFusion:
                           duration=ev.t - t_prev)
         self._steps += 1
         self._last_index = ev.index
+        self._live_floor = None
+        return self._publish()
+
+    def set_floor(self, t: float, floor: int) -> FusedPose:
+        """The responder changed floor at ``t`` without a step (a lift): the newest pose is
+        published again on ``floor``, and the smoothed track gets a point there at ``t``."""
+        self._require_started()
+        self._live_floor = int(floor)
+        self._floor_marks.append((float(t), len(self._hist) - 1, int(floor)))
         return self._publish()
 
     def add_fix(self, fix: CheckpointFix | GnssFix | UwbRange) -> FusedPose | None:
@@ -283,6 +295,11 @@ class TrackFusion:
         elif isinstance(fix, GnssFix):
             if not fix.accuracy <= s.gnss_max_accuracy_m:
                 return self._reject(fix, what, "gnss_accuracy", f"accuracy {fix.accuracy:.1f} m > {s.gnss_max_accuracy_m} m")
+            floor = int(self._hist.col("floor")[row])
+            if s.gnss_lowest_floor is not None and floor < s.gnss_lowest_floor:
+                return self._reject(fix, what, "gnss_below_ground", f"floor {floor} is below ground (lowest with sky view {s.gnss_lowest_floor})")
+            if fix.t - self._last_gnss_t < s.gnss_min_interval_s:
+                return self._reject(fix, what, "gnss_interval", f"{fix.t - self._last_gnss_t:.1f} s after the last GNSS factor")
             sigma = math.hypot(fix.accuracy, slip)
             p, cov = self._position_marginal(key)
             nu = np.array([fix.x, fix.y]) - p
@@ -293,6 +310,7 @@ class TrackFusion:
             base = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
             graph.add(gtsam.PoseTranslationPrior2D(key, np.array([fix.x, fix.y]),
                                                    robust(s.gnss_kernel, s.gnss_kernel_width, base)))
+            self._last_gnss_t = fix.t
         else:
             sigma = math.hypot(max(fix.sigma, s.uwb_sigma_floor_m), slip)
             if math.isfinite(self._uwb_gate):
@@ -335,6 +353,13 @@ class TrackFusion:
         for row in range(self._window_start, len(self._hist)):
             p = est.atPose2(X(row))
             out["x"][row], out["y"][row], out["heading"][row] = p.x(), p.y(), p.theta()
+        if self._floor_marks:  # a floor change without a step: the pose before it again, on the new floor
+            rows = np.array([m[1] for m in self._floor_marks])
+            at = np.searchsorted(np.arange(len(self._hist)), rows, side="right")
+            for k in ("x", "y", "heading", "index"):
+                out[k] = np.insert(out[k], at, out[k][rows])
+            out["t"] = np.insert(out["t"], at, [max(m[0], out["t"][r]) for m, r in zip(self._floor_marks, rows)])
+            out["floor"] = np.insert(out["floor"], at, [m[2] for m in self._floor_marks])
         return out
 
     @property
@@ -363,7 +388,8 @@ class TrackFusion:
             self._scale = float(self._smoother.calculateEstimateDouble(S(self._scale_n)))
         self._live = FusedPose(
             t=float(self._hist.col("t")[row]), index=int(self._hist.col("index")[row]), x=pose.x(), y=pose.y(),
-            heading=_wrap(pose.theta()), cov=cov, floor=int(self._hist.col("floor")[row]), steps=self._steps,
+            heading=_wrap(pose.theta()), cov=cov,
+            floor=int(self._hist.col("floor")[row]) if self._live_floor is None else self._live_floor, steps=self._steps,
             source="fused" if self._fused else "pdr", heading_sigma=float(math.sqrt(max(marginal[2, 2], 0.0))),
             length_scale=self._scale if self._scale_n >= 0 else math.nan,
         )

@@ -67,6 +67,8 @@ class FusionSettings:
     # GNSS
     gnss_max_accuracy_m: float = 30.0  # m, reject fixes whose stated 1-sigma accuracy is worse
     gnss_gate_probability: float = 0.999  # χ²(2) gate on the innovation against the pose marginal
+    gnss_lowest_floor: int | None = 0  # floors below this are underground: no sky, a GNSS fix there is not evidence
+    gnss_min_interval_s: float = 0.0  # s, at most one GNSS factor per interval (indoor GNSS errors are slow, not white)
     gnss_kernel: str = "huber"
     gnss_kernel_width: float = 1.345  # sigmas
     # UWB
@@ -92,7 +94,7 @@ class FusionSettings:
         for name in ("relinearize_skip", "max_events"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"FusionSettings.{name} must be >= 1, got {getattr(self, name)!r}")
-        for name in ("fix_extra_updates", "mag_min_interval_s", "fix_before_start_tolerance_s"):
+        for name in ("fix_extra_updates", "mag_min_interval_s", "gnss_min_interval_s", "fix_before_start_tolerance_s"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"FusionSettings.{name} must be >= 0, got {getattr(self, name)!r}")
         for name in ("mag_kernel", "gnss_kernel", "uwb_kernel"):
