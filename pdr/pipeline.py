@@ -171,8 +171,19 @@ class PdrPipeline:
         """Device time of the newest sample seen (s); -inf before the first."""
         return self._t_last
 
-    def anchor_floor(self, floor: int) -> None:
-        """A fix says the responder is on ``floor`` now: re-reference height and floor."""
+    def anchor_floor(self, floor: int, t: float | None = None) -> None:
+        """A fix says the responder was on ``floor`` at time ``t`` (default: now): re-reference
+        height and floor. A fix is applied when the first step after it arrives; if the
+        barometer has changed floor since ``t`` (a lift between the fix and the next step), the
+        fix speaks of the floor left behind: when that was right nothing is re-referenced, when
+        it was wrong the current floor is shifted by the same number of floors."""
+        if t is not None and self._tracker.floor_at(t) != self._tracker.floor:
+            then = self._tracker.floor_at(t)
+            if then == floor:
+                return
+            floors = self.floors.floors.tolist()
+            k = floors.index(self._tracker.floor) + floors.index(int(floor)) - floors.index(then)
+            floor = floors[min(max(k, 0), len(floors) - 1)]
         h = self.floors.elevation(floor)
         self._altimeter.anchor(h)
         self._tracker.anchor(floor, h)

@@ -24,6 +24,7 @@ import numpy as np
 import pymap3d
 
 from pdr.evaluation.ipin import LandmarkErrors, fix_indices, score_track
+from pdr.events import FloorEvent, StepEvent
 from pdr.floors import FloorElevations
 from pdr.pipeline import frames_of
 from pdr.recording import Recording
@@ -85,8 +86,8 @@ class _RecordingPipeline:
         self._rec.floors.append(self._p.floor)
         return out
 
-    def anchor_floor(self, floor: int) -> None:
-        self._p.anchor_floor(floor)
+    def anchor_floor(self, floor: int, t: float | None = None) -> None:
+        self._p.anchor_floor(floor, t)
 
     def __getattr__(self, name):
         return getattr(self._p, name)
@@ -108,7 +109,7 @@ class _ReplayPipeline:
     def finish(self):
         return list(self._rec.finished)
 
-    def anchor_floor(self, floor: int) -> None:
+    def anchor_floor(self, floor: int, t: float | None = None) -> None:
         """The recorded events already carry the anchoring of the run that recorded them."""
 
 
@@ -169,6 +170,7 @@ def run_ipin(rec: Recording, origin: tuple[float, float, float], floors: FloorEl
                                        accuracy=float(rec.gnss.accuracy_m[k])))
                 gnss_n += 1
     poses = []
+    steps = _StepLog(tracker)
     if record is not None:
         poses += [p for p in tracker.on_frame(None) if hasattr(p, "x")]
     else:
@@ -181,12 +183,42 @@ def run_ipin(rec: Recording, origin: tuple[float, float, float], floors: FloorEl
     if recording is not None and pdr_cache is not None:
         pdr_cache.put(key, recording)
     live = _columns([(p.t, p.x, p.y, p.floor) for p in poses])
+    diagnostics = {
+        "steps": steps.columns(),
+        "heading": np.array([p.heading for p in poses]),
+        "fusion_events": list(tracker.engine.events) if tracker.engine is not None and hasattr(tracker.engine, "events") else [],
+        "floor_events": [(e.t, e.floor) for e in steps.floor_events],
+        "pressure": None if rec.pressure is None else (rec.pressure.t, rec.pressure.values[:, 0]),
+    }
     sm = tracker.smoothed_track()
     smoothed = None if sm is None else {k: np.asarray(sm[k]) for k in ("t", "x", "y", "floor")}
     if smoothed is not None:
         smoothed["t"] = np.maximum.accumulate(smoothed["t"]) if smoothed["t"].size else smoothed["t"]
     return IpinRun(rec.source, lm.t, np.asarray(lx), np.asarray(ly), lm.floor.astype(int), fixes, live, smoothed,
-                   _columns(tracker.pdr_track), gnss_n, tracker.fixes_rejected)
+                   _columns(tracker.pdr_track), gnss_n, tracker.fixes_rejected, diagnostics)
+
+
+class _StepLog:
+    """Keeps every step event the tracker consumes (wrapping its ``_consume``), for plots."""
+
+    def __init__(self, tracker: ResponderTracker):
+        self.steps: list = []
+        self.floor_events: list = []
+        inner = tracker._consume
+
+        def consume(events):
+            for ev in events:
+                if isinstance(ev, StepEvent):
+                    self.steps.append(ev)
+                elif isinstance(ev, FloorEvent):
+                    self.floor_events.append(ev)
+            return inner(events)
+
+        tracker._consume = consume
+
+    def columns(self) -> dict[str, np.ndarray]:
+        names = ("t", "length", "heading", "heading_sigma", "heading_change", "mag_heading", "mag_heading_sigma", "floor")
+        return {n: np.array([getattr(e, n) for e in self.steps], float) for n in names}
 
 
 def _columns(rows) -> dict[str, np.ndarray]:

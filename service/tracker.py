@@ -151,7 +151,7 @@ class ResponderTracker:
     def _place(self, fix: CheckpointFix) -> None:
         self._placed_at = fix
         if fix.floor is not None:
-            self.pipeline.anchor_floor(fix.floor)
+            self.pipeline.anchor_floor(fix.floor, fix.t)
         self.dr.start(fix.t, fix.x, fix.y, fix.floor if fix.floor is not None else self.pipeline.floor, fix.sigma)
         self.pdr_track.append((fix.t, fix.x, fix.y, self.dr.point.floor))
         self._first_step_after_placement = True
@@ -204,7 +204,7 @@ class ResponderTracker:
             self.fixes_applied += 1
             return None
         if isinstance(fix, CheckpointFix) and fix.floor is not None:
-            self.pipeline.anchor_floor(fix.floor)
+            self.pipeline.anchor_floor(fix.floor, fix.t)
         if self.settings.engine == "dr" or self.engine is None:
             if isinstance(fix, CheckpointFix) and self.dr.point is not None:
                 self.dr.move_to(fix.x, fix.y, fix.sigma)
@@ -212,6 +212,8 @@ class ResponderTracker:
             else:  # GNSS/UWB with dead reckoning alone, or before the track has a first step: counted
                 self.fixes_unused += 1
             return None
+        if isinstance(fix, CheckpointFix) and self.dr.point is not None:
+            self.dr.move_to(fix.x, fix.y, fix.sigma)  # the baseline is reset by checkpoints as well
         fp = self.engine.add_fix(self._fusion_fix(fix))
         if fp is None:
             self.fixes_rejected += 1

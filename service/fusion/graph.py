@@ -53,6 +53,13 @@ offset so that its pose reads the checkpoint's floor, and the offset holds for l
 (a barometric floor reference that was off stays off by the same number of floors). A late
 floor checkpoint relabels poses up to the next floor checkpoint.
 
+**Published pose.** The live pose moves by each step and closes a share ``display_gain`` of
+the gap to the graph's estimate per step (a complementary filter: the step's motion now, the
+graph's correction over the next few steps), so a GNSS factor or a compass correction does not
+make the marker jump step by step (the zig-zag of indoor GNSS); a checkpoint, which an
+operator confirmed, moves it at once. ``display_gain = 1`` shows the graph's estimate itself.
+The smoothed track is the graph's own.
+
 **Covariance.** gtsam's Pose2 marginal is in the pose's body frame (tangent space, retract
 ``T·Exp(ξ)``); the published 2x2 is rotated into ENU: ``Σ_w = R(θ) Σ_b[:2, :2] R(θ)ᵀ``.
 """
@@ -150,6 +157,7 @@ class TrackFusion:
         self._n_anchors = 0
         self._live: FusedPose | None = None
         self._live_pose = gtsam.Pose2()
+        self._shown: np.ndarray | None = None  # position shown in the live pose (display filter)
         self._fused = False
         self._steps = 0
         self._last_index = 0
@@ -200,7 +208,7 @@ class TrackFusion:
         self._smoother.update(graph, values, stamps)
         self._hist.append(t=t, index=0, x=math.nan, y=math.nan, heading=math.nan, floor=floor, pdr_floor=floor,
                           length=0.0, duration=0.0)
-        return self._publish()
+        return self._publish("snap")
 
     def add_step(self, ev: StepEvent) -> FusedPose:
         """Add one step; returns the live estimate of the new pose (what the service publishes).
@@ -227,6 +235,9 @@ class TrackFusion:
             # no relative turn from the gyro: take it from the absolute heading, loosely
             turn = _wrap(ev.heading - self._live_pose.theta()) if math.isfinite(ev.heading) else 0.0
             turn_sigma = s.unknown_turn_sigma_rad
+        turn_sigma = math.hypot(turn_sigma, s.turn_walk * math.sqrt(max(ev.t - t_prev, 0.0)))
+        if ev.on_stairs:
+            turn_sigma = math.hypot(turn_sigma, s.stairs_turn_sigma_rad)
         turn_sigma = max(turn_sigma, s.turn_sigma_floor_rad)
         length = ev.length
         cov = step_covariance(length, max(ev.length_sigma, s.length_sigma_floor_m), turn_sigma, s.lateral_sigma_m)
@@ -258,7 +269,7 @@ class TrackFusion:
         self._steps += 1
         self._last_index = ev.index
         self._live_floor = None
-        return self._publish()
+        return self._publish("step")
 
     def set_floor(self, t: float, floor: int) -> FusedPose:
         """The responder changed floor at ``t`` without a step (a lift): the newest pose is
@@ -266,7 +277,7 @@ class TrackFusion:
         self._require_started()
         self._live_floor = int(floor)
         self._floor_marks.append((float(t), len(self._hist) - 1, int(floor)))
-        return self._publish()
+        return self._publish("hold")
 
     def add_fix(self, fix: CheckpointFix | GnssFix | UwbRange) -> FusedPose | None:
         """Attach ``fix`` to the pose of its time; returns the updated live pose, or None if rejected.
@@ -332,7 +343,7 @@ class TrackFusion:
         if isinstance(fix, CheckpointFix) and fix.floor is not None:
             self._relabel_floor(row, int(fix.floor))
         self.events.append(FusionEvent(fix.t, "accepted", what, "", info))
-        return self._publish()
+        return self._publish("snap" if isinstance(fix, CheckpointFix) else "hold")
 
     # ---------------------------------------------------------------- outputs
 
@@ -374,10 +385,21 @@ class TrackFusion:
         if self._smoother is None:
             raise RuntimeError("TrackFusion: call start() before adding steps or fixes")
 
-    def _publish(self) -> FusedPose:
+    def _publish(self, how: str) -> FusedPose:
+        """The live pose of the newest pose. Its position is the graph's estimate passed through
+        the display filter (module docstring, *Published pose*): ``how`` is "snap" (start, a
+        checkpoint: show the estimate), "step" (move by the step, close a share of the gap) or
+        "hold" (GNSS, UWB, a floor change: the position shown does not jump)."""
         row = len(self._hist) - 1
         key = X(row)
         pose = self._smoother.calculateEstimatePose2(key)
+        est = np.array([pose.x(), pose.y()])
+        if how == "snap" or self._shown is None or self.settings.display_gain >= 1.0:
+            self._shown = est
+        elif how == "step":
+            prev = self._smoother.calculateEstimatePose2(X(row - 1))
+            moved = self._shown + (est - np.array([prev.x(), prev.y()]))
+            self._shown = moved + self.settings.display_gain * (est - moved)
         marginal = self._smoother.marginalCovariance(key)
         rot = pose.rotation().matrix()
         cov = rot @ marginal[:2, :2] @ rot.T
@@ -387,7 +409,8 @@ class TrackFusion:
         if self._scale_n >= 0:
             self._scale = float(self._smoother.calculateEstimateDouble(S(self._scale_n)))
         self._live = FusedPose(
-            t=float(self._hist.col("t")[row]), index=int(self._hist.col("index")[row]), x=pose.x(), y=pose.y(),
+            t=float(self._hist.col("t")[row]), index=int(self._hist.col("index")[row]),
+            x=float(self._shown[0]), y=float(self._shown[1]),
             heading=_wrap(pose.theta()), cov=cov,
             floor=int(self._hist.col("floor")[row]) if self._live_floor is None else self._live_floor, steps=self._steps,
             source="fused" if self._fused else "pdr", heading_sigma=float(math.sqrt(max(marginal[2, 2], 0.0))),

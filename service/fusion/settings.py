@@ -51,6 +51,8 @@ class FusionSettings:
     turn_sigma_floor_rad: float = 0.002  # rad, lower bound of the turn sigma per step
     unknown_turn_sigma_rad: float = 1.0  # rad, turn sigma when the PDR gives none (first step)
     lateral_sigma_m: float = 0.05  # m, sideways sway of a step, independent of the turn
+    turn_walk: float = 0.0  # rad/√s, random walk added to each step's turn (gyro heading errors the PDR does not report)
+    stairs_turn_sigma_rad: float = math.radians(10.0)  # rad, added to the turn of a step on stairs (the phone pitches: its yaw is poorly defined)
     # step-length scale (None: not estimated, plain BetweenFactorPose2 steps)
     length_scale_sigma: float | None = 0.08  # 1-sigma prior on the responder's step-length factor around 1
     length_scale_walk: float = 0.003  # 1/√s, random walk of the factor (σ grows as q·√Δt)
@@ -65,10 +67,10 @@ class FusionSettings:
     # checkpoint
     checkpoint_sigma_floor_m: float = 0.05  # m
     # GNSS
-    gnss_max_accuracy_m: float = 30.0  # m, reject fixes whose stated 1-sigma accuracy is worse
+    gnss_max_accuracy_m: float = 15.0  # m, reject fixes whose stated 1-sigma accuracy is worse
     gnss_gate_probability: float = 0.999  # χ²(2) gate on the innovation against the pose marginal
     gnss_lowest_floor: int | None = 0  # floors below this are underground: no sky, a GNSS fix there is not evidence
-    gnss_min_interval_s: float = 0.0  # s, at most one GNSS factor per interval (indoor GNSS errors are slow, not white)
+    gnss_min_interval_s: float = 5.0  # s, at most one GNSS factor per interval (indoor GNSS errors are slow, not white)
     gnss_kernel: str = "huber"
     gnss_kernel_width: float = 1.345  # sigmas
     # UWB
@@ -77,6 +79,8 @@ class FusionSettings:
     uwb_kernel_width: float = 1.345  # sigmas
     uwb_gate_probability: float | None = None  # χ²(1) gate on the range innovation; None: off
     uwb_anchor_sigma_m: float = 0.01  # m, prior on a surveyed anchor position
+    # published pose
+    display_gain: float = 0.5  # share of the gap to the graph's estimate the live pose closes per step (1: none kept)
     # time
     fix_before_start_tolerance_s: float = 2.0  # s, a fix up to this much before start() attaches to x0
     max_events: int = 1000  # events kept in TrackFusion.events (oldest leave)
@@ -94,12 +98,14 @@ class FusionSettings:
         for name in ("relinearize_skip", "max_events"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"FusionSettings.{name} must be >= 1, got {getattr(self, name)!r}")
-        for name in ("fix_extra_updates", "mag_min_interval_s", "gnss_min_interval_s", "fix_before_start_tolerance_s"):
+        for name in ("fix_extra_updates", "turn_walk", "stairs_turn_sigma_rad", "mag_min_interval_s", "gnss_min_interval_s", "fix_before_start_tolerance_s"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"FusionSettings.{name} must be >= 0, got {getattr(self, name)!r}")
         for name in ("mag_kernel", "gnss_kernel", "uwb_kernel"):
             if getattr(self, name) not in KERNELS:
                 raise ValueError(f"FusionSettings.{name} must be one of {KERNELS}, got {getattr(self, name)!r}")
+        if not 0.0 < self.display_gain <= 1.0:
+            raise ValueError(f"FusionSettings.display_gain must lie in (0, 1], got {self.display_gain!r}")
         if self.length_scale_sigma is not None and not (math.isfinite(self.length_scale_sigma) and self.length_scale_sigma > 0):
             raise ValueError(f"FusionSettings.length_scale_sigma must be a finite number > 0 or None, got {self.length_scale_sigma!r}")
         for name in ("gnss_gate_probability", "uwb_gate_probability"):
