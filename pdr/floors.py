@@ -526,15 +526,20 @@ class FloorTracker:
         self._history.extend(changes)
         return FloorTrack(self._floors[k_out], z_out, changes)
 
-    def anchor(self, floor: int, height_m: float | None = None, t: float | None = None) -> FloorChange | None:
+    def anchor(self, floor: int, height_m: float | None = None, t: float | None = None,
+               shift: float = 0.0) -> FloorChange | None:
         """A fix says the responder is on ``floor`` now; ``height_m`` is the input height at
-        that moment (default: the last one seen; pass the new height if the altimeter was
-        re-anchored too). The current height becomes that floor's level; a level the open
-        dwell taught another floor is forgotten. Returns the floor change this makes, if any."""
+        that moment (default: the last one seen). ``shift`` (m) is how far the input height
+        jumped at this moment without the responder moving (an altimeter re-referenced to the
+        configured elevation): the level frame is kept continuous across it. The current height
+        becomes that floor's level; a level the open dwell taught another floor is forgotten.
+        Returns the floor change this makes, if any."""
         k_new = self._index(floor)
         k_old = int(self._state[_K])
         h = self._last_h if height_m is None else float(height_m)
         S = self._state
+        if math.isfinite(shift) and not math.isnan(S[_B]):
+            S[_B] += shift
         S[_K] = k_new
         S[_PEND] = math.nan
         wrong = (self._known == 1) & (self._learned_in == S[_DWELL_ID]) & (np.arange(self._known.size) != k_new)

@@ -162,6 +162,10 @@ class PdrPipeline:
     def floor(self) -> int:
         return self._tracker.floor
 
+    def floor_at(self, t: float) -> int:
+        """The floor at time ``t`` as the barometer has it now (the last 256 changes are remembered)."""
+        return self._tracker.floor_at(t)
+
     @property
     def height(self) -> float:
         return self._altimeter.height
@@ -185,8 +189,11 @@ class PdrPipeline:
             k = floors.index(self._tracker.floor) + floors.index(int(floor)) - floors.index(then)
             floor = floors[min(max(k, 0), len(floors) - 1)]
         h = self.floors.elevation(floor)
+        before = self._altimeter.height
         self._altimeter.anchor(h)
-        self._tracker.anchor(floor, h)
+        # the altimeter now reads the configured elevation; the floor tracker keeps its own level
+        # frame continuous across that jump and learns from the fix what it can
+        self._tracker.anchor(floor, h, shift=h - before if math.isfinite(before) else 0.0)
         self._floor_queue = []  # changes the barometer made before the fix are superseded by it
         if self._pres_h.size:
             self._pres_h = self._pres_h + (h - self._pres_h[-1])

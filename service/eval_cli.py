@@ -116,3 +116,4 @@ def _plot_errors(results: dict[str, list[OrientationScore]], folder: Path) -> No
 # Commands defined in their own modules register themselves on ``app`` when imported.
 from service import eval_steps_cli  # noqa: E402,F401
 from service import eval_ipin_cli  # noqa: E402,F401
+from service import eval_floors_cli  # noqa: E402,F401

@@ -36,12 +36,16 @@ class Candidate:
 
 
 def _grid() -> tuple[Candidate, ...]:
-    """Step-length slope b (m·s, ``L = a + b·f``) × gyro turn random walk (rad/√s) of the graph."""
+    """The numbers chosen on the IPIN walks: the step-length slope b (m·s, ``L = a + b·f``), the
+    extra turn sigma of a step on stairs (rad) and the interval between GNSS factors (s)."""
     out = []
     for b in (0.20, 0.22, 0.24):
-        for walk_deg in (0.0, 1.0):
-            out.append(Candidate(f"b={b:.2f} walk={walk_deg:g}°/√s",
-                                 (("pipeline.profile.coefficients.b", b), ("fusion.turn_walk", float(np.radians(walk_deg))))))
+        for stairs_deg in (0.0, 10.0):
+            for gnss_s in (2.0, 5.0):
+                out.append(Candidate(f"b={b:.2f} stairs={stairs_deg:g}° gnss={gnss_s:g}s", (
+                    ("pipeline.profile.coefficients.b", b),
+                    ("fusion.stairs_turn_sigma_rad", float(np.radians(stairs_deg))),
+                    ("fusion.gnss_min_interval_s", gnss_s))))
     return tuple(out)
 
 
@@ -174,7 +178,7 @@ def report(res: CvResult, default_name: str | None) -> dict:
 def default_candidate(base_settings, grid: tuple[Candidate, ...] = TUNING_GRID) -> str | None:
     """The grid point equal to the shipped defaults (None when the defaults are not on the grid)."""
     for cand in grid:
-        if apply_overrides(base_settings, cand.overrides) == _with_defaults(base_settings):
+        if _with_defaults(apply_overrides(base_settings, cand.overrides)) == _with_defaults(base_settings):
             return cand.name
     return None
 

@@ -57,7 +57,7 @@ floor checkpoint relabels poses up to the next floor checkpoint.
 the gap to the graph's estimate per step (a complementary filter: the step's motion now, the
 graph's correction over the next few steps), so a GNSS factor or a compass correction does not
 make the marker jump step by step (the zig-zag of indoor GNSS); a checkpoint, which an
-operator confirmed, moves it at once. ``display_gain = 1`` shows the graph's estimate itself.
+operator confirmed, and a UWB range (decimetres) move it at once. ``display_gain = 1`` shows the graph's estimate itself.
 The smoothed track is the graph's own.
 
 **Covariance.** gtsam's Pose2 marginal is in the pose's body frame (tangent space, retract
@@ -307,6 +307,8 @@ class TrackFusion:
             if not fix.accuracy <= s.gnss_max_accuracy_m:
                 return self._reject(fix, what, "gnss_accuracy", f"accuracy {fix.accuracy:.1f} m > {s.gnss_max_accuracy_m} m")
             floor = int(self._hist.col("floor")[row])
+            if self._live_floor is not None and row == len(self._hist) - 1:
+                floor = self._live_floor  # moved floor since the newest step (a lift)
             if s.gnss_lowest_floor is not None and floor < s.gnss_lowest_floor:
                 return self._reject(fix, what, "gnss_below_ground", f"floor {floor} is below ground (lowest with sky view {s.gnss_lowest_floor})")
             if fix.t - self._last_gnss_t < s.gnss_min_interval_s:
@@ -343,7 +345,7 @@ class TrackFusion:
         if isinstance(fix, CheckpointFix) and fix.floor is not None:
             self._relabel_floor(row, int(fix.floor))
         self.events.append(FusionEvent(fix.t, "accepted", what, "", info))
-        return self._publish("snap" if isinstance(fix, CheckpointFix) else "hold")
+        return self._publish("hold" if isinstance(fix, GnssFix) else "snap")
 
     # ---------------------------------------------------------------- outputs
 
@@ -388,8 +390,8 @@ class TrackFusion:
     def _publish(self, how: str) -> FusedPose:
         """The live pose of the newest pose. Its position is the graph's estimate passed through
         the display filter (module docstring, *Published pose*): ``how`` is "snap" (start, a
-        checkpoint: show the estimate), "step" (move by the step, close a share of the gap) or
-        "hold" (GNSS, UWB, a floor change: the position shown does not jump)."""
+        checkpoint, UWB: show the estimate), "step" (move by the step, close a share of the gap) or
+        "hold" (GNSS, a floor change: the position shown does not jump)."""
         row = len(self._hist) - 1
         key = X(row)
         pose = self._smoother.calculateEstimatePose2(key)
@@ -397,8 +399,12 @@ class TrackFusion:
         if how == "snap" or self._shown is None or self.settings.display_gain >= 1.0:
             self._shown = est
         elif how == "step":
-            prev = self._smoother.calculateEstimatePose2(X(row - 1))
-            moved = self._shown + (est - np.array([prev.x(), prev.y()]))
+            if row - 1 >= self._window_start:
+                prev = self._smoother.calculateEstimatePose2(X(row - 1))
+                prev_xy = np.array([prev.x(), prev.y()])
+            else:  # a long stop: the previous pose has left the window, its last estimate is frozen
+                prev_xy = np.array([self._hist.col("x")[row - 1], self._hist.col("y")[row - 1]])
+            moved = self._shown + (est - prev_xy)
             self._shown = moved + self.settings.display_gain * (est - moved)
         marginal = self._smoother.marginalCovariance(key)
         rot = pose.rotation().matrix()
