@@ -15,6 +15,7 @@ distinct pipeline setting (``service.ipin_run.PdrCache``).
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from dataclasses import dataclass, field
 from typing import Any
@@ -37,15 +38,15 @@ class Candidate:
 
 def _grid() -> tuple[Candidate, ...]:
     """The numbers chosen on the IPIN walks: the step-length slope b (m·s, ``L = a + b·f``), the
-    extra turn sigma of a step on stairs (rad) and the interval between GNSS factors (s)."""
+    extra turn sigma of a step on stairs (rad) and the compass window gate (rad; inf: none)."""
     out = []
     for b in (0.20, 0.22, 0.24):
         for stairs_deg in (0.0, 10.0):
-            for gnss_s in (2.0, 5.0):
-                out.append(Candidate(f"b={b:.2f} stairs={stairs_deg:g}° gnss={gnss_s:g}s", (
+            for gate_deg in (math.inf, 15.0):
+                out.append(Candidate(f"b={b:.2f} stairs={stairs_deg:g}° window={gate_deg:g}°", (
                     ("pipeline.profile.coefficients.b", b),
                     ("fusion.stairs_turn_sigma_rad", float(np.radians(stairs_deg))),
-                    ("fusion.gnss_min_interval_s", gnss_s))))
+                    ("fusion.mag_window_gate_rad", float(np.radians(gate_deg))))))
     return tuple(out)
 
 

@@ -14,6 +14,12 @@ Fix timing. A fix stamped later than the newest step waits until a step passes i
 then attaches there (so an IPIN landmark reached after the last step before it attaches to
 that step's pose, as it would live). A fix stamped in the past goes to the fusion at once,
 which attaches it to the pose of its time and corrects the history after it.
+
+Floors. Steps carry the barometer's floor; a floor change without a step (a lift) comes as a
+:class:`pdr.events.FloorEvent` and republishes the latest pose on the new floor at its time.
+A checkpoint's floor re-anchors the barometer as of the checkpoint's own time (a lift ridden
+between the checkpoint and the next step is not undone). The dead-reckoning baseline
+(``pdr_track``) is reset by checkpoints too, so it is the fair comparison at any fix rate.
 """
 from __future__ import annotations
 

@@ -166,6 +166,8 @@ class TrackFusion:
         self._floor_marks: list[tuple[float, int, int]] = []  # (t, row, floor) of set_floor() calls
         self._floor_fix_row = -1  # row of the latest checkpoint that set the floor
         self._last_mag_t = -math.inf
+        self._chain = 0.0  # rad, the gyro's heading chain: the sum of the steps' turns
+        self._mag_window: deque[tuple[float, float, float]] = deque()  # (t, cos, sin) of compass - chain offsets
         self._last_gnss_t = -math.inf
         self._scale_n = -1  # index of the current step-length scale variable (-1: not estimated)
         self._scale_t0 = -math.inf  # s, when the current scale variable was opened
@@ -255,8 +257,10 @@ class TrackFusion:
             graph.add(gtsam.BetweenFactorPose2(X(prev), X(row), gtsam.Pose2(length * math.cos(turn), length * math.sin(turn), turn), step_noise))
             walked = length
         values.insert(X(row), self._live_pose.compose(gtsam.Pose2(walked * math.cos(turn), walked * math.sin(turn), turn)))
+        self._chain += turn
         if (s.use_mag_heading and math.isfinite(ev.mag_heading) and math.isfinite(ev.mag_heading_sigma)
-                and ev.mag_heading_sigma > 0 and ev.t - self._last_mag_t >= s.mag_min_interval_s):
+                and ev.mag_heading_sigma > 0 and ev.t - self._last_mag_t >= s.mag_min_interval_s
+                and self._compass_agrees(ev)):
             sigma = max(ev.mag_heading_sigma, s.mag_sigma_floor_rad)
             noise = robust(s.mag_kernel, s.mag_kernel_width, gtsam.noiseModel.Isotropic.Sigma(1, sigma))
             graph.add(gtsam.PoseRotationPrior2D(X(row), gtsam.Rot2(ev.mag_heading), noise))
@@ -270,6 +274,31 @@ class TrackFusion:
         self._last_index = ev.index
         self._live_floor = None
         return self._publish("step")
+
+    def _compass_agrees(self, ev: StepEvent) -> bool:
+        """Does the compass turn with the gyro over the last ``mag_window_s``? The offset between
+        the compass heading and the gyro chain is constant in a uniform field, whatever the
+        walker does; walking through a disturbance bends the field from metre to metre, which the
+        0.5 s epochs of the PDR cannot see. A step whose window's offsets spread more than
+        ``mag_window_gate_rad`` (circular standard deviation) gives no compass factor; each such
+        step is a ``compass_window`` event."""
+        s = self.settings
+        offset = _wrap(ev.mag_heading - self._chain)
+        w = self._mag_window
+        w.append((ev.t, math.cos(offset), math.sin(offset)))
+        while w and w[0][0] < ev.t - s.mag_window_s:
+            w.popleft()
+        if not math.isfinite(s.mag_window_gate_rad) or len(w) < s.mag_window_min_steps:
+            return True
+        c = sum(x[1] for x in w) / len(w)
+        sn = sum(x[2] for x in w) / len(w)
+        spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
+        if spread <= s.mag_window_gate_rad:
+            return True
+        self.rejected["compass_window"] += 1
+        self.events.append(FusionEvent(ev.t, "rejected", "compass", f"compass_window: spread {math.degrees(spread):.1f}°",
+                                       {"spread_rad": spread}))
+        return False
 
     def set_floor(self, t: float, floor: int) -> FusedPose:
         """The responder changed floor at ``t`` without a step (a lift): the newest pose is
