@@ -21,7 +21,6 @@ from service.protocol import wire
 from service.protocol.messages import recording_messages
 from service.protocol.pacing import paced
 
-
 MATCHING_WAIT_S = 1.5  # s a replay waits for a service to match its frames before it warns
 
 

@@ -53,6 +53,13 @@ offset so that its pose reads the checkpoint's floor, and the offset holds for l
 (a barometric floor reference that was off stays off by the same number of floors). A late
 floor checkpoint relabels poses up to the next floor checkpoint.
 
+**Published pose.** The live pose moves by each step and closes a share ``display_gain`` of
+the gap to the graph's estimate per step (a complementary filter: the step's motion now, the
+graph's correction over the next few steps), so a GNSS factor or a compass correction does not
+make the marker jump step by step (the zig-zag of indoor GNSS); a checkpoint, which an
+operator confirmed, and a UWB range (decimetres) move it at once. ``display_gain = 1`` shows the graph's estimate itself.
+The smoothed track is the graph's own.
+
 **Covariance.** gtsam's Pose2 marginal is in the pose's body frame (tangent space, retract
 ``T·Exp(ξ)``); the published 2x2 is rotated into ENU: ``Σ_w = R(θ) Σ_b[:2, :2] R(θ)ᵀ``.
 """
@@ -167,12 +174,18 @@ class TrackFusion:
         self._n_anchors = 0
         self._live: FusedPose | None = None
         self._live_pose = gtsam.Pose2()
+        self._shown: np.ndarray | None = None  # position shown in the live pose (display filter)
         self._fused = False
         self._steps = 0
         self._last_index = 0
         self._floor_offset = 0
+        self._live_floor: int | None = None  # floor set by set_floor() since the newest pose
+        self._floor_marks: list[tuple[float, int, int]] = []  # (t, row, floor) of set_floor() calls
         self._floor_fix_row = -1  # row of the latest checkpoint that set the floor
         self._last_mag_t = -math.inf
+        self._chain = 0.0  # rad, the gyro's heading chain: the sum of the steps' turns
+        self._mag_window: deque[tuple[float, float, float]] = deque()  # (t, cos, sin) of compass - chain offsets
+        self._last_gnss_t = -math.inf
         self._scale_n = -1  # index of the current step-length scale variable (-1: not estimated)
         self._scale_t0 = -math.inf  # s, when the current scale variable was opened
         self._scale = 1.0  # its latest estimate
@@ -214,7 +227,7 @@ class TrackFusion:
         self._smoother.update(graph, values, stamps)
         self._hist.append(t=t, index=0, x=math.nan, y=math.nan, heading=math.nan, floor=floor, pdr_floor=floor,
                           length=0.0, duration=0.0)
-        return self._publish()
+        return self._publish("snap")
 
     def add_step(self, ev: StepEvent) -> FusedPose:
         """Add one step; returns the live estimate of the new pose (what the service publishes).
@@ -241,6 +254,9 @@ class TrackFusion:
             # no relative turn from the gyro: take it from the absolute heading, loosely
             turn = _wrap(ev.heading - self._live_pose.theta()) if math.isfinite(ev.heading) else 0.0
             turn_sigma = s.unknown_turn_sigma_rad
+        turn_sigma = math.hypot(turn_sigma, s.turn_walk * math.sqrt(max(ev.t - t_prev, 0.0)))
+        if ev.on_stairs:
+            turn_sigma = math.hypot(turn_sigma, s.stairs_turn_sigma_rad)
         turn_sigma = max(turn_sigma, s.turn_sigma_floor_rad)
         length = ev.length
         cov = step_covariance(length, max(ev.length_sigma, s.length_sigma_floor_m), turn_sigma, s.lateral_sigma_m)
@@ -258,8 +274,10 @@ class TrackFusion:
             graph.add(gtsam.BetweenFactorPose2(X(prev), X(row), gtsam.Pose2(length * math.cos(turn), length * math.sin(turn), turn), step_noise))
             walked = length
         values.insert(X(row), self._live_pose.compose(gtsam.Pose2(walked * math.cos(turn), walked * math.sin(turn), turn)))
+        self._chain += turn
         if (s.use_mag_heading and math.isfinite(ev.mag_heading) and math.isfinite(ev.mag_heading_sigma)
-                and ev.mag_heading_sigma > 0 and ev.t - self._last_mag_t >= s.mag_min_interval_s):
+                and ev.mag_heading_sigma > 0 and ev.t - self._last_mag_t >= s.mag_min_interval_s
+                and self._compass_agrees(ev)):
             sigma = max(ev.mag_heading_sigma, s.mag_sigma_floor_rad)
             noise = robust(s.mag_kernel, s.mag_kernel_width, gtsam.noiseModel.Isotropic.Sigma(1, sigma))
             graph.add(gtsam.PoseRotationPrior2D(X(row), gtsam.Rot2(ev.mag_heading), noise))
@@ -271,7 +289,41 @@ class TrackFusion:
                           duration=ev.t - t_prev)
         self._steps += 1
         self._last_index = ev.index
-        return self._publish()
+        self._live_floor = None
+        return self._publish("step")
+
+    def _compass_agrees(self, ev: StepEvent) -> bool:
+        """Does the compass turn with the gyro over the last ``mag_window_s``? The offset between
+        the compass heading and the gyro chain is constant in a uniform field, whatever the
+        walker does; walking through a disturbance bends the field from metre to metre, which the
+        0.5 s epochs of the PDR cannot see. A step whose window's offsets spread more than
+        ``mag_window_gate_rad`` (circular standard deviation) gives no compass factor; each such
+        step is a ``compass_window`` event."""
+        s = self.settings
+        offset = _wrap(ev.mag_heading - self._chain)
+        w = self._mag_window
+        w.append((ev.t, math.cos(offset), math.sin(offset)))
+        while w and w[0][0] < ev.t - s.mag_window_s:
+            w.popleft()
+        if not math.isfinite(s.mag_window_gate_rad) or len(w) < s.mag_window_min_steps:
+            return True
+        c = sum(x[1] for x in w) / len(w)
+        sn = sum(x[2] for x in w) / len(w)
+        spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
+        if spread <= s.mag_window_gate_rad:
+            return True
+        self.rejected["compass_window"] += 1
+        self.events.append(FusionEvent(ev.t, "rejected", "compass", f"compass_window: spread {math.degrees(spread):.1f}°",
+                                       {"spread_rad": spread}))
+        return False
+
+    def set_floor(self, t: float, floor: int) -> FusedPose:
+        """The responder changed floor at ``t`` without a step (a lift): the newest pose is
+        published again on ``floor``, and the smoothed track gets a point there at ``t``."""
+        self._require_started()
+        self._live_floor = int(floor)
+        self._floor_marks.append((float(t), len(self._hist) - 1, int(floor)))
+        return self._publish("hold")
 
     def add_fix(self, fix: CheckpointFix | GnssFix | UwbRange) -> FusedPose | None:
         """Attach ``fix`` to the pose of its time; returns the updated live pose, or None if rejected.
@@ -302,6 +354,13 @@ class TrackFusion:
         elif isinstance(fix, GnssFix):
             if not fix.accuracy <= s.gnss_max_accuracy_m:
                 return self._reject(fix, what, "gnss_accuracy", f"accuracy {fix.accuracy:.1f} m > {s.gnss_max_accuracy_m} m")
+            floor = int(self._hist.col("floor")[row])
+            if self._live_floor is not None and row == len(self._hist) - 1:
+                floor = self._live_floor  # moved floor since the newest step (a lift)
+            if s.gnss_lowest_floor is not None and floor < s.gnss_lowest_floor:
+                return self._reject(fix, what, "gnss_below_ground", f"floor {floor} is below ground (lowest with sky view {s.gnss_lowest_floor})")
+            if fix.t - self._last_gnss_t < s.gnss_min_interval_s:
+                return self._reject(fix, what, "gnss_interval", f"{fix.t - self._last_gnss_t:.1f} s after the last GNSS factor")
             sigma = math.hypot(fix.accuracy, slip)
             p, cov = self._position_marginal(key)
             nu = np.array([fix.x, fix.y]) - p
@@ -312,6 +371,7 @@ class TrackFusion:
             base = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
             graph.add(gtsam.PoseTranslationPrior2D(key, np.array([fix.x, fix.y]),
                                                    robust(s.gnss_kernel, s.gnss_kernel_width, base)))
+            self._last_gnss_t = fix.t
         else:
             sigma = math.hypot(max(fix.sigma, s.uwb_sigma_floor_m), slip)
             if math.isfinite(self._uwb_gate):
@@ -333,7 +393,7 @@ class TrackFusion:
         if isinstance(fix, CheckpointFix) and fix.floor is not None:
             self._relabel_floor(row, int(fix.floor))
         self.events.append(FusionEvent(fix.t, "accepted", what, "", info))
-        return self._publish()
+        return self._publish("hold" if isinstance(fix, GnssFix) else "snap")
 
     def _add_own_factors(self, fix) -> FusedPose | None:
         """A fix of a registered type: ``fix.factors(ctx)`` gives its factors on the pose of its
@@ -378,6 +438,13 @@ class TrackFusion:
         for row in range(self._window_start, len(self._hist)):
             p = est.atPose2(X(row))
             out["x"][row], out["y"][row], out["heading"][row] = p.x(), p.y(), p.theta()
+        if self._floor_marks:  # a floor change without a step: the pose before it again, on the new floor
+            rows = np.array([m[1] for m in self._floor_marks])
+            at = np.searchsorted(np.arange(len(self._hist)), rows, side="right")
+            for k in ("x", "y", "heading", "index"):
+                out[k] = np.insert(out[k], at, out[k][rows])
+            out["t"] = np.insert(out["t"], at, [max(m[0], out["t"][r]) for m, r in zip(self._floor_marks, rows)])
+            out["floor"] = np.insert(out["floor"], at, [m[2] for m in self._floor_marks])
         return out
 
     @property
@@ -392,10 +459,25 @@ class TrackFusion:
         if self._smoother is None:
             raise RuntimeError("TrackFusion: call start() before adding steps or fixes")
 
-    def _publish(self) -> FusedPose:
+    def _publish(self, how: str) -> FusedPose:
+        """The live pose of the newest pose. Its position is the graph's estimate passed through
+        the display filter (module docstring, *Published pose*): ``how`` is "snap" (start, a
+        checkpoint, UWB: show the estimate), "step" (move by the step, close a share of the gap) or
+        "hold" (GNSS, a floor change: the position shown does not jump)."""
         row = len(self._hist) - 1
         key = X(row)
         pose = self._smoother.calculateEstimatePose2(key)
+        est = np.array([pose.x(), pose.y()])
+        if how == "snap" or self._shown is None or self.settings.display_gain >= 1.0:
+            self._shown = est
+        elif how == "step":
+            if row - 1 >= self._window_start:
+                prev = self._smoother.calculateEstimatePose2(X(row - 1))
+                prev_xy = np.array([prev.x(), prev.y()])
+            else:  # a long stop: the previous pose has left the window, its last estimate is frozen
+                prev_xy = np.array([self._hist.col("x")[row - 1], self._hist.col("y")[row - 1]])
+            moved = self._shown + (est - prev_xy)
+            self._shown = moved + self.settings.display_gain * (est - moved)
         marginal = self._smoother.marginalCovariance(key)
         rot = pose.rotation().matrix()
         cov = rot @ marginal[:2, :2] @ rot.T
@@ -405,8 +487,10 @@ class TrackFusion:
         if self._scale_n >= 0:
             self._scale = float(self._smoother.calculateEstimateDouble(S(self._scale_n)))
         self._live = FusedPose(
-            t=float(self._hist.col("t")[row]), index=int(self._hist.col("index")[row]), x=pose.x(), y=pose.y(),
-            heading=_wrap(pose.theta()), cov=cov, floor=int(self._hist.col("floor")[row]), steps=self._steps,
+            t=float(self._hist.col("t")[row]), index=int(self._hist.col("index")[row]),
+            x=float(self._shown[0]), y=float(self._shown[1]),
+            heading=_wrap(pose.theta()), cov=cov,
+            floor=int(self._hist.col("floor")[row]) if self._live_floor is None else self._live_floor, steps=self._steps,
             source="fused" if self._fused else "pdr", heading_sigma=float(math.sqrt(max(marginal[2, 2], 0.0))),
             length_scale=self._scale if self._scale_n >= 0 else math.nan,
         )
