@@ -16,7 +16,7 @@ from pdr.floors import FloorElevations, FloorTracker
 from pdr.height import BarometricAltimeter, pressure_at_height
 from pdr.pipeline import PdrPipeline, frames_of, run_pipeline
 from pdr.synthetic import static_imu
-from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings
+from service.core.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings
 
 
 @pytest.mark.parametrize("building, scenario", [

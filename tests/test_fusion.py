@@ -239,17 +239,17 @@ def test_checkpoint_between_steps_inflates_by_the_distance_walked():
     assert ev.values["slip_m"] == pytest.approx(0.25 * 0.8)
 
 
-def test_checkpoint_floor_relabels_from_its_pose_on():
+def test_the_graph_never_relabels_floors_the_motion_model_owns_them():
+    """One owner of the floor: a checkpoint's floor anchors the motion model (the tracker's
+    business); the graph keeps each step's floor, so a floor is never corrected twice."""
     events, _ = walk(np.zeros(30), floors=np.full(30, 1))
     f = TrackFusion(no_mag())
     f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05, floor=1)
     for ev in events[:20]:
         f.add_step(ev)
     pose = f.add_fix(CheckpointFix(t=events[9].t, x=8.0, y=0.0, floor=3))
-    assert pose.floor == 3  # the PDR said 1: the offset (+2) carries to the live pose
-    assert f.add_step(events[20]).floor == 3
-    floors = f.smoothed_track()["floor"]
-    assert np.all(floors[:10] == 1) and np.all(floors[10:] == 3)
+    assert pose is not None and pose.floor == 1
+    assert np.all(f.smoothed_track()["floor"] == 1)
 
 
 # ------------------------------------------------------------------ UWB

@@ -14,10 +14,10 @@ import pytest
 from pdr.evaluation.ipin import summary
 from pdr.recording import Landmarks, Recording, Series
 from pdr.simulation import Route, WalkerSettings, simulate_walk
-from service.incident import default_incident
-from service.ipin_cv import Candidate, apply_overrides, cross_validate, default_candidate, report, route_of
-from service.ipin_run import PdrCache, run_ipin
-from service.tracker import tracker_settings_for
+from service.protocol.incident import default_incident
+from service.review.ipin_cv import Candidate, apply_overrides, cross_validate, default_candidate, report, route_of
+from service.review.ipin_run import PdrCache, run_ipin
+from service.core.tracker import tracker_settings_for
 
 CFG = default_incident()
 ORIGIN = (CFG.origin.lat, CFG.origin.lon, CFG.origin.alt_m)
@@ -47,8 +47,8 @@ def walks():
 def test_replayed_dead_reckoning_gives_the_same_tracks_bit_for_bit(walks, k):
     settings = tracker_settings_for(CFG)
     cache = PdrCache()
-    first = run_ipin(walks[0], ORIGIN, CFG.floor_elevations(), k, True, settings, pdr_cache=cache)
-    again = run_ipin(walks[0], ORIGIN, CFG.floor_elevations(), k, True, settings, pdr_cache=cache)
+    first = run_ipin(walks[0], CFG, k, True, settings, pdr_cache=cache)
+    again = run_ipin(walks[0], CFG, k, True, settings, pdr_cache=cache)
     assert (cache.misses, cache.hits) == (1, 1)
     for kind in ("live", "smoothed", "pdr"):
         for col in ("t", "x", "y", "floor"):
@@ -56,7 +56,7 @@ def test_replayed_dead_reckoning_gives_the_same_tracks_bit_for_bit(walks, k):
     assert len(first.scored()) >= 4 and first.errors("live") is not None
     # another pipeline setting is another entry, not a stale replay
     other = apply_overrides(settings, (("pipeline.profile.coefficients.b", 0.30),))
-    run_ipin(walks[0], ORIGIN, CFG.floor_elevations(), k, True, other, pdr_cache=cache)
+    run_ipin(walks[0], CFG, k, True, other, pdr_cache=cache)
     assert cache.misses == 2
 
 
@@ -79,7 +79,7 @@ def test_each_route_is_scored_with_the_setting_chosen_on_the_others(walks):
             Candidate("default", (("pipeline.profile.coefficients.b", 0.22),)),
             Candidate("long", (("pipeline.profile.coefficients.b", 0.30),)))
     settings = tracker_settings_for(CFG)
-    res = cross_validate(walks, ORIGIN, CFG.floor_elevations(), 0, False, settings, grid=grid)
+    res = cross_validate(walks, CFG, 0, False, settings, grid=grid)
     assert res.routes == ["07", "07", "08"]
     for route, chosen in res.chosen.items():
         others = [i for i, r in enumerate(res.routes) if r != route]
@@ -100,7 +100,7 @@ def test_each_route_is_scored_with_the_setting_chosen_on_the_others(walks):
 def test_eval_ipin_cv_on_real_walks_with_a_folder_glob(shared_data, tmp_path):
     from typer.testing import CliRunner
 
-    from service.cli import app
+    from client.cli import app
 
     folder = shared_data("ipin2023")
     picks = [folder / n for n in ("IPIN2023_T3_TrainingTrial04_repetition01.txt.gz",

@@ -1,6 +1,6 @@
 """``firetrack eval ipin``: track IPIN 2023 walks from their first landmark and score the others.
 
-With ``--cv`` the figures are leave-one-route-out cross-validated (:mod:`service.ipin_cv`): the
+With ``--cv`` the figures are leave-one-route-out cross-validated (:mod:`service.review.ipin_cv`): the
 headline ``p75_m`` is then the pooled held-out live p75, with the in-sample figure beside it.
 """
 from __future__ import annotations
