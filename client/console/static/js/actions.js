@@ -4,7 +4,7 @@
    and sent to the console server (POST /api/fix, /api/checkpoint), which publishes it. The
    SELECTED panel shows the selected responder and enables the actions that apply. */
 import {S} from "./state.js";
-import {$, ask, setText, toast} from "./ui.js";
+import {$, MOTION_LABELS, ask, setText, toast} from "./ui.js";
 import {postJSON} from "./api.js";
 import {onMessage} from "./connection.js";
 import {ELLIPSE_K} from "./map/projection.js";
@@ -12,7 +12,6 @@ import {centreOn, map} from "./map/view.js";
 import {drawCheckpoints, setFloor} from "./map/floors.js";
 import {responderAt} from "./map/responders.js";
 
-const MOTION_LABELS = {walking: "walking", still: "still", no_motion: "NO MOTION"};
 
 let addMode = false, pin = null, onSelect = () => {};
 

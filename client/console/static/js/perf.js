@@ -1,6 +1,6 @@
 /* How hard the page works, for tests and tools (window.__firetrack.perfStats()):
-   draw_ms            drawing work per animation frame: the responders layer's update and
-                      Leaflet's canvas redraws (map/responders.js reports both with addWork)
+   draw_ms            drawing work per animation frame: painting the responders (map/responders.js,
+                      on new data and after the view moved); Leaflet moves the plan on the GPU
    frame_interval_ms  time between animation frames: long ones mean the main thread was blocked
    message_ms         handling one WebSocket message */
 

@@ -3,11 +3,10 @@
    Rows are marked .selected, .alarmed (an active alarm), .other (on another floor than the one
    shown) and .stale (not heard for STALE_S). */
 import {S, alarmSets, serverNow} from "./state.js";
-import {$, ago, setText} from "./ui.js";
+import {$, MOTION_LABELS, ago, setText} from "./ui.js";
 import {select} from "./actions.js";
 
 const STALE_S = 5;  // HEARD turns red after this long
-const MOTION_LABELS = {walking: "walking", still: "still", no_motion: "NO MOTION"};
 
 const steps = (r) => Math.max(r.pose ? r.pose.steps : 0, r.status ? r.status.steps : 0);
 const COLUMNS = [

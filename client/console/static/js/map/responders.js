@@ -9,8 +9,9 @@
      marks                        a dot with the heading arrow (red in alarm), a flashing red
                                   ring while an alarm is unacknowledged, a yellow ring if selected
      names                        above every mark
-   One canvas, not a Leaflet layer per responder: with 200 responders the per-layer machinery
-   (or HTML markers) costs several times the drawing itself.
+   One canvas, not a Leaflet layer per responder: with 200 responders updated twice a second
+   (tests/test_console_browser.py) HTML markers took about 16 ms per update and a Leaflet canvas
+   layer each 10-16 ms (median), against about 4 ms for this one canvas.
 
    drawResponders(positions) paints [{id, x, y, floor, heading, cov, trail, t}] (live poses or
    review samples); responderAt(point) is the one whose mark is under a container point. */
