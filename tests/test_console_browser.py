@@ -206,7 +206,8 @@ def test_markers_move_a_map_click_places_a_fix_and_review_scrubs_the_track(stack
         assert (r1, r2) == pytest.approx(tuple(2.4477 * np.sqrt(lam[::-1])), rel=1e-9)  # 95 %: chi2_2 = 2.4477^2
         assert abs(math.sin(angle - math.atan2(vec[1, 1], vec[0, 1]))) < 1e-9  # the major axis (sign free)
         # the drawn outline, on screen, lies on the screen image of that ellipse and reaches its major axis
-        ring = page.js("(c) => window.__firetrack.ellipseOutline(3.0, -2.0, c).map(p => window.__firetrack.enuToScreen(p[0], p[1]))",
+        ring = page.js("(c) => { const S = window.__firetrack, e = S.ellipseOutline(3.0, -2.0, c), out = [];"
+                       "  for (let i = 0; i < e.length; i += 2) out.push(S.enuToScreen(e[i], e[i + 1])); return out; }",
                        [4.0, 1.5, 1.0])
         centre = np.array(page.js("() => window.__firetrack.enuToScreen(3.0, -2.0)"))
         d = np.array(ring) - centre

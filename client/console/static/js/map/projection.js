@@ -14,7 +14,7 @@
    (a 2-D Gaussian's Mahalanobis radius is Rayleigh distributed). */
 
 export const ELLIPSE_K = 2.4477;
-const ELLIPSE_SEGMENTS = 48;
+export const ELLIPSE_SEGMENTS = 48;
 
 /** The map frame of one floor, from the server's plan JSON ({matrix, url, width, height, ...}). */
 export function floorFrame(plan) {
@@ -59,14 +59,16 @@ export function ellipseAxes(c) {
   return [ELLIPSE_K * Math.sqrt(l1), ELLIPSE_K * Math.sqrt(l2), 0.5 * Math.atan2(2 * b, a - d)];
 }
 
-/** The 95 % ellipse of covariance c around ENU (x, y) as a closed ring of ENU points. */
-export function ellipseOutline(x, y, c) {
+/** The 95 % ellipse of covariance c around ENU (x, y): ELLIPSE_SEGMENTS points, flat
+    [x0, y0, x1, y1, ...] (m), written into `out` (the map reuses one array for every responder). */
+export function ellipseOutline(x, y, c, out = new Float64Array(2 * ELLIPSE_SEGMENTS)) {
   const [r1, r2, th] = ellipseAxes(c);
-  const ct = Math.cos(th), st = Math.sin(th), out = [];
+  const ct = Math.cos(th), st = Math.sin(th);
   for (let i = 0; i < ELLIPSE_SEGMENTS; i++) {
     const phi = 2 * Math.PI * i / ELLIPSE_SEGMENTS;
     const p = r1 * Math.cos(phi), q = r2 * Math.sin(phi);
-    out.push([x + p * ct - q * st, y + p * st + q * ct]);
+    out[2 * i] = x + p * ct - q * st;
+    out[2 * i + 1] = y + p * st + q * ct;
   }
   return out;
 }

@@ -17,7 +17,7 @@
    review samples); responderAt(point) is the one whose mark is under a container point. */
 import {S, alarmSets, frame} from "../state.js";
 import {addWork} from "../perf.js";
-import {bearingToScreen, ellipseAxes, ellipseOutline} from "./projection.js";
+import {ELLIPSE_SEGMENTS, bearingToScreen, ellipseAxes, ellipseOutline} from "./projection.js";
 import {enuToScreen, map} from "./view.js";
 
 const PALETTE = ["#0047ab", "#007a33", "#6a1b9a", "#a34700", "#00707a", "#4e342e", "#1a237e", "#33691e",
@@ -68,12 +68,13 @@ export function initResponders() {
   canvas = new ResponderCanvas({pane: "responders", padding: 0.1}).addTo(map);
 }
 
-/** ENU -> layer point, as the affine map it is (three projections per paint, not one per point). */
+/** ENU -> layer point as the affine map it is, [ox, oy, ax, ay, bx, by]: X = ox + ax x + bx y,
+    Y = oy + ay x + by y (three projections per paint, not one per point). */
 function layerMap() {
   const fr = frame(), origin = map.getPixelOrigin();
   const P = (x, y) => map.project(fr.toLatLng(x, y)).subtract(origin);
   const o = P(0, 0), ex = P(1, 0).subtract(o), ey = P(0, 1).subtract(o);
-  return (x, y) => [o.x + ex.x * x + ey.x * y, o.y + ex.y * x + ey.y * y];
+  return [o.x, o.y, ex.x, ex.y, ey.x, ey.y];
 }
 
 export function drawResponders(positions) {
@@ -82,19 +83,21 @@ export function drawResponders(positions) {
   if (canvas) paint(canvas);
 }
 
+const outline = new Float64Array(2 * ELLIPSE_SEGMENTS);  // one ellipse at a time, no garbage
+
 function paint(renderer) {
   const t0 = performance.now();
   const ctx = renderer._ctx, b = renderer._bounds, size = b.getSize();
   ctx.clearRect(b.min.x, b.min.y, size.x, size.y);
   const fr = frame();
   if (!fr) return;
-  const at = layerMap(), live = S.mode === "live", al = alarmSets(), flashOn = flashPhase();
+  const [ox, oy, ax, ay, bx, by] = layerMap(), live = S.mode === "live", al = alarmSets(), flashOn = flashPhase();
   const here = [], other = [];
-  for (const q of drawn) (q.floor === S.floor ? here : other).push({q, p: at(q.x, q.y)});
+  for (const q of drawn) (q.floor === S.floor ? here : other).push({q, X: ox + ax * q.x + bx * q.y, Y: oy + ay * q.x + by * q.y});
 
   if (S.showOtherFloors && other.length) {
     ctx.beginPath();
-    for (const {p} of other) { ctx.moveTo(p[0] + OTHER_R, p[1]); ctx.arc(p[0], p[1], OTHER_R, 0, 2 * Math.PI); }
+    for (const {X, Y} of other) { ctx.moveTo(X + OTHER_R, Y); ctx.arc(X, Y, OTHER_R, 0, 2 * Math.PI); }
     ctx.fillStyle = OTHER; ctx.fill(); ctx.lineWidth = 1.5; ctx.strokeStyle = "#fff"; ctx.stroke();
   }
   ctx.lineJoin = "round";
@@ -103,37 +106,41 @@ function paint(renderer) {
     if (!q.trail || q.trail.length < 2) continue;
     ctx.beginPath();
     let pen = false;
-    for (const pt of q.trail) {
-      if (pt[3] !== S.floor) { pen = false; continue; }
-      const [X, Y] = at(pt[1], pt[2]);
+    for (const [, x, y, floor] of q.trail) {
+      if (floor !== S.floor) { pen = false; continue; }
+      const X = ox + ax * x + bx * y, Y = oy + ay * x + by * y;
       if (pen) ctx.lineTo(X, Y); else { ctx.moveTo(X, Y); pen = true; }
     }
     ctx.strokeStyle = colorOf(q.id); ctx.stroke();
   }
+  ctx.lineWidth = 1.5;
   for (const {q} of here) {
     const r1 = q.cov ? ellipseAxes(q.cov)[0] : NaN;
     if (!(r1 < MAX_SEMI_AXIS_M)) continue;
+    const e = ellipseOutline(q.x, q.y, q.cov, outline);
     ctx.beginPath();
-    for (const [x, y] of ellipseOutline(q.x, q.y, q.cov)) ctx.lineTo(...at(x, y));
+    for (let i = 0; i < e.length; i += 2) ctx.lineTo(ox + ax * e[i] + bx * e[i + 1], oy + ay * e[i] + by * e[i + 1]);
     ctx.closePath();
     const vague = r1 > VAGUE_SEMI_AXIS_M;
     ctx.fillStyle = ctx.strokeStyle = colorOf(q.id);
     if (!vague) { ctx.globalAlpha = 0.13; ctx.fill(); }
-    ctx.globalAlpha = 0.8; ctx.lineWidth = 1.5; ctx.setLineDash(vague ? [8, 6] : []);
+    ctx.globalAlpha = 0.8;
+    if (vague) ctx.setLineDash([8, 6]);
     ctx.stroke();
+    if (vague) ctx.setLineDash([]);
   }
-  ctx.setLineDash([]); ctx.globalAlpha = 1;
-  for (const {q, p} of here) paintMark(ctx, p, q, live && al.active.has(q.id), live && al.unacked.has(q.id) && flashOn, fr);
+  ctx.globalAlpha = 1;
+  for (const {q, X, Y} of here) paintMark(ctx, X, Y, q, live && al.active.has(q.id), live && al.unacked.has(q.id) && flashOn, fr);
   ctx.font = NAME_FONT; ctx.lineWidth = 4;
-  for (const {q, p} of here) {
-    const x = p[0] + MARK_R + 4, y = p[1] - MARK_R - 2;
+  for (const {q, X, Y} of here) {
+    const x = X + MARK_R + 4, y = Y - MARK_R - 2;
     ctx.strokeStyle = "#fff"; ctx.strokeText(q.id, x, y);
     ctx.fillStyle = live && al.active.has(q.id) ? "#c00000" : "#000"; ctx.fillText(q.id, x, y);
   }
   addWork(performance.now() - t0);
 }
 
-function paintMark(ctx, [X, Y], q, alarmed, flash, fr) {
+function paintMark(ctx, X, Y, q, alarmed, flash, fr) {
   const col = alarmed ? ALARM : colorOf(q.id);
   const ring = (r, width, color) => {
     ctx.beginPath(); ctx.arc(X, Y, r, 0, 2 * Math.PI); ctx.lineWidth = width; ctx.strokeStyle = color; ctx.stroke();
