@@ -7,11 +7,10 @@ import {S} from "./state.js";
 import {$, MOTION_LABELS, ask, setText, toast} from "./ui.js";
 import {postJSON} from "./api.js";
 import {onMessage} from "./connection.js";
-import {ELLIPSE_K} from "./map/projection.js";
+import {ellipseAxes} from "./map/projection.js";
 import {centreOn, map} from "./map/view.js";
 import {drawCheckpoints, setFloor} from "./map/floors.js";
 import {responderAt} from "./map/responders.js";
-
 
 let addMode = false, pin = null, onSelect = () => {};
 
@@ -36,7 +35,7 @@ export function renderSelection() {
   const p = r.pose, s = r.status, parts = [];
   if (p) {
     parts.push(`floor ${p.floor}`, `x ${p.x.toFixed(1)} m`, `y ${p.y.toFixed(1)} m`, `heading ${Math.round(p.heading_deg)}°`,
-               `±${(ELLIPSE_K * Math.sqrt(Math.max(p.cov[0], p.cov[2]))).toFixed(1)} m`, p.source);
+               `±${ellipseAxes(p.cov)[0].toFixed(1)} m`, p.source);  // the 95 % ellipse's semi-major axis
   } else {
     parts.push("no position yet (not placed)");
   }
