@@ -10,7 +10,14 @@ from pathlib import Path
 
 import typer
 
-from service.console_io import err, fail, out
+from service.protocol.terminal import (
+    client_or_exit,
+    err,
+    fail,
+    incident_or_exit,
+    out,
+    stop_on_signals,
+)
 
 
 def console_command(
@@ -22,20 +29,12 @@ def console_command(
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log fixes, checkpoints and ignored messages"),
 ):
     """Serve the command console (live map, roster, alarms, operator fixes) from a zenoh router."""
-    import zenoh
-
     from client.console.server import ConsoleError, start_console
-    from service.serve_cli import _incident, stop_on_signals
-    from service.zenoh_config import client_config
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s")
-    cfg = _incident(config, incident)
+    cfg = incident_or_exit(config, incident)
     stop = stop_on_signals()
-    try:
-        session = zenoh.open(client_config(connect))
-    except Exception as e:  # zenoh raises its own error type; say where it could not connect
-        fail(f"could not connect to the zenoh router at {connect}: {e}")
-        raise typer.Exit(1)
+    session = client_or_exit(connect)
     try:
         try:
             handle = start_console(session, cfg, port=port, host=host)

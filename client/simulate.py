@@ -2,7 +2,7 @@
 
 A :class:`pdr.simulation.WalkerFleet` walks N responders through the incident's building;
 every ``1/frames_per_s`` of wall time each walker's new samples leave as one
-:class:`service.wire.ImuBatch` on ``.../imu``, and its true position as a small msgpack map
+:class:`service.protocol.wire.ImuBatch` on ``.../imu``, and its true position as a small msgpack map
 on ``.../truth`` (``{"t", "x", "y", "floor", "heading", "steps"}`` — for scoring and the
 console, never read by the service). Each walker first sends a checkpoint fix at its start
 point: the door it came in by.
@@ -19,9 +19,8 @@ import zenoh
 
 from client.wearable import Wearable
 from pdr.simulation import WalkerFleet, WalkerSettings
-from service import wire
-
-FRAMES_PER_SECOND = 10.0
+from service.protocol import wire
+from service.protocol.messages import FRAMES_PER_SECOND
 
 
 def building_bounds(incident, margin: float = 5.0) -> tuple[float, float, float, float]:
@@ -74,7 +73,8 @@ class SimulationPublisher:
             p_t = b.pressure_t if len(b.pressure_t) else None
             p_v = b.pressure if len(b.pressure_t) else None
             msg = wire.ImuBatch(responder=w.responder, device=f"sim:{w.responder}", seq=int(self.seq[i]), t=b.t,
-                                acc=b.acc, gyr=b.gyr, mag=b.mag, pressure_t=p_t, pressure=p_v, carry="handheld")
+                                acc=b.acc, gyr=b.gyr, mag=b.mag, pressure_t=p_t, pressure=p_v, carry="handheld",
+                                utc_offset=time.time() - float(b.t[-1]))
             w.send("imu", msg)
             if on_frame is not None:
                 on_frame(i, int(self.seq[i]), time.time())

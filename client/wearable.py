@@ -1,10 +1,8 @@
 """A wearable that publishes a real recording: ``firetrack wearable --responder ID --replay FILE``.
 
-What a phone or IMU on a responder would send, taken from a recording (IPIN, Oxford, PyShoe
-or anything :func:`pdr.io.load` reads): the IMU samples as :class:`service.wire.ImuBatch`
-frames of about 1/10 s, at the recording's own pace (or ``speed`` times faster), and —
-where the recording has them — its landmarks as checkpoint fixes (a tag reader at a door)
-and its GNSS fixes. A liveliness token on ``.../presence`` says the wearable is connected.
+What a phone or IMU on a responder would send (:func:`service.protocol.messages.recording_messages`),
+at the recording's own pace (or ``speed`` times faster). A liveliness token on
+``.../presence`` says the wearable is connected.
 
 Frames travel reliably with blocking congestion control: a slow network delays them, it
 does not drop them. Frame ``k`` leaves at ``start + (t_end,k − t_0) / speed`` of the wall
@@ -14,116 +12,84 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable
 
-import numpy as np
 import zenoh
 
 from pdr.io import load
-from pdr.recording import Recording
-from service import wire
-
-FRAMES_PER_SECOND = 10.0
-
-
-@dataclass(frozen=True)
-class Outgoing:
-    """One message to send at device time ``t`` on ``kind`` (imu or fix)."""
-
-    t: float
-    kind: str
-    msg: wire.WireMessage
+from service.protocol import wire
+from service.protocol.messages import recording_messages
+from service.protocol.pacing import paced
 
 
-def frames_per_batch(rate_hz: float, frames_per_s: float = FRAMES_PER_SECOND) -> int:
-    return max(1, int(round(rate_hz / frames_per_s)))
-
-
-def recording_messages(rec: Recording, responder: str, device: str | None = None, incident=None,
-                       landmark_every: int = 0, gnss: bool = True, frames_per_s: float = FRAMES_PER_SECOND,
-                       carry: str = "unknown") -> list[Outgoing]:
-    """Every message a wearable would send for ``rec``, in device-time order.
-
-    Landmarks (with an ``incident`` to put them in its ENU frame): the first always — the
-    responder is placed where the walk starts — and every ``landmark_every``-th after it
-    when that is positive. GNSS fixes go as they are.
-    """
-    imu = rec.imu_samples()
-    device = device or f"replay:{responder}"
-    per = frames_per_batch(rec.acc.rate_hz, frames_per_s)
-    pt = rec.pressure.t if rec.pressure is not None else None
-    pv = rec.pressure.values[:, 0] if rec.pressure is not None else None
-    out = [Outgoing(float(b.t[-1]), "imu", b) for b in
-           wire.imu_batches_from_arrays(responder, device, imu.t, imu.acc, imu.gyr, imu.mag, pt, pv, carry, per)]
-    lm = rec.landmarks
-    if lm is not None and len(lm) and incident is not None:
-        idx = np.arange(0, len(lm), landmark_every) if landmark_every > 0 else np.array([0])
-        x, y, _ = incident.to_enu(lm.lat[idx], lm.lon[idx])
-        for j, xx, yy in zip(idx, np.atleast_1d(x), np.atleast_1d(y)):
-            out.append(Outgoing(float(lm.t[j]), "fix", wire.Fix.checkpoint(
-                responder, float(lm.t[j]), x=float(xx), y=float(yy), floor=int(lm.floor[j]), sigma=0.3,
-                operator="recording landmark")))
-    if gnss and rec.gnss is not None:
-        g = rec.gnss
-        for k in range(len(g)):
-            if np.isfinite(g.accuracy_m[k]) and g.accuracy_m[k] > 0:
-                out.append(Outgoing(float(g.t[k]), "fix", wire.Fix.gnss(
-                    responder, float(g.t[k]), lat=float(g.lat[k]), lon=float(g.lon[k]), accuracy=float(g.accuracy_m[k]))))
-    out.sort(key=lambda o: (o.t, o.kind != "imu"))
-    return out
+MATCHING_WAIT_S = 1.5  # s a replay waits for a service to match its frames before it warns
 
 
 class Wearable:
-    """A zenoh client publishing one responder's messages; ``close()`` withdraws its presence."""
+    """A zenoh client publishing one responder's messages; ``close()`` withdraws its presence.
 
-    def __init__(self, session: zenoh.Session, incident_id: str, responder: str):
+    It knows whether anybody listens: zenoh's matching status of the frame publisher says
+    whether a subscriber (the service) matches ``firetrack/{incident}/{responder}/imu``.
+    ``on_matching(bool)`` is called when that changes, and frames published while nobody
+    listened are counted in ``unheard`` (they went nowhere).
+    """
+
+    def __init__(self, session: zenoh.Session, incident_id: str, responder: str, on_matching=None):
         self.session = session
         self.responder = responder
         qos = dict(congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE)
         self._pub = {k: session.declare_publisher(wire.key(incident_id, responder, k), **qos) for k in ("imu", "fix", "truth")}
         self._token = session.liveliness().declare_token(wire.key(incident_id, responder, "presence"))
         self.sent = {"imu": 0, "fix": 0, "truth": 0}
+        self.unheard = {"imu": 0, "fix": 0}
+        self._on_matching = on_matching
+        self._listener = self._pub["imu"].declare_matching_listener(self._matching_changed) if on_matching else None
+
+    @property
+    def heard(self) -> bool:
+        """True while a subscriber (the service) matches this wearable's frames."""
+        return bool(self._pub["imu"].matching_status.matching)
+
+    def _matching_changed(self, status) -> None:
+        if self._on_matching is not None:
+            self._on_matching(bool(status.matching))
 
     def send(self, kind: str, msg_or_payload) -> None:
-        payload = msg_or_payload if isinstance(msg_or_payload, bytes) else wire.encode(msg_or_payload)
+        """Publish one message; a frame without a clock offset gets this machine's: UTC now
+        minus the device time of its last sample (how a phone relates its sensor clock to UTC)."""
+        msg = msg_or_payload
+        if isinstance(msg, wire.ImuBatch) and msg.utc_offset is None:
+            msg = msg.model_copy(update={"utc_offset": time.time() - float(msg.t[-1])})
+        payload = msg if isinstance(msg, bytes) else wire.encode(msg)
+        if kind in self.unheard and not self._pub[kind].matching_status.matching:
+            self.unheard[kind] += 1
         self._pub[kind].put(payload)
         self.sent[kind] += 1
 
     def close(self) -> None:
+        if self._listener is not None:
+            self._listener.undeclare()
         self._token.undeclare()
         for p in self._pub.values():
             p.undeclare()
 
 
-def paced(messages: list[Outgoing], speed: float, stop: threading.Event | None = None,
-          clock: Callable[[], float] = time.monotonic) -> Iterator[Outgoing]:
-    """Yield the messages at their device-time pace divided by ``speed`` (0 or inf: at once)."""
-    if not messages:
-        return
-    t0 = messages[0].t
-    start = clock()
-    fast = speed <= 0 or not np.isfinite(speed)
-    for m in messages:
-        if stop is not None and stop.is_set():
-            return
-        if not fast:
-            wait = start + (m.t - t0) / speed - clock()
-            if wait > 0:
-                if stop is not None:
-                    if stop.wait(wait):
-                        return
-                else:
-                    time.sleep(wait)
-        yield m
-
-
 def replay(path, responder: str, session: zenoh.Session, incident, speed: float = 1.0, landmark_every: int = 0,
-           gnss: bool = True, stop: threading.Event | None = None, on_progress: Callable[[int, int], None] | None = None) -> dict:
-    """Publish recording ``path`` as responder ``responder``; returns the counts sent."""
+           gnss: bool = True, stop: threading.Event | None = None, on_progress: Callable[[int, int], None] | None = None,
+           on_matching: Callable[[bool], None] | None = None, on_start: Callable[[list], None] | None = None) -> dict:
+    """Publish recording ``path`` as responder ``responder``; returns the counts sent and, in
+    ``unheard``, how many went out while no service was subscribed."""
     rec = load(path)
     msgs = recording_messages(rec, responder, incident=incident, landmark_every=landmark_every, gnss=gnss)
-    w = Wearable(session, incident.id, responder)
+    w = Wearable(session, incident.id, responder, on_matching=on_matching)
+    if on_start is not None:
+        on_start(msgs)
+    if on_matching is not None:  # the listener speaks on changes: say now if nobody listens yet
+        deadline = time.monotonic() + MATCHING_WAIT_S
+        while not w.heard and time.monotonic() < deadline and not (stop is not None and stop.is_set()):
+            time.sleep(0.05)
+        if not w.heard:
+            on_matching(False)
     try:
         for i, m in enumerate(paced(msgs, speed, stop)):
             w.send(m.kind, m.msg)
@@ -131,4 +97,4 @@ def replay(path, responder: str, session: zenoh.Session, incident, speed: float 
                 on_progress(i + 1, len(msgs))
     finally:
         w.close()
-    return dict(w.sent)
+    return {**w.sent, "unheard": dict(w.unheard)}

@@ -13,37 +13,24 @@ steps (so it is optimistic on long straight legs; the factor graph does better).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-
 import numpy as np
 
-from pdr.events import StepEvent
-
-
-@dataclass(frozen=True)
-class TrackPoint:
-    t: float
-    x: float
-    y: float
-    heading: float  # rad, ENU yaw
-    floor: int
-    steps: int
-    cov: np.ndarray  # (2, 2) m²
+from pdr.events import PoseEstimate, StepEvent
 
 
 class DeadReckoning:
-    """``dr.start(t, x, y, floor)`` once, then ``dr.add_step(ev) -> TrackPoint``."""
+    """``dr.start(t, x, y, floor)`` once, then ``dr.add_step(ev) -> PoseEstimate``."""
 
     def __init__(self, position_sigma: float = 0.5):
         self._sigma0 = position_sigma
-        self.point: TrackPoint | None = None
+        self.point: PoseEstimate | None = None
 
-    def start(self, t: float, x: float, y: float, floor: int = 0, position_sigma: float | None = None) -> TrackPoint:
+    def start(self, t: float, x: float, y: float, floor: int = 0, position_sigma: float | None = None) -> PoseEstimate:
         s = self._sigma0 if position_sigma is None else position_sigma
-        self.point = TrackPoint(t, x, y, math.nan, floor, 0, np.eye(2) * s * s)
+        self.point = PoseEstimate(t, x, y, math.nan, np.eye(2) * s * s, floor, 0)
         return self.point
 
-    def add_step(self, ev: StepEvent) -> TrackPoint:
+    def add_step(self, ev: StepEvent) -> PoseEstimate:
         p = self.point
         if p is None:
             raise RuntimeError("start() the track before adding steps")
@@ -51,13 +38,14 @@ class DeadReckoning:
         R = np.array([[c, -s], [s, c]])
         sig_h = ev.heading_sigma if math.isfinite(ev.heading_sigma) else math.pi
         Q = R @ np.diag([ev.length_sigma**2, (ev.length * sig_h) ** 2]) @ R.T  # blas-ok: 2x2, one step at a time
-        self.point = TrackPoint(ev.t, p.x + ev.length * c, p.y + ev.length * s, ev.heading, ev.floor,
-                                p.steps + 1, p.cov + Q)
+        self.point = PoseEstimate(ev.t, p.x + ev.length * c, p.y + ev.length * s, ev.heading, p.cov + Q, ev.floor,
+                                  p.steps + 1, p.source, ev.heading_sigma)
         return self.point
 
-    def move_to(self, x: float, y: float, sigma: float) -> TrackPoint:
+    def move_to(self, x: float, y: float, sigma: float) -> PoseEstimate:
         """A checkpoint: the walker is at (x, y) now (dead reckoning has no history to fix)."""
         p = self.point
-        self.point = TrackPoint(p.t, x, y, p.heading, p.floor, p.steps, np.eye(2) * sigma * sigma)
+        self.point = PoseEstimate(p.t, x, y, p.heading, np.eye(2) * sigma * sigma, p.floor, p.steps, "fused",
+                                  p.heading_sigma)
         return self.point
 

@@ -12,15 +12,31 @@ from __future__ import annotations
 
 import enum
 import math
+from dataclasses import dataclass
 
 import numpy as np
-from dataclasses import dataclass
+
+from pdr.angles import bearing_deg, yaw_from_bearing  # noqa: F401  (re-exported)
 
 
 class MotionState(str, enum.Enum):
+    """What a commander reads about a responder's motion.
+
+    The handheld pipeline tells walking, still and no motion; a boot-mounted INS
+    (:mod:`pdr.zupt`) also tells running, crawling and climbing stairs, each a kind of
+    moving (:attr:`moving`).
+    """
+
     WALKING = "walking"
     STILL = "still"
     NO_MOTION = "no_motion"  # still for the configured time (30 s): the basis of man-down
+    RUNNING = "running"
+    CRAWLING = "crawling"
+    STAIRS = "stairs"  # climbing or descending stairs
+
+    @property
+    def moving(self) -> bool:
+        return self not in (MotionState.STILL, MotionState.NO_MOTION)
 
 
 @dataclass(frozen=True)
@@ -78,17 +94,21 @@ class MotionEvent:
     since: float  # s, when the motion (or stillness) began
 
 
-def bearing_deg(yaw):
-    """ENU yaw (CCW from East, rad) -> compass bearing (CW from North, degrees in [0, 360)).
+@dataclass(frozen=True)
+class PoseEstimate:
+    """Where a track estimator puts the responder after a step or a fix: the one pose type
+    from the estimator (dead reckoning, the factor graph) to the wire's ``Pose``.
 
-    A float for a float, an array for an array. A yaw a rounding error past π/2 would come out
-    as 360.0 after the modulo; that is folded to 0 so the result stays in [0, 360)."""
-    b = np.mod(90.0 - np.degrees(yaw), 360.0)
-    b = np.where(b >= 360.0, 0.0, b)
-    return float(b) if b.ndim == 0 else b
+    ``x``, ``y`` local ENU (m); ``heading`` ENU yaw of travel (rad); ``cov`` (2, 2) m² of
+    (x, y) in ENU; ``source`` ``"pdr"`` before any accepted absolute fix, ``"fused"`` after.
+    """
 
-
-def yaw_from_bearing(bearing: float) -> float:
-    """Compass bearing (degrees, CW from North) -> ENU yaw (rad, CCW from East), in (-π, π]."""
-    y = math.radians(90.0 - bearing)
-    return math.atan2(math.sin(y), math.cos(y))
+    t: float  # s, device clock
+    x: float
+    y: float
+    heading: float  # rad, ENU yaw (CCW from East)
+    cov: np.ndarray  # (2, 2) m²
+    floor: int
+    steps: int
+    source: str = "pdr"
+    heading_sigma: float = math.nan  # rad, 1-sigma of the heading, when the estimator knows it

@@ -48,6 +48,7 @@ import numpy as np
 from pdr.constants import GRAVITY
 from pdr.events import MotionEvent, MotionState, StepDetection, StepEvent
 from pdr.floors import FloorElevations, FloorSettings, FloorTracker, StairsDetector, StairsSettings
+from pdr.frames import frame_bounds
 from pdr.heading import HeadingEstimator, HeadingSettings
 from pdr.height import AltimeterSettings, BarometricAltimeter
 from pdr.steps import SIGNAL, make_detector
@@ -310,22 +311,17 @@ def _merge(steps: list[StepEvent], motion: list[MotionEvent]) -> list[StepEvent 
 
 
 def frames_of(t, acc, gyr, mag=None, pressure_t=None, pressure=None, per_frame: int = 10):
-    """Cut arrays into consecutive :class:`ImuFrame` of ``per_frame`` samples; a pressure sample
-    goes with the frame whose time span ends at or after it (the first frame takes all earlier)."""
+    """Cut arrays into consecutive :class:`ImuFrame` of ``per_frame`` samples (the rule of
+    :func:`pdr.frames.frame_bounds`: a pressure sample goes with the frame whose span ends at
+    or after it)."""
     t = np.asarray(t, float)
-    n = t.size
-    ends = list(range(per_frame, n, per_frame)) + [n]
-    start = 0
-    p_lo = 0
-    for end in ends:
-        if pressure_t is not None and pressure is not None:
-            p_hi = int(np.searchsorted(pressure_t, t[end - 1], side="right")) if end < n else len(pressure_t)
-            pt, pv = pressure_t[p_lo:p_hi], pressure[p_lo:p_hi]
-            p_lo = p_hi
-        else:
-            pt = pv = None
-        yield ImuFrame(t[start:end], acc[start:end], gyr[start:end], None if mag is None else mag[start:end], pt, pv)
-        start = end
+    with_p = pressure_t is not None and pressure is not None
+    starts, stops, p_lo, p_hi = frame_bounds(t, per_frame, pressure_t if with_p else None)
+    for k, (a, b) in enumerate(zip(starts, stops)):
+        pt = pv = None
+        if with_p:
+            pt, pv = pressure_t[p_lo[k]:p_hi[k]], pressure[p_lo[k]:p_hi[k]]
+        yield ImuFrame(t[a:b], acc[a:b], gyr[a:b], None if mag is None else mag[a:b], pt, pv)
 
 
 def run_pipeline(pipeline: PdrPipeline, frames) -> list[StepEvent | MotionEvent]:

@@ -9,6 +9,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# No per-example deadline: speed is measured by the benchmarks, not by tests, and CI machines
+# (and a busy laptop) are slower than the one a deadline would be tuned on.
+settings.register_profile("firetrack", deadline=None)
+settings.load_profile("firetrack")
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -6,10 +6,10 @@ import pytest
 import scipy.io
 from typer.testing import CliRunner
 
+from client.cli import app
 from pdr import quaternion as quat
 from pdr.ahrs.base import _NWU_TO_ENU
 from pdr.synthetic import GRAVITY, rotating_imu
-from service.cli import app
 
 runner = CliRunner()
 

@@ -23,11 +23,13 @@ import pytest
 from PIL import Image
 
 from client.console.server import ConsoleError, start_console
-from client.wearable import Wearable, paced, recording_messages
+from client.wearable import Wearable
 from pdr.synthetic import static_imu
-from service import wire
-from service.incident import default_incident, plan_pixel_to_enu
-from service.server import IncidentService, ServiceSettings
+from service.protocol import wire
+from service.protocol.incident import default_incident, plan_pixel_to_enu
+from service.protocol.messages import recording_messages
+from service.protocol.pacing import paced
+from service.shell.service import IncidentService, ServiceSettings
 from tests.conftest import shared_data_path
 from tests.zenoh_util import client, free_port, router, wait_until
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pdr.floors import FloorElevations
-from service.export import IncidentOrigin, to_csv, to_geojson, to_tum
+from service.review.export import IncidentOrigin, to_csv, to_geojson, to_tum
 
 ORIGIN = IncidentOrigin(lat=50.0875, lon=14.4213, alt=200.0)
 M_PER_DEG_LAT = 111_229.0  # WGS84 meridian arc per degree near 50 deg N

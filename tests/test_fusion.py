@@ -8,9 +8,16 @@ import numpy as np
 import pytest
 
 from pdr.events import StepEvent
-from service.fusion import CheckpointFix, FusedPose, FusionSettings, GnssFix, TrackFusion, UwbRange
+from service.fusion import (
+    CheckpointFix,
+    FusedPose,
+    FusionSettings,
+    GnssFix,
+    TrackFusion,
+    UwbRange,
+)
+from service.fusion.bench import bench_fusion
 from service.fusion.noise import step_covariance
-from service.fusion_bench import bench_fusion
 
 DEG = math.pi / 180.0
 STEP_DT = 0.5  # s between steps (2 steps/s)
@@ -461,7 +468,7 @@ def test_fusion_command_prints_json():
     import typer
     from typer.testing import CliRunner
 
-    from service.fusion_bench import fusion_command
+    from service.fusion.bench import fusion_command
 
     app = typer.Typer()
     app.command("fusion")(fusion_command)

@@ -1,4 +1,4 @@
-"""Incident configuration (service.incident): the demo museum, frames, floor plans, bad configs."""
+"""Incident configuration (service.protocol.incident): the demo museum, frames, floor plans, bad configs."""
 from __future__ import annotations
 
 import json
@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pdr.floors import FloorElevations
-from service.incident import (
+from service.protocol.incident import (
     DEFAULT_INCIDENT_PATH,
     IncidentConfig,
     IncidentConfigError,
@@ -59,7 +59,7 @@ def test_demo_incident_loads_with_its_floors_and_checkpoints():
     assert DEFAULT_INCIDENT_PATH.name == "ipin-museum.json"
     assert cfg.id == "demo" and cfg.start_floor == 0 and cfg.declination_deg == pytest.approx(3.6)
     assert [(f.number, f.elevation_m) for f in cfg.floors] == [(-2, -6.0), (-1, -3.0), (0, 0.0)]
-    assert cfg.floor_elevations() == FloorElevations({-2: -6.0, -1: -3.0, 0: 0.0})
+    assert FloorElevations(cfg.elevations()) == FloorElevations({-2: -6.0, -1: -3.0, 0: 0.0})
     assert (cfg.origin.lat, cfg.origin.lon) == (CAL["centre_lat"], CAL["centre_lon"])
     assert 3 <= len(cfg.checkpoints) <= 6 and cfg.notes
     for cp in cfg.checkpoints:  # both forms filled and agreeing

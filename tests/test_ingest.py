@@ -1,4 +1,4 @@
-"""The per-responder frame gate (service.ingest.FrameGate): ordering, loss, rejects, restarts."""
+"""The per-responder frame gate (service.core.gate.FrameGate): ordering, loss, rejects, restarts."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from service.ingest import GATE_REASONS, FrameGate
-from service.wire import ImuBatch
+from service.core.gate import GATE_REASONS, FrameGate
+from service.protocol.wire import ImuBatch
 
 N = 5  # samples per frame
 DT = 0.01  # s between samples

@@ -401,6 +401,16 @@ def test_pyshoe_vicon_file(tmp_path):
     assert load(tmp_path / "walk_LLIO.mat").kind == "pyshoe"
 
 
+def test_pyshoe_positions_are_turned_into_a_right_handed_z_up_frame(tmp_path):
+    # the file's x, y belong to PyShoe's z-down frame: loaded x is the file's y and y its x
+    fields = pyshoe_fields()
+    rec = load_pyshoe(write_mat(tmp_path / "w.mat", fields))
+    np.testing.assert_array_equal(rec.position_ref.values, fields["gt"][:, ::-1])
+    np.testing.assert_array_equal(rec.meta["gcp"], fields["GCP"][:, ::-1])
+    np.testing.assert_array_equal(rec.meta["pyshoe_trajectory"], fields["pyshoeTrajectory"][:, ::-1])
+    assert "z-down" in rec.meta["position_frame"]
+
+
 def test_pyshoe_file_with_per_sample_timestamps_and_no_vicon(tmp_path):
     rec = load_pyshoe(write_mat(tmp_path / "SensorConnectData_1_LLIO.mat", pyshoe_fields(vicon=False)))
     assert rec.meta["time_field"] == "timestamps" and rec.acc.t[0] == 0.0

@@ -41,8 +41,8 @@ def split(events):
 
 @pytest.fixture(scope="module")
 def trial52():
-    from tests.conftest import shared_data_path
     from pdr.io import load
+    from tests.conftest import shared_data_path
 
     path = shared_data_path(IPIN_TRIAL52)
     with warnings.catch_warnings():
@@ -177,7 +177,7 @@ def test_anchor_floor_moves_height_and_floor():
 
 @pytest.mark.recording
 def test_eval_ipin_command_scores_landmarks(trial52, tmp_path):
-    from service.cli import app
+    from client.cli import app
     from tests.conftest import shared_data_path
 
     path = shared_data_path(IPIN_TRIAL52)

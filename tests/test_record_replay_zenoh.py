@@ -10,9 +10,9 @@ import typer
 import zenoh
 from typer.testing import CliRunner
 
-from service.record_cli import client_config, record, record_command, replay, replay_command
-from service.recorder import IncidentRecorder, read_recording
-from service.zenoh_config import free_local_port, router_config
+from service.cli.record import record, record_command, replay, replay_command
+from service.protocol.session import client_config, free_local_port, router_config
+from service.review.recorder import IncidentRecorder, read_recording
 
 TIMEOUT_S = 10.0
 

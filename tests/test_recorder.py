@@ -14,8 +14,12 @@ import msgpack
 import numpy as np
 import pytest
 
-from service.recorder import (
-    IncidentRecorder, RecordingWriteError, TruncatedRecordingWarning, read_recording, recording_summary,
+from service.review.recorder import (
+    IncidentRecorder,
+    RecordingWriteError,
+    TruncatedRecordingWarning,
+    read_recording,
+    recording_summary,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -121,7 +125,7 @@ def test_bad_input_is_refused_with_the_key_named(tmp_path):
 # ------------------------------------------------------------------------------------------
 CHILD = """
 import sys, time
-from service.recorder import IncidentRecorder
+from service.review.recorder import IncidentRecorder
 interval = float(sys.argv[2])
 with IncidentRecorder(sys.argv[1], "crash", chunk_size=1 << 20, flush_interval_s=interval) as rec:
     i = 0
@@ -224,7 +228,7 @@ FULL_CHILD = """
 import json, resource, signal, sys
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit then fails with EFBIG instead of killing
 resource.setrlimit(resource.RLIMIT_FSIZE, (20000, 20000))
-from service.recorder import IncidentRecorder, RecordingWriteError
+from service.review.recorder import IncidentRecorder, RecordingWriteError
 rec = IncidentRecorder(sys.argv[1], "demo", chunk_size=2048)
 try:
     for i in range(100000):

@@ -1,17 +1,16 @@
 """Recording a live multi-person exercise and reprocessing it offline: the same poses."""
 from __future__ import annotations
 
-import pytest
-
 import json
 
+import pytest
 from typer.testing import CliRunner
 
 from client.simulate import SimulationPublisher
-from service.incident import default_incident
-from service.recorder import IncidentRecorder, read_recording, recording_summary
-from service.reprocess import reprocess
-from service.server import IncidentService, ServiceSettings
+from service.protocol.incident import default_incident
+from service.review.recorder import IncidentRecorder, read_recording, recording_summary
+from service.review.reprocess import reprocess
+from service.shell.service import IncidentService, ServiceSettings
 from tests.zenoh_util import client, router, wait_until
 
 
@@ -50,7 +49,7 @@ def test_four_person_exercise_recorded_live_then_reprocessed_gives_identical_pos
 
 
 def test_exercise_and_reprocess_commands(tmp_path, shared_data):
-    from service.cli import app
+    from client.cli import app
 
     d = shared_data("ipin2023")
     files = sorted(d.glob("IPIN2023_T3_TrainingTrial2*_repetition01.txt.gz"))[:2]
@@ -74,7 +73,7 @@ def test_exercise_and_reprocess_commands(tmp_path, shared_data):
 
 
 def test_bad_exercise_arguments_are_refused(tmp_path):
-    from service.cli import app
+    from client.cli import app
 
     r = CliRunner().invoke(app, ["exercise", "--out", str(tmp_path / "x.mcap"), "--responder", "nofile"])
     assert r.exit_code == 2 and "ID=FILE" in r.output
@@ -83,7 +82,8 @@ def test_bad_exercise_arguments_are_refused(tmp_path):
 
 
 def test_simulated_walkers_all_publish_in_real_time():
-    from tests.zenoh_util import client as _client, router as _router
+    from tests.zenoh_util import client as _client
+    from tests.zenoh_util import router as _router
 
     session, endpoint = _router()
     cl = _client(endpoint)
@@ -102,8 +102,8 @@ def test_simulated_walkers_all_publish_in_real_time():
 def test_reprocess_reads_a_recording_of_another_incident_id(tmp_path):
     cfg = default_incident()
     path = tmp_path / "other.mcap"
-    from service import wire
     from pdr.synthetic import static_imu
+    from service.protocol import wire
 
     imu = static_imu(seconds=5.0, rate_hz=50.0)
     with IncidentRecorder(path, "drill-7") as rec:
@@ -111,3 +111,66 @@ def test_reprocess_reads_a_recording_of_another_incident_id(tmp_path):
             rec.write(wire.key("drill-7", "ff1", "imu"), wire.encode(b), 1000.0 + 0.1 * k)
     rep = reprocess(path, cfg)
     assert rep["inputs"] == 50 and set(rep["responders"]) == {"ff1"}
+
+
+@pytest.mark.recording
+@pytest.mark.bitexact
+def test_handheld_and_boot_mounted_wearers_live_then_reprocessed_give_identical_poses(tmp_path, shared_data):
+    """Issue 16: an IPIN walk (phone in the hand) and a PyShoe walk (IMU on the boot), built into
+    one exercise, replayed at 20x through a live service that records, then reprocessed."""
+    from pdr.events import MotionState
+    from service.cli.record import replay
+    from service.review.reprocess import build_exercise
+
+    cfg = default_incident()
+    ipin = shared_data("ipin2023/IPIN2023_T3_TrainingTrial21_repetition01.txt.gz")
+    boot = shared_data("pyshoe-vicon/2017-11-22-11-26-05_LLIO.mat")
+    exercise = tmp_path / "two.mcap"
+    build_exercise([("hand", ipin), ("boot", boot)], exercise, cfg, landmark_every=3, gnss=False)
+    session, endpoint = router()
+    live = tmp_path / "live.mcap"
+    recorder = IncidentRecorder(live, cfg.id)
+    svc = IncidentService(session, cfg, ServiceSettings(), recorder=recorder).start()
+    sent = replay(exercise, endpoint, speed=20.0, quiet=True, wait_for_subscribers_s=5.0)
+    frames = sum(n for k, n in sent["keys"].items() if k.endswith("/imu"))
+    assert wait_until(lambda: svc.frames_processed >= frames, 60)
+    svc.wait_idle(10)
+    boot_tracker = svc.responders["boot"].tracker
+    assert type(boot_tracker.model).__name__ == "ZuptMotionModel"  # carry="foot" chose the INS
+    assert type(svc.responders["hand"].tracker.model).__name__ == "PdrPipeline"
+    svc.close()
+    recorder.close()
+    session.close()
+    rep = reprocess(live, cfg)
+    assert set(rep["responders"]) == {"hand", "boot"}
+    for rid in ("hand", "boot"):
+        r = rep["responders"][rid]
+        assert r["steps"] > 10 and r["recorded_poses"] == r["poses"] > 10, (rid, r)
+        assert r["max_deviation_m"] == 0.0, rid  # bit for bit, under 20x load
+    assert rep["responders"]["boot"]["distance_m"] > 10  # strides walked, not a standing boot
+    assert MotionState.NO_MOTION is not boot_tracker.motion[0]
+
+
+@pytest.mark.recording
+def test_replaying_an_exercise_the_service_already_has_says_what_to_do(tmp_path, shared_data):
+    """Issue 18: the same frames twice are rejected as duplicates; the replay says so up front."""
+    from service.cli.record import replay
+    from service.review.reprocess import build_exercise
+
+    cfg = default_incident()
+    exercise = tmp_path / "one.mcap"
+    build_exercise([("r1", shared_data("ipin2023/IPIN2023_T3_TrainingTrial21_repetition01.txt.gz"))], exercise, cfg,
+                   gnss=False)
+    session, endpoint = router()
+    svc = IncidentService(session, cfg, ServiceSettings(), recorder=None).start()
+    try:
+        sent = replay(exercise, endpoint, speed=0.0, quiet=True, wait_for_subscribers_s=5.0)
+        frames = sum(n for k, n in sent["keys"].items() if k.endswith("/imu"))
+        assert wait_until(lambda: svc.frames_processed >= frames, 60)
+        with pytest.raises(ValueError, match=r"already tracks r1 .*--as-incident"):
+            replay(exercise, endpoint, speed=0.0, quiet=True)
+        again = replay(exercise, endpoint, speed=0.0, quiet=True, incident=f"{cfg.id}-replay")
+        assert again["messages"] == sent["messages"]  # under a new incident id it goes out
+    finally:
+        svc.close()
+        session.close()

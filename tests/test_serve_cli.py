@@ -11,13 +11,13 @@ import pytest
 from typer.testing import CliRunner
 
 from client.wearable import Wearable
-from service import wire
+from service.protocol import wire
 from tests.zenoh_util import client, free_port, wait_until
 
 
 def _serve(port: int, *extra: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "serve", "--no-console", "--listen", f"tcp/127.0.0.1:{port}", *extra],
+        [sys.executable, "-m", "client.cli", "serve", "--no-console", "--listen", f"tcp/127.0.0.1:{port}", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )
 
@@ -65,7 +65,7 @@ def test_serve_stops_cleanly_on_a_signal(sig):
 
 
 def test_serve_refuses_a_bad_config(tmp_path):
-    from service.cli import app
+    from client.cli import app
 
     bad = tmp_path / "incident.json"
     bad.write_text(json.dumps({"id": "x", "origin": {"lat": 200, "lon": 0, "alt_m": 0}}))
@@ -75,7 +75,7 @@ def test_serve_refuses_a_bad_config(tmp_path):
 
 
 def test_schema_command_writes_json_schema(tmp_path):
-    from service.cli import app
+    from client.cli import app
 
     out = tmp_path / "schema.json"
     r = CliRunner().invoke(app, ["schema", "--out", str(out)])
@@ -88,7 +88,7 @@ def test_schema_command_writes_json_schema(tmp_path):
 
 def test_load_bench_reports_every_figure_and_loses_nothing():
     """``firetrack bench`` end to end at a toy size: a real router, two workers, a publisher process."""
-    from service.load_bench import bench_service
+    from client.load_bench import bench_service
 
     r = bench_service(responders=6, seconds=6.0, workers=2, log=lambda m: None)
     for key in ("responders", "rate_hz", "samples_per_s", "realtime_factor", "latency_p50_ms", "latency_p99_ms",

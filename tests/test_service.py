@@ -8,14 +8,23 @@ import warnings
 
 import msgpack
 import numpy as np
+from pdr.floors import FloorElevations
 import pytest
 
-from client.wearable import Wearable, paced, recording_messages
+from client.wearable import Wearable
 from pdr.synthetic import static_imu
-from service import wire
-from service.incident import default_incident
-from service.server import IncidentService, ServiceSettings, decode_track
-from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker, tracker_settings_for
+from service.core.incident_core import Inbound, IncidentCore
+from service.core.tracker import (
+    CheckpointFix,
+    PoseEstimate,
+    ResponderTracker,
+    tracker_settings_for,
+)
+from service.protocol import wire
+from service.protocol.incident import default_incident
+from service.protocol.messages import recording_messages
+from service.protocol.pacing import paced
+from service.shell.service import IncidentService, ServiceSettings, decode_track
 from tests.zenoh_util import client, router, wait_until
 
 IPIN_TRIAL52 = "ipin2023/IPIN2023_T3_TrainingTrial52_repetition01.txt.gz"
@@ -53,8 +62,8 @@ class Collector:
 
 def offline_poses(cfg, msgs, responder):
     """The same messages through a ResponderTracker without any network: the reference."""
-    s = ServiceSettings()
-    tracker = ResponderTracker(responder, cfg.floor_elevations(), cfg.start_floor, tracker_settings_for(cfg),
+    s = ServiceSettings().core
+    tracker = ResponderTracker(responder, FloorElevations(cfg.elevations()), cfg.start_floor, tracker_settings_for(cfg),
                                entry=CheckpointFix(0.0, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m))
     from pdr.pipeline import ImuFrame
 
@@ -136,7 +145,7 @@ def test_several_responders_each_get_their_poses_and_status(live):
     assert by["charlie"] == []  # standing still: no steps, no poses
     for r in ("alpha", "bravo"):
         steps = [p.steps for p in by[r]]
-        assert steps == sorted(steps) and steps[-1] == svc.responders[r].tracker.pipeline.steps
+        assert steps == sorted(steps) and steps[-1] == svc.responders[r].tracker.steps
     st = {s.responder: s for s in status.decoded()}
     assert st["charlie"].motion in ("still", "no_motion") and st["alpha"].frames > 0
     # the track queryable answers per responder
@@ -180,7 +189,7 @@ def test_bad_frames_are_counted_and_harm_no_one(live):
     assert counts.get("duplicate", 0) + counts.get("late", 0) == 1
     assert svc.responders["good"].gate.counts == {}
     assert svc.responders["good"].gate.accepted == len(good)
-    st = svc.status_of(svc.responders["bad"], time.time())
+    st = svc.core.status_of(svc.responders["bad"], time.time())
     assert "rejected_frames" in st.alarms and st.rejected["msgpack"] == 1
     assert svc.errors == 0
     wg.close()
@@ -206,7 +215,7 @@ def test_motionless_responder_raises_man_down(live):
     for b in wire.imu_batches_from_arrays("echo", "dev", imu.t, imu.acc, imu.gyr, imu.mag, per_batch=5):
         w.send("imu", b)
     assert wait_until(lambda: "echo" in svc.responders and svc.responders["echo"].gate.accepted == 200, 20)
-    st = svc.status_of(svc.responders["echo"], time.time())
+    st = svc.core.status_of(svc.responders["echo"], time.time())
     assert st.motion == "no_motion" and "man_down" in st.alarms
     w.close()
 
@@ -239,8 +248,8 @@ def _simulated_messages(n_walkers=3, seconds=60.0, fix_every_s=7.0):
     return cfg, out
 
 
-def _poses(svc):
-    return [wire.decode(p) for k, p in svc.published if k.endswith("/pose")]
+def _poses(outputs):
+    return [o.message for o in outputs if isinstance(o.message, wire.Pose)]
 
 
 @pytest.mark.bitexact
@@ -248,22 +257,22 @@ def test_rounds_of_any_size_give_the_same_poses_bit_for_bit():
     """Behind, the worker joins a responder's frames into one pipeline batch; the poses must
     be those of one message at a time (what ``reprocess`` does), fixes included."""
     cfg, msgs = _simulated_messages()
-    one = IncidentService(None, cfg)
+    one, out_one = IncidentCore(cfg), []
     for kind, key, payload in msgs:
-        one.feed(kind, key, payload, 0.0)
+        out_one += one.feed(Inbound(kind, key, payload, 0.0))
     rng = np.random.default_rng(7)
-    rounds = IncidentService(None, cfg)
+    rounds, out_rounds = IncidentCore(cfg), []
     i = 0
     while i < len(msgs):
         n = int(rng.integers(1, 120))
-        rounds.feed_round([(kind, key, payload, 0.0) for kind, key, payload in msgs[i:i + n]])
+        out_rounds += rounds.feed_round([Inbound(kind, key, payload, 0.0) for kind, key, payload in msgs[i:i + n]])
         i += n
     # each responder's poses in order (between responders a round may reorder them)
-    a = sorted(_poses(one), key=lambda p: p.responder)
-    b = sorted(_poses(rounds), key=lambda p: p.responder)
-    assert rounds.errors == 0 and one.errors == 0
-    assert rounds.tracker_batches < 0.5 * one.tracker_batches  # frames were joined
-    assert rounds.frames_processed == one.frames_processed == sum(k == "imu" for k, _, _ in msgs)
+    a = sorted(_poses(out_one), key=lambda p: p.responder)
+    b = sorted(_poses(out_rounds), key=lambda p: p.responder)
+    assert rounds.counters.errors == 0 and one.counters.errors == 0
+    assert rounds.counters.tracker_batches < 0.5 * one.counters.tracker_batches  # frames were joined
+    assert rounds.counters.frames_processed == one.counters.frames_processed == sum(k == "imu" for k, _, _ in msgs)
     assert len(a) == len(b) > 100
     assert sum(p.source == "fused" for p in a) > 50  # the fixes were applied ...
     assert all(r.tracker.fixes_applied > 15 for r in rounds.responders.values())  # ... GNSS ones too
@@ -276,8 +285,8 @@ def test_rounds_of_any_size_give_the_same_poses_bit_for_bit():
 def test_warm_up_takes_a_responder_through_every_kind_of_fix():
     """The service warms its kernels, graph and codecs on a simulated responder before it
     subscribes; every kind of fix the incident supports must go through without an error."""
-    from service.incident import UwbAnchor
-    from service.warmup import warm_up
+    from service.core.warmup import warm_up
+    from service.protocol.incident import UwbAnchor
 
     cfg = default_incident()
     cfg = cfg.model_copy(update={"uwb_anchors": [UwbAnchor(id="A1", x=3.0, y=4.0)]})

@@ -328,7 +328,7 @@ def test_oxford_walk_streamed_in_live_batches(shared_data):
 def test_eval_steps_command_json(shared_data):
     from typer.testing import CliRunner
 
-    from service.cli import app
+    from client.cli import app
 
     walk = shared_data(OXFORD_WALKS[0])
     result = CliRunner().invoke(app, ["eval", "steps", str(walk), "--json"])
@@ -357,7 +357,7 @@ def _oxford_files(tmp_path):
 def test_eval_steps_command_reports_files_without_a_count(tmp_path):
     from typer.testing import CliRunner
 
-    from service.cli import app
+    from client.cli import app
 
     validation, walk = _oxford_files(tmp_path)
     result = CliRunner().invoke(app, ["eval", "steps", str(validation), str(walk), "--json"])

@@ -6,8 +6,13 @@ import numpy as np
 from pdr.floors import FloorElevations
 from pdr.pipeline import frames_of
 from pdr.synthetic import static_imu
+from service.core.tracker import (
+    CheckpointFix,
+    PoseEstimate,
+    ResponderTracker,
+    TrackerSettings,
+)
 from service.fusion import GnssFix
-from service.tracker import CheckpointFix, PoseEstimate, ResponderTracker, TrackerSettings
 
 
 def _walk_frames(seconds=20.0, rate=50.0):

@@ -1,4 +1,4 @@
-"""The wire schema and codec (service.wire): round trips, byte layout, every reject reason, fuzz."""
+"""The wire schema and codec (service.protocol.wire): round trips, byte layout, every reject reason, fuzz."""
 from __future__ import annotations
 
 import json
@@ -14,8 +14,8 @@ from hypothesis.extra import numpy as hnp
 from pydantic import ValidationError
 from typer.testing import CliRunner
 
-from service import wire
-from service.wire import (
+from service.protocol import wire
+from service.protocol.wire import (
     MAX_SAMPLES,
     REJECT_REASONS,
     SCHEMA_VERSION,
@@ -263,8 +263,8 @@ def test_missing_field_is_schema():
 
 
 @pytest.mark.parametrize("fix, words", [
-    ({"source": "gnss", "lat": 49.0, "lon": 11.0}, "missing: accuracy"),
-    ({"source": "uwb", "anchor": "A1", "range": 2.0}, "missing: sigma"),
+    ({"source": "gnss", "lat": 49.0, "lon": 11.0}, "accuracy: Field required"),
+    ({"source": "uwb", "anchor": "A1", "range": 2.0}, "sigma: Field required"),
     ({"source": "checkpoint"}, "a checkpoint name or x and y"),
     ({"source": "checkpoint", "x": 1.0}, "x and y together"),
     ({"source": "gnss", "lat": 49.0, "lon": 11.0, "accuracy": 3.0, "anchor": "A1"}, "anchor: not part of a gnss fix"),
@@ -564,7 +564,7 @@ def test_json_schema_describes_every_kind():
 def test_schema_command_writes_stdout_and_file(tmp_path):
     import typer
 
-    from service import schema_cli
+    from service.cli import schema as schema_cli
 
     app = typer.Typer()
     app.command("schema")(schema_cli.schema_command)
@@ -585,7 +585,7 @@ def test_the_wire_module_needs_neither_gtsam_nor_zenoh():
     import subprocess
     import sys
 
-    code = ("import sys, service.wire, service.ingest; "
+    code = ("import sys, service.protocol.wire, service.core.gate; "
             "bad = [m for m in ('gtsam', 'zenoh', 'numba') if m in sys.modules]; assert not bad, bad")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr

@@ -5,7 +5,8 @@ import time
 
 import zenoh
 
-from service.zenoh_config import client_config, free_local_port as free_port, router_config
+from service.protocol.session import client_config, router_config
+from service.protocol.session import free_local_port as free_port
 
 
 def router(port: int | None = None) -> tuple[zenoh.Session, str]:

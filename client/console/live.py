@@ -1,7 +1,7 @@
 """What the console knows now: the latest pose and status of every responder, batched for the page.
 
 Zenoh delivers ``.../pose`` and ``.../status`` samples on its own threads; :class:`LiveBoard`
-decodes each one (:func:`service.wire.decode`), keeps the latest per responder and a short
+decodes each one (:func:`service.protocol.wire.decode`), keeps the latest per responder and a short
 trail of positions, and marks the responder changed. The web server takes the changes every
 batch period (:meth:`LiveBoard.take_changes`) and sends them as ONE message to every page, so
 200 responders at 2 Hz become about 7 messages a second per page instead of 800.
@@ -20,7 +20,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from service import wire
+from service.protocol import wire
 
 log = logging.getLogger("firetrack.console")
 

@@ -5,7 +5,7 @@ A surveyed plan can be far larger than a browser should hold (the IPIN museum's 
 smallest that makes it at most :data:`MAX_SERVED_WIDTH_PX` wide and tall). With whole-factor
 blocks, served pixel ``(i, j)`` covers exactly the original pixels ``[f i, f (i+1)) x
 [f j, f (j+1))``, so with the plan's affine map ``[x, y] = M [u, v, 1]`` (see
-:mod:`service.incident`) the served image's map is exact::
+:mod:`service.protocol.incident`) the served image's map is exact::
 
     M_served = M @ diag(f, f, 1)        (u = f u', v = f v')
 
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.incident import FloorPlan, IncidentConfig
+from service.protocol.incident import FloorPlan, IncidentConfig
 
 MAX_SERVED_WIDTH_PX = 4096  # browsers handle this size well; the museum plan becomes 3573 x 1690
 INK_GAMMA = 2.2  # out = 255 (in/255)^gamma: light grey 200 -> 149, white stays white, black stays black

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.zenoh_config import free_local_port
+from service.protocol.session import free_local_port
 
 CHROMIUM = "/usr/bin/chromium"
 FRAME_S = 0.1  # device seconds per IMU frame, as a wearable sends them
@@ -27,23 +27,22 @@ def take_screenshot(out: Path, walkers: int = 7, seconds: float = 75.0, collapse
                     chromium: str = CHROMIUM) -> Path:
     """Run the demo for ``seconds`` of device time (fast, then the last seconds live) and save
     the console as PNG at ``out``."""
-    import zenoh
     from playwright.sync_api import sync_playwright
 
     from client.console.server import start_console
     from client.wearable import Wearable
     from pdr.simulation import WalkerFleet
-    from service import wire
-    from service.incident import default_incident
-    from service.server import IncidentService
-    from service.zenoh_config import client_config, router_config
+    from service.protocol import wire
+    from service.protocol.incident import default_incident
+    from service.protocol.session import open_client, open_session
+    from service.shell.service import IncidentService
 
     cfg = default_incident()
     endpoint = f"tcp/127.0.0.1:{free_local_port()}"
-    session = zenoh.open(router_config([endpoint]))
+    session = open_session([endpoint])
     svc = IncidentService(session, cfg).start()
     console = start_console(session, cfg, port=free_local_port())
-    cl = zenoh.open(client_config(endpoint))
+    cl = open_client(endpoint)
     names = [f"E{k + 1}-{n}" for k, n in enumerate(["Weber", "Kaya", "Novak", "Schmidt", "Rossi", "Berg", "Lang",
                                                     "Hahn", "Vogel"][:walkers])]
     # inside the museum's surveyed area, ground floor (the checkpoints t01-* and t52-lm1 lie there)

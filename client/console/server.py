@@ -17,7 +17,7 @@ HTTP API (JSON; errors are ``{"error": "..."}`` with a 4xx status naming what is
 ``GET /api/tracks``     every responder's track (one wildcard query), for the review slider
 ``GET /api/state``      what the console holds now (poses, statuses, trails, reject counts)
 ``POST /api/fix``       ``{responder, x, y, floor}`` or ``{responder, name}`` [``sigma``]: publish a
-                        checkpoint :class:`service.wire.Fix` stamped with the responder's latest
+                        checkpoint :class:`service.protocol.wire.Fix` stamped with the responder's latest
                         device time, ``operator="console"``
 ``POST /api/checkpoint``  ``{name, x, y, floor}`` [``sigma_m``, ``note``]: add a named checkpoint
 ======================  =========================================================================
@@ -45,8 +45,8 @@ from aiohttp import WSMsgType, web
 from client.console.live import LiveBoard
 from client.console.plans import grid_matrix, plan_png, plan_problem, served_plan
 from pdr.events import bearing_deg
-from service import wire
-from service.incident import IncidentConfig, UnknownCheckpointError
+from service.protocol import wire
+from service.protocol.incident import IncidentConfig, UnknownCheckpointError
 
 log = logging.getLogger("firetrack.console")
 
@@ -343,7 +343,9 @@ class ConsoleServer:
     # ------------------------------------------------------------------ tracks
     def _query_tracks(self, key: str) -> dict[str, dict]:
         """Blocking zenoh query (run in an executor): responder -> track as JSON-ready lists."""
-        from service.wire import decode_track  # the reply format is defined once, with the wire format
+        from service.protocol.wire import (
+            decode_track,  # the reply format is defined once, with the wire format
+        )
 
         out = {}
         for reply in self.session.get(key, timeout=TRACK_QUERY_TIMEOUT_S):

@@ -18,6 +18,14 @@ MATLAB v5 variables (N samples, S strides):
 
 Other variables (``euler_angles``, ``acc_n``, ``traj_wcf``, ...) are derived results and are
 listed in ``meta["other_fields"]`` but not loaded.
+
+Handedness. PyShoe navigates in a z-down frame (it adds +g to the vertical specific force,
+as in NED), and ``gt``, ``GCP`` and ``pyshoeTrajectory`` are the x, y of that frame: with z
+up they form a *left*-handed frame, the mirror image of ENU (an INS integrating the same
+IMU in ENU draws the walk mirrored, and no rotation aligns the two). The loader therefore
+swaps the two axes — ``(x, y)_loaded = (y, x)_file``, i.e. x = the file's y ("east" of a
+north-east-down frame) and y = the file's x ("north") — so that every loaded position is
+in a right-handed, z-up horizontal frame. ``meta["position_frame"]`` says so.
 """
 from __future__ import annotations
 
@@ -52,6 +60,7 @@ def load_pyshoe(path: str | Path) -> Recording:
     stride_index = vector(m, "strideIndex", path, required=False)
     gcp = matrix(m, "GCP", 2, path, required=False, finite=False)
     t, time_field = _sample_time(m, imu.shape[0], stride_index, path, notes)
+    gt, peer, gcp = (None if a is None else a[:, ::-1].copy() for a in (gt, peer, gcp))  # z-down x, y -> z-up
 
     aligned = {"imu_data": imu, time_field: t, "gt": gt, "pyshoeTrajectory": peer}
     aligned = {k: v for k, v in aligned.items() if v is not None}
@@ -78,8 +87,10 @@ def load_pyshoe(path: str | Path) -> Recording:
     }
     if peer is not None:
         meta["pyshoe_trajectory"] = peer
+    meta["carry"] = "foot"  # a boot-mounted IMU (the wire's carry name)
+    meta["position_frame"] = "x = the file's y, y = the file's x (the file's x, y are of a z-down frame), m"
     if gt is not None:
-        meta["position_ref_frame"] = "Vicon room frame, x y in m"
+        meta["position_ref_frame"] = "Vicon room frame, axes swapped to right-handed z-up (see position_frame), m"
     if stride_index is not None:
         stride_t = None
         if time_field == "timestamps_all" and "timestamps" in m:

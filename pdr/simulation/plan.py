@@ -38,16 +38,40 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from pdr.angles import wrap
 from pdr.simulation.motion import (
-    NPC, NSEG, NTR, PC_PHI0, SEG_DP, SEG_DR, SEG_DY, SEG_R0, SEG_EA, SEG_EB, SEG_F, SEG_HI, SEG_LO, SEG_P0, SEG_PHI0, SEG_T0,
-    SEG_T1, SEG_TA, SEG_TO, SEG_TR, SEG_Y0, corner_cut, phase_profile, smooth_step, sway_at,
+    NPC,
+    NSEG,
+    NTR,
+    PC_PHI0,
+    SEG_DP,
+    SEG_DR,
+    SEG_DY,
+    SEG_EA,
+    SEG_EB,
+    SEG_F,
+    SEG_HI,
+    SEG_LO,
+    SEG_P0,
+    SEG_PHI0,
+    SEG_R0,
+    SEG_T0,
+    SEG_T1,
+    SEG_TA,
+    SEG_TO,
+    SEG_TR,
+    SEG_Y0,
+    corner_cut,
+    phase_profile,
+    smooth_step,
+    sway_at,
 )
-from pdr.simulation.settings import Route, WalkerSettings, random_start, random_waypoints
-
-
-def _wrap(a: float) -> float:
-    """Angle wrapped to [-π, π)."""
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+from pdr.simulation.settings import (
+    Route,
+    WalkerSettings,
+    random_start,
+    random_waypoints,
+)
 
 
 def _step_layout(parts, scale: float, lam_in: float | None) -> list[tuple[float, float, float, float]]:
@@ -250,7 +274,7 @@ class WalkerPlan:
             return
         psi = math.atan2(ay - self.y, ax - self.x)
         if self.stopped:  # turn on the spot towards the leg, then stand out the pause
-            spin = _wrap(psi - self.path_heading - self.yaw_offset)
+            spin = wrap(psi - self.path_heading - self.yaw_offset)
             if abs(spin) > 1e-9:
                 self._stand(max(s.spin_min_s, abs(spin) * s.spin_s_per_rad), self.yaw_offset, spin)
                 self.yaw_offset += spin
@@ -265,7 +289,7 @@ class WalkerPlan:
         turn = 0.0
         if not stop_end:
             lb = math.hypot(nxt[0] - ax, nxt[1] - ay)
-            turn = _wrap(math.atan2(nxt[1] - ay, nxt[0] - ax) - psi) if lb >= 1e-6 else 0.0
+            turn = wrap(math.atan2(nxt[1] - ay, nxt[0] - ax) - psi) if lb >= 1e-6 else 0.0
             if lb < 1e-6 or abs(turn) > s.max_walking_turn_rad:
                 stop_end = True
             elif abs(turn) > 1e-9:

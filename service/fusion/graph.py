@@ -130,6 +130,23 @@ class FusionEvent:
     values: dict = field(default_factory=dict)
 
 
+@dataclass
+class FixContext:
+    """What a fix type's ``factors(ctx)`` may use: the key of the pose at the fix's time, the
+    distance walked between that pose and the fix (add it to the sigma), the fusion settings,
+    the pose's current position estimate and ENU covariance (for a gate), and a way to say
+    why a fix is refused."""
+
+    key: int
+    slip: float  # m
+    settings: FusionSettings
+    position_marginal: object  # () -> (position (2,), covariance (2, 2)) in ENU
+    rejected: tuple[str, str] | None = None
+
+    def reject(self, reason: str, detail: str = "") -> None:
+        self.rejected = (reason, detail)
+
+
 _FIX_NAMES = {CheckpointFix: "checkpoint", GnssFix: "gnss", UwbRange: "uwb"}
 
 
@@ -263,6 +280,8 @@ class TrackFusion:
         ``gnss_accuracy``, ``gnss_gate``, ``uwb_gate``) and described in :attr:`events`.
         """
         self._require_started()
+        if hasattr(fix, "factors"):  # a registered fix type that brings its own factors
+            return self._add_own_factors(fix)
         what = _FIX_NAMES.get(type(fix))
         if what is None:
             raise TypeError(f"add_fix expects CheckpointFix, GnssFix or UwbRange, got {type(fix).__name__}")
@@ -314,6 +333,30 @@ class TrackFusion:
         if isinstance(fix, CheckpointFix) and fix.floor is not None:
             self._relabel_floor(row, int(fix.floor))
         self.events.append(FusionEvent(fix.t, "accepted", what, "", info))
+        return self._publish()
+
+    def _add_own_factors(self, fix) -> FusedPose | None:
+        """A fix of a registered type: ``fix.factors(ctx)`` gives its factors on the pose of its
+        time (``ctx.key``), or ``None`` to reject it (``ctx.reject(reason, detail)`` says why)."""
+        what = getattr(fix, "source", type(fix).__name__)
+        ts = self._hist.col("t")
+        if fix.t < ts[0] - self.settings.fix_before_start_tolerance_s:
+            return self._reject(fix, what, "before_start", f"{ts[0] - fix.t:.1f} s before the track started")
+        row = self._hist.nearest(fix.t)
+        if row < self._window_start:
+            return self._reject(fix, what, "too_old", f"{ts[-1] - fix.t:.1f} s old, window {self.settings.lag_s:.0f} s")
+        ctx = FixContext(X(row), self._slip(row, fix.t), self.settings, lambda: self._position_marginal(X(row)))
+        factors = fix.factors(ctx)
+        if not factors:
+            return self._reject(fix, what, ctx.rejected[0] if ctx.rejected else "rejected",
+                                ctx.rejected[1] if ctx.rejected else "", {"row": row})
+        graph = gtsam.NonlinearFactorGraph()
+        for f in factors:
+            graph.add(f)
+        self._smoother.update(graph, gtsam.Values(), {})
+        self._converge()
+        self._fused = True
+        self.events.append(FusionEvent(fix.t, "accepted", what, "", {"row": row, "slip_m": ctx.slip}))
         return self._publish()
 
     # ---------------------------------------------------------------- outputs

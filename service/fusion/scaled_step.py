@@ -30,6 +30,8 @@ import math
 import gtsam
 import numpy as np
 
+from pdr.angles import wrap
+
 
 def scaled_step_factor(prev_key: int, key: int, scale_key: int, length: float, turn: float,
                        noise: gtsam.noiseModel.Base) -> gtsam.CustomFactor:
@@ -51,7 +53,7 @@ def scaled_step_factor(prev_key: int, key: int, scale_key: int, length: float, t
         hx, hy = ca * dx + sa * dy, -sa * dx + ca * dy  # x_{k-1}⁻¹ x_k, translation
         rx, ry = hx - scale * length * cz, hy - scale * length * sz
         ex, ey = cz * rx + sz * ry, -sz * rx + cz * ry  # E = Z⁻¹ x_{k-1}⁻¹ x_k, translation
-        w = math.atan2(math.sin(b.theta() - ta - turn), math.cos(b.theta() - ta - turn))  # E, rotation
+        w = wrap(b.theta() - ta - turn)  # E, rotation
         e = _logmap(ex, ey, w)
         if jacobians is not None:
             j = gtsam.Pose2.LogmapDerivative(e)

@@ -1,0 +1,202 @@
+"""``firetrack bench --responders N --seconds S [--rate HZ] --json``: the service under load.
+
+N simulated wearables (:class:`client.simulate.SimulationPublisher`, in a separate process so
+they do not share the service's interpreter) publish 10 frames a second each through a real
+zenoh router on loopback — the service's own in-process router, as deployed by default —
+with reliable, blocking congestion control. The service runs as in production. The wearers
+start walking at random moments over the first ``start_spread_s`` (5 s by default; a crew does
+not take its first step in the same instant — and the pipeline confirms a walk by releasing
+its first four steps together, so 200 wearers starting at once make one burst of 800 graph
+updates; ``--start-spread 0`` measures that worst case). Figures:
+
+* ``samples_per_s`` — IMU samples the service processed per second of the run;
+* ``realtime_factor`` — samples processed per second of the worker's busy time, over the
+  samples the wearables produce per second (N·rate): above 1 the service keeps up, and by
+  how much (2 = it could take twice the load);
+* ``latency_p50_ms``/``latency_p99_ms`` — from a frame's publication (wall clock in the
+  publisher) to the publication of the pose that reflects it, same machine. When the worker
+  ran several frames of the responder through its tracker as one batch (it does when it is
+  behind), the clock starts at the oldest frame of that batch, not the newest
+  (``Pose.seq``), so batching cannot flatter the figure. Steady state: after each wearable's first 3 s (``latency_warmup_max_ms`` is the worst
+  of those, when numba kernels compile and trackers start);
+* ``frames_sent``/``frames_processed``/``frames_lost`` — lost = sent but never processed, and
+  ``frames_not_processed`` says why (the gates' rejects by reason, frames declared lost, held);
+* ``rss_mb`` — peak resident memory of the service process (router included).
+"""
+from __future__ import annotations
+
+import contextlib
+import cProfile
+import io
+import multiprocessing as mp
+import pstats
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from service.protocol.session import free_local_port
+from service.protocol.terminal import err, print_json
+from service.shell.sharding import in_shard
+from service.shell.workers import WorkerPool
+
+
+def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float, seed: int, out: str,
+               ready, go, start_spread_s: float) -> None:  # pragma: no cover - runs in the child process
+
+    from client.simulate import SimulationPublisher
+    from service.protocol.session import open_client
+
+    session = open_client(endpoint)
+    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s)
+    frames = int(seconds * 10) + 20
+    send_t = np.full((n, frames), np.nan)
+
+    def on_frame(i, seq, t):
+        if seq < frames:
+            send_t[i, seq] = t
+
+    pub.step(1)  # the first (door) fixes and one frame: declarations settle before timing starts
+    ready.set()
+    go.wait(60)
+    cpu0 = time.process_time()
+    sent = 1 + pub.run(seconds, on_frame=lambda i, s, t: on_frame(i, s, t)) // max(n, 1)
+    np.savez(out, send_t=send_t, frames_per_walker=sent, cpu=time.process_time() - cpu0)
+    pub.close()
+    session.close()
+
+
+def _summed(dicts) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for d in dicts:
+        for k, v in d.items():
+            out[k] = out.get(k, 0) + v
+    return out
+
+
+WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers and graphs are built
+
+
+def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
+                  profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2,
+                  start_spread_s: float = 5.0) -> dict:
+
+    from service.protocol.incident import default_incident
+    from service.protocol.session import open_session
+    from service.shell.service import IncidentService, ServiceSettings
+
+    endpoint = f"tcp/127.0.0.1:{free_local_port()}"
+    cfg = default_incident()
+    poses: list[tuple[str, int, float]] = []
+    prof = cProfile.Profile() if profile is not None else None
+    share0 = sum(in_shard(f"sim-{i:03d}", 0, workers) for i in range(responders))
+    with contextlib.ExitStack() as done:  # whatever fails, the processes, threads and sessions end
+        session = open_session([endpoint])
+        done.callback(session.close)
+        svc = IncidentService(session, cfg, ServiceSettings(), shard=(0, workers))
+        svc.pose_hook = lambda rid, msg, oldest: poses.append((rid, oldest, msg.published_at))
+        svc.profiler = prof
+        done.callback(svc.close)
+        svc.start()
+        stats_dir = done.enter_context(tempfile.TemporaryDirectory(prefix="firetrack-bench-"))
+        pool = WorkerPool(endpoint, cfg, workers, stats_dir, log_poses=True)
+        done.callback(pool.close)
+        if not pool.wait_ready(120):
+            raise RuntimeError("the service workers did not start within 120 s")
+        ctx = mp.get_context("spawn")
+        ready, go = ctx.Event(), ctx.Event()
+        out = str(Path(stats_dir) / "sent.npz")
+        child = ctx.Process(target=_publisher, args=(endpoint, cfg.id, responders, seconds, rate, seed, out, ready, go,
+                                                            start_spread_s))
+        child.start()
+        done.callback(lambda: child.kill() if child.is_alive() else None)
+        if not ready.wait(120):
+            raise RuntimeError("the simulated wearables did not start within 120 s")
+        log(f"{responders} wearables connected; running {seconds:g} s at {rate:g} Hz ...")
+        busy0, frames0, t0 = svc.busy_s, svc.frames_processed, time.monotonic()
+        calls0 = svc.tracker_batches
+        go.set()
+        child.join(seconds + 120)
+        if child.exitcode != 0:
+            raise RuntimeError(f"the publisher process failed (exit code {child.exitcode})")
+        sent = np.load(out)
+        send_t, per_walker, publisher_cpu = sent["send_t"], int(sent["frames_per_walker"]), float(sent["cpu"])
+        frames_sent = per_walker * responders
+        deadline = time.monotonic() + drain_s
+        while svc.frames_processed < per_walker * share0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        svc.wait_idle(5.0)
+        others = pool.close()
+        wall = time.monotonic() - t0
+        accounting = [svc.frame_accounting()] + [s.get("frames_not_processed", {}) for s in others]
+    per_sample = rate / 10.0
+    # counts from the start (the first frame of each wearable went out before the timed run);
+    # capacity from what was processed while the worker's busy time was being counted
+    shards = [{"frames_processed": svc.frames_processed, "frames_timed": svc.frames_processed - frames0,
+               "busy_s": svc.busy_s - busy0, "responders": share0,
+               "tracker_batches": svc.tracker_batches - calls0}] + others
+    processed = sum(s["frames_processed"] for s in shards)
+    samples = sum(s.get("frames_timed", s["frames_processed"]) for s in shards) * per_sample
+    capacity = [(s.get("frames_timed", s["frames_processed"]) * per_sample / s["busy_s"]) / (s["responders"] * rate)
+                for s in shards if s["busy_s"] > 0 and s["responders"]]
+    for s in others:
+        poses += [tuple(p) for p in s["poses"]]
+    lat, warm = [], []
+    index = {f"sim-{i:03d}": i for i in range(responders)}
+    for rid, seq, pub in poses:
+        i = index.get(rid)
+        if i is not None and seq < send_t.shape[1] and np.isfinite(send_t[i, seq]):
+            (warm if seq < WARMUP_FRAMES else lat).append(pub - send_t[i, seq])
+    lat = np.array(lat) * 1e3
+    warm = np.array(warm) * 1e3
+    result = {
+        "responders": responders,
+        "rate_hz": rate,
+        "seconds": seconds,
+        "start_spread_s": start_spread_s,
+        "samples_per_s": samples / wall,
+        "realtime_factor": min(capacity) if capacity else None,
+        "latency_p50_ms": float(np.percentile(lat, 50)) if lat.size else None,
+        "latency_p99_ms": float(np.percentile(lat, 99)) if lat.size else None,
+        "latency_warmup_max_ms": float(warm.max()) if warm.size else None,
+        "frames_sent": frames_sent,
+        "frames_processed": processed,
+        "frames_lost": frames_sent - processed,
+        "frames_not_processed": _summed(accounting),
+        "poses": len(poses),
+        "workers": workers,
+        "frames_per_tracker_batch": round(sum(s.get("frames_timed", s["frames_processed"]) for s in shards)
+                                          / max(sum(s["tracker_batches"] for s in shards), 1), 2),
+        "worker_busy_fraction": [round(s["busy_s"] / wall, 3) for s in shards],
+        "publisher_cpu_s": publisher_cpu,
+        "rss_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+                   + resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0,
+    }
+    if prof is not None:
+        buf = io.StringIO()
+        pstats.Stats(prof, stream=buf).sort_stats("cumulative").print_stats(30)
+        Path(profile).write_text(buf.getvalue())
+        result["profile"] = str(profile)
+    return result
+
+
+def bench_service_command(
+    ctx: typer.Context,
+    responders: int = typer.Option(200, "--responders", "-n", help="simulated wearables"),
+    seconds: float = typer.Option(30.0, "--seconds", help="length of the run, s"),
+    rate: float = typer.Option(100.0, "--rate", help="IMU rate of each wearable, Hz"),
+    as_json: bool = typer.Option(False, "--json", help="print JSON only"),
+    profile: Path = typer.Option(None, "--profile", help="profile the service's worker; write the top functions here"),
+    workers: int = typer.Option(2, "--workers", help="service worker processes (one per core)"),
+    start_spread: float = typer.Option(5.0, "--start-spread",
+                                       help="s over which the wearers start walking (0: all in the same instant)"),
+):
+    """N simulated wearables through a real zenoh router against the service (see client/load_bench.py)."""
+    if ctx.invoked_subcommand is not None:
+        return
+    result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers,
+                           start_spread_s=start_spread)
+    print_json(result)

@@ -1,0 +1,115 @@
+"""``firetrack reprocess`` and ``firetrack exercise``: after-action review of recorded incidents."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import typer
+from rich.table import Table
+
+from service.protocol.terminal import err, fail, out, print_json, warn
+
+
+def _cfg(config: Path | None):
+    from service.protocol.incident import (
+        IncidentConfigError,
+        default_incident,
+        load_incident,
+    )
+
+    try:
+        return load_incident(config) if config else default_incident()
+    except IncidentConfigError as e:
+        fail(str(e))
+        raise typer.Exit(2)
+
+
+def reprocess_command(
+    file: Path = typer.Argument(..., help="an incident recording (.mcap) from serve --record, record or exercise"),
+    config: Path = typer.Option(None, "--config", help="incident config (default: the IPIN museum demo)"),
+    as_json: bool = typer.Option(False, "--json", help="print JSON"),
+    export: Path = typer.Option(None, "--export", help="write the smoothed tracks here: tracks.geojson, tracks.csv, <responder>.tum"),
+):
+    """Run the service pipeline offline over the recorded inputs and compare with the poses recorded live."""
+    from service.review.reprocess import reprocess
+
+    if not file.is_file():
+        fail(f"{file}: no such recording")
+        raise typer.Exit(2)
+    cfg = _cfg(config)
+    import warnings
+
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rep = reprocess(file, cfg)
+    except (ValueError, OSError) as e:
+        fail(str(e))
+        raise typer.Exit(1)
+    for w in caught:  # a torn recording: one clear line, not a Python warning
+        warn(str(w.message))
+    tracks = rep.pop("tracks")
+    if rep["errors"]:
+        fail(f"{file}: {rep['errors']} message(s) raised an error while reprocessing (see the log above); "
+             "the other messages were processed")
+    if export is not None:
+        try:
+            _export(tracks, cfg, export)
+        except (ValueError, OSError) as e:
+            fail(f"export to {export}: {e}")
+            raise typer.Exit(1)
+    if as_json:
+        print_json({k: (None if isinstance(v, float) and math.isinf(v) else v) for k, v in rep.items()})
+        return
+    table = Table(title=f"reprocessed {file.name}: {rep['inputs']} inputs in {rep['cpu_s']:.2f} s CPU"
+                        + (f" ({rep['realtime_factor']:.0f}x real time)" if rep["realtime_factor"] else ""))
+    for col in ("responder", "steps", "distance m", "poses", "recorded", "max deviation m"):
+        table.add_column(col, justify="left" if col == "responder" else "right")
+    for rid, r in rep["responders"].items():
+        dev = r["max_deviation_m"]
+        table.add_row(rid, str(r["steps"]), f"{r['distance_m']:.1f}", str(r["poses"]), str(r["recorded_poses"]),
+                      "—" if dev is None else f"{dev:.3g}")
+    out.print(table)
+
+
+def _export(tracks: dict, cfg, folder: Path) -> None:
+    from pdr.floors import FloorElevations
+    from service.review.export import to_csv, to_geojson, to_tum
+
+    folder.mkdir(parents=True, exist_ok=True)
+    origin = (cfg.origin.lat, cfg.origin.lon, cfg.origin.alt_m)
+    floors = FloorElevations(cfg.elevations())
+    (folder / "tracks.geojson").write_text(json.dumps(to_geojson(tracks, origin, floors)))
+    to_csv(tracks, folder / "tracks.csv", origin, floors)
+    for rid, tr in tracks.items():
+        to_tum(tr, folder / f"{rid}.tum", floors)
+    err.print(f"wrote {len(tracks)} track(s) to {folder}/ (tracks.geojson, tracks.csv, <responder>.tum)")
+
+
+def exercise_command(
+    responder: list[str] = typer.Option(..., "--responder", help="ID=FILE: responder ID walks recording FILE; repeat"),
+    out_file: Path = typer.Option(..., "--out", help="the exercise recording to write (.mcap)"),
+    config: Path = typer.Option(None, "--config", help="incident config (default: the IPIN museum demo)"),
+    landmark_every: int = typer.Option(0, "--landmark-every", help="also send every K-th landmark as a checkpoint fix"),
+    gnss: bool = typer.Option(True, "--gnss/--no-gnss", help="include the recordings' GNSS fixes"),
+    overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file"),
+):
+    """Combine single-person recordings into one multi-person exercise with aligned start times."""
+    from pdr.io.errors import RecordingFormatError
+    from service.review.reprocess import build_exercise
+
+    members = []
+    for item in responder:
+        rid, sep, path = item.partition("=")
+        if not sep or not rid or not path:
+            fail(f"--responder expects ID=FILE, got {item!r}")
+            raise typer.Exit(2)
+        members.append((rid, Path(path)))
+    try:
+        result = build_exercise(members, out_file, _cfg(config), landmark_every=landmark_every, gnss=gnss,
+                                overwrite=overwrite)
+    except (RecordingFormatError, OSError, ValueError) as e:
+        fail(str(e))
+        raise typer.Exit(1)
+    out.print(f"wrote {result['file']}: {len(result['responders'])} responders, {result['duration_s']:.0f} s")

@@ -1,0 +1,121 @@
+"""``firetrack serve``: the live service of one incident (router, service, recorder, console).
+
+The console is the client layer's (``client/console``): the top of the house, where the
+``firetrack`` command is assembled (``client/cli.py``), hands its starter to
+:func:`set_console_starter`, so this module never imports the client.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import typer
+
+from service.protocol.session import DEFAULT_ENDPOINT
+from service.protocol.terminal import (
+    err,
+    fail,
+    incident_or_exit,
+    out,
+    setup_logging,
+    stop_on_signals,
+)
+
+_console_starter: Callable | None = None  # (session, cfg, port) -> an object with close(); raises ValueError
+
+
+def set_console_starter(starter: Callable) -> None:
+    """Who serves the web console beside the service (set by ``client/cli.py``)."""
+    global _console_starter
+    _console_starter = starter
+
+
+def serve_command(
+    listen: list[str] = typer.Option(None, "--listen", help=f"endpoint(s) to listen on (default {DEFAULT_ENDPOINT}: an in-process router)"),
+    connect: list[str] = typer.Option(None, "--connect", help="join a standalone zenoh router instead (e.g. tcp/10.0.0.2:7447)"),
+    incident_id: str = typer.Option(None, "--incident", help="incident id (default: the config's, 'demo' for the demo)"),
+    config: Path = typer.Option(None, "--config", help="incident config (JSON or TOML); default: the IPIN museum demo"),
+    record: Path = typer.Option(None, "--record", help="record every message of the incident to this MCAP file"),
+    console: bool = typer.Option(True, "--console/--no-console", help="also serve the web console"),
+    port: int = typer.Option(8080, "--port", help="web console port"),
+    seconds: float = typer.Option(math.inf, "--seconds", help="stop after this long (default: until Ctrl-C)"),
+    workers: int = typer.Option(1, "--workers", help="worker processes sharing the responders (one per core)"),
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="log every responder, fix and reject"),
+):
+    """Run the service for one incident: one pipeline per responder, poses and status out."""
+    setup_logging(verbose)
+    cfg = incident_or_exit(config, incident_id)
+    if workers < 1:
+        fail(f"--workers must be at least 1, got {workers}")
+        raise typer.Exit(2)
+    if workers > 1 and record is not None:
+        fail("--record records one process's inputs; with --workers > 1 run `firetrack record` beside the service")
+        raise typer.Exit(2)
+    stop = stop_on_signals()
+    with running_service(cfg, listen, connect, record, console, port, workers=workers) as (svc, where):
+        out.print(f"[bold]firetrack[/] serving incident [bold]{cfg.id}[/] ({cfg.name}) on {where}")
+        if console:
+            out.print(f"console: http://127.0.0.1:{port}/")
+        stop.wait(None if math.isinf(seconds) else seconds)
+    out.print(f"stopped; {len(svc.responders)} responder(s), {svc.frames_processed} frames processed")
+
+
+class running_service:
+    """Context manager: session (router or client), service, optional recorder and console."""
+
+    def __init__(self, cfg, listen=None, connect=None, record: Path | None = None, console: bool = False,
+                 port: int = 8080, settings=None, workers: int = 1):
+        self.cfg, self.listen, self.connect, self.workers = cfg, listen, connect, workers
+        self.record, self.console, self.port, self.settings = record, console, port, settings
+        self._closers: list = []
+
+    def __enter__(self):
+        from service.protocol.session import open_session
+        from service.shell.service import IncidentService
+
+        try:
+            session = open_session(self.listen, self.connect)
+        except ConnectionError as e:
+            fail(str(e))
+            raise typer.Exit(1)
+        self._closers.append(session.close)
+        recorder = None
+        if self.record is not None:
+            from service.review.recorder import IncidentRecorder
+
+            recorder = IncidentRecorder(self.record, self.cfg.id).__enter__()
+            self._closers.append(lambda: recorder.__exit__(None, None, None))
+        svc = IncidentService(session, self.cfg, self.settings, recorder=recorder, shard=(0, self.workers)).start()
+        self._closers.append(svc.close)
+        if self.workers > 1:
+            from service.shell.workers import WorkerPool
+
+            ep = (self.connect or self.listen or [DEFAULT_ENDPOINT])[0].replace("0.0.0.0", "127.0.0.1")
+            pool = WorkerPool(ep, self.cfg, self.workers)
+            self._closers.append(pool.close)
+            if not pool.wait_ready(60):
+                err.print("[yellow]warning:[/] not every worker process started within 60 s")
+        if self.console:
+            if _console_starter is None:
+                self.__exit__(None, None, None)
+                fail("the web console is not installed here (pip install 'firetrack[console]'), or run with --no-console")
+                raise typer.Exit(1)
+            try:
+                handle = _console_starter(session, self.cfg, self.port)
+            except ValueError as e:  # the console's own errors (port in use, ...) are ValueErrors
+                self.__exit__(None, None, None)  # the service and session already opened
+                fail(str(e))
+                raise typer.Exit(1)
+            self._closers.append(handle.close)
+        where = ", ".join(self.connect) if self.connect else ", ".join(self.listen or [DEFAULT_ENDPOINT])
+        self.service = svc
+        return svc, where
+
+    def __exit__(self, *exc):
+        for close in reversed(self._closers):
+            try:
+                close()
+            except Exception as e:  # shutting down: report, go on closing the rest
+                err.print(f"[yellow]warning:[/] while shutting down: {e}")
+        return False

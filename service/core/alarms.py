@@ -1,0 +1,37 @@
+"""The alarms a responder's Status carries, decided from the core's state and the time given.
+
+==================  ==========================================================================
+``man_down``        the motion model reports no motion (30 s motionless: the PASS rule)
+``lost_contact``    no frame of the wearable for ``lost_contact_s`` (the shell's time)
+``rejected_frames`` ``rejected_burst`` rejects within ``rejected_window_s``
+``disconnected``    the wearable's liveliness token is gone
+``recording_failed`` the incident is no longer being recorded (disk full, ...)
+==================  ==========================================================================
+"""
+from __future__ import annotations
+
+from pdr.events import MotionState
+
+MAN_DOWN = "man_down"
+LOST_CONTACT = "lost_contact"
+REJECTED = "rejected_frames"
+DISCONNECTED = "disconnected"
+RECORDING = "recording_failed"
+
+
+def of_responder(r, now: float, settings, recording_failed: bool = False) -> list[str]:
+    """The alarms of responder ``r`` (:class:`service.core.responder.Responder`) at service time ``now``."""
+    out = []
+    motion, _ = r.tracker.motion
+    if motion is MotionState.NO_MOTION:
+        out.append(MAN_DOWN)
+    heard = r.gate.last_heard if r.gate.last_heard is not None else r.first_heard
+    if now - heard > settings.lost_contact_s:
+        out.append(LOST_CONTACT)
+    if sum(1 for t in r.rejects if now - t <= settings.rejected_window_s) >= settings.rejected_burst:
+        out.append(REJECTED)
+    if r.present is False:
+        out.append(DISCONNECTED)
+    if recording_failed:
+        out.append(RECORDING)
+    return out

@@ -1,0 +1,227 @@
+"""The frame gate at the service edge: one per responder, pure (no zenoh, no clock of its own).
+
+Frames (:class:`service.protocol.wire.ImuBatch`) can arrive twice, out of order, late or not at all;
+the PDR pipeline behind the gate needs each frame once, in order, with strictly increasing
+device time. :class:`FrameGate` turns the first stream into the second and counts what it
+turns away, so nothing is dropped silently.
+
+Reorder policy
+--------------
+``next`` is the seq the gate releases next. A frame with ``seq == next`` is released at once,
+followed by any held frames that are now consecutive. A frame with ``seq > next`` is held. When
+more than ``reorder_window`` frames are held, the frames between ``next`` and the lowest held
+seq are declared lost (one gap, ``lost`` += their number) and release resumes from the lowest
+held frame. So a frame is released when no more than ``reorder_window`` frames with a higher
+seq arrived before it, and lost otherwise. Held frames also leave, with the same rule, once the
+oldest has waited ``max_hold_s`` of receive time (:meth:`FrameGate.expire`, also run by every
+:meth:`FrameGate.offer`), so one lost frame never stalls a responder for long.
+The first frame a gate sees is released at once and sets ``next``.
+
+Rejects (counted by reason in :attr:`FrameGate.counts`, logged in :attr:`FrameGate.events`):
+
+* ``duplicate``: the seq is held, or was released already;
+* ``late``: the seq is below ``next`` and was never released (declared lost, or older than the
+  first frame);
+* ``time_order``: the frame's first sample is not after the last released sample (judged when
+  its turn comes, so the frame still uses up its seq and nobody waits for it).
+
+Device time between consecutive released frames that jumps by more than ``max_gap_s`` counts
+as a gap (the frame is released; the pipeline decides what a gap means to it).
+
+Restart. A different ``device`` string, or a frame that would be rejected as above after
+``restart_after_s`` of silence (a rebooted wearable, a replay started again), starts a new
+stream: held frames are released, ``next`` and the time check are forgotten, ``epoch`` grows.
+Within an epoch released times strictly increase; the pipeline recognises a restart by a
+released frame whose device differs or whose first time is not after its previous one.
+"""
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+
+from service.protocol.wire import ImuBatch
+
+GATE_REASONS = ("duplicate", "late", "time_order")
+
+
+class FrameGate:
+    """Per-responder reorder buffer and reject counter: ``released = gate.offer(batch, now)``."""
+
+    def __init__(self, reorder_window: int = 4, max_gap_s: float = 0.5, *, max_hold_s: float = 1.0,
+                 restart_after_s: float = 30.0, max_events: int = 256):
+        if reorder_window < 0:
+            raise ValueError(f"reorder_window must be >= 0, got {reorder_window}")
+        if not max_gap_s > 0 or not max_hold_s > 0 or not restart_after_s > 0:
+            raise ValueError("max_gap_s, max_hold_s and restart_after_s must be positive")
+        self.reorder_window = int(reorder_window)
+        self.max_gap_s = float(max_gap_s)
+        self.max_hold_s = float(max_hold_s)
+        self.restart_after_s = float(restart_after_s)
+        self.events: deque[tuple[float, str, str]] = deque(maxlen=max_events)
+        self._counts: Counter[str] = Counter()
+        self.offered = 0  # frames passed to offer()
+        self.accepted = 0  # frames released
+        self.rejected = 0  # offered frames the gate turned away (decode rejects counted via count() excluded)
+        self.gaps = 0  # discontinuities: runs of lost frames, device-time jumps > max_gap_s
+        self.lost = 0  # frames declared lost
+        self.epoch = 0  # restarts
+        self.last_heard: float | None = None  # receive time of the last frame (or counted reject)
+        self._device: str | None = None
+        self._held: dict[int, tuple[ImuBatch, float]] = {}
+        self._reset_stream()
+
+    def _reset_stream(self) -> None:
+        self._next: int | None = None
+        self._first: int | None = None
+        self._last_t: float | None = None
+        self._last_seq: int | None = None
+        self._lost_runs: deque[tuple[int, int]] = deque(maxlen=256)  # [lo, hi) seq runs declared lost
+
+    # -- what the service reads ---------------------------------------------------------
+    @property
+    def counts(self) -> dict[str, int]:
+        """Rejects by reason: the gate's (duplicate, late, time_order) and any added by count()."""
+        return dict(self._counts)
+
+    @property
+    def held(self) -> int:
+        return len(self._held)
+
+    @property
+    def next_seq(self) -> int | None:
+        return self._next
+
+    @property
+    def last_t(self) -> float | None:
+        """Device time of the last released sample."""
+        return self._last_t
+
+    def count(self, reason: str, detail: str, receive_time: float | None = None) -> None:
+        """Count a reject found elsewhere (a decode error: :data:`service.protocol.wire.REJECT_REASONS`)."""
+        if receive_time is not None:
+            self.last_heard = receive_time
+        self._counts[reason] += 1
+        when = receive_time if receive_time is not None else (self.last_heard if self.last_heard is not None else math.nan)
+        self.events.append((when, reason, detail))
+
+    # -- the gate -----------------------------------------------------------------------
+    def offer(self, batch: ImuBatch, receive_time: float) -> list[ImuBatch]:
+        """Take one frame; return the frames released by it, in order (possibly none)."""
+        self.offered += 1
+        out = self.expire(receive_time)
+        silence = receive_time - self.last_heard if self.last_heard is not None else 0.0
+        self.last_heard = receive_time
+        if self._device is not None and batch.device != self._device:
+            out += self._restart(receive_time, f"device changed from {self._device!r} to {batch.device!r}")
+        self._device = batch.device
+        verdict = self._seq_verdict(batch)
+        if silence >= self.restart_after_s and (verdict or self._time_verdict(batch)):
+            why = (verdict or self._time_verdict(batch))[0]
+            out += self._restart(receive_time, f"seq {batch.seq} after {silence:.1f} s of silence ({why} "
+                                               "otherwise): new stream")
+            verdict = None
+        if verdict is not None:
+            self._reject(receive_time, *verdict)
+            return out
+        if self._next is None or batch.seq == self._next:
+            self._release(batch, receive_time, out)
+            self._drain(receive_time, out)
+        else:
+            self._held[batch.seq] = (batch, receive_time)
+            while len(self._held) > self.reorder_window:
+                self._skip_to_held(receive_time, out, f"more than {self.reorder_window} frames arrived after it")
+        return out
+
+    def expire(self, now: float) -> list[ImuBatch]:
+        """Release held frames whose wait exceeded ``max_hold_s`` (missing ones are declared lost)."""
+        out: list[ImuBatch] = []
+        while self._held and now - min(rt for _, rt in self._held.values()) > self.max_hold_s:
+            self._skip_to_held(now, out, f"not received within {self.max_hold_s:g} s")
+        return out
+
+    def flush(self) -> list[ImuBatch]:
+        """Release everything held, in order (missing frames are declared lost)."""
+        out: list[ImuBatch] = []
+        now = self.last_heard if self.last_heard is not None else math.nan
+        while self._held:
+            self._skip_to_held(now, out, "flushed")
+        return out
+
+    def reset(self) -> list[ImuBatch]:
+        """Start a new stream on purpose (held frames are released first)."""
+        return self._restart(self.last_heard if self.last_heard is not None else math.nan, "reset")
+
+    # -- internals ----------------------------------------------------------------------
+    def _seq_verdict(self, batch: ImuBatch) -> tuple[str, str] | None:
+        """Duplicate or late by seq. (Time order is judged on release, against the frame
+        released just before, so a rejected frame still uses up its seq.)"""
+        s = batch.seq
+        if s in self._held:
+            return "duplicate", f"seq {s} is already waiting to be released"
+        if self._next is not None and s < self._next:
+            if s >= self._first and not any(lo <= s < hi for lo, hi in self._lost_runs):
+                return "duplicate", f"seq {s} was already released (next expected {self._next})"
+            why = "was declared lost" if s >= self._first else f"precedes the first frame (seq {self._first})"
+            return "late", f"seq {s} arrived after release moved on: it {why}; next expected {self._next}"
+        return None
+
+    def _time_verdict(self, batch: ImuBatch) -> tuple[str, str] | None:
+        t0 = float(batch.t[0])
+        if self._last_t is not None and not t0 > self._last_t:
+            return "time_order", (f"seq {batch.seq}: t[0] = {t0!r} s is not after the last released sample "
+                                  f"t = {self._last_t!r} s (seq {self._last_seq})")
+        return None
+
+    def _reject(self, now: float, reason: str, detail: str) -> None:
+        self.rejected += 1
+        self._counts[reason] += 1
+        self.events.append((now, reason, detail))
+
+    def _release(self, batch: ImuBatch, now: float, out: list[ImuBatch], gap_counted: bool = False) -> None:
+        """Release ``batch`` (seq == next, or the first of a stream) unless its time goes back."""
+        if self._next is None:
+            self._first = batch.seq
+        self._next = batch.seq + 1
+        verdict = self._time_verdict(batch)
+        if verdict is not None:
+            self._reject(now, *verdict)
+            return
+        if self._last_t is not None:
+            jump = float(batch.t[0]) - self._last_t
+            if jump > self.max_gap_s:
+                if not gap_counted:
+                    self.gaps += 1
+                self.events.append((now, "gap", f"seq {batch.seq}: {jump:.3f} s of device time since the last "
+                                               f"released sample (seq {self._last_seq})"))
+        self._last_t = float(batch.t[-1])
+        self._last_seq = batch.seq
+        self.accepted += 1
+        out.append(batch)
+
+    def _drain(self, now: float, out: list[ImuBatch]) -> None:
+        while self._next in self._held:
+            batch, _ = self._held.pop(self._next)
+            self._release(batch, now, out)
+
+    def _skip_to_held(self, now: float, out: list[ImuBatch], why: str) -> None:
+        """Declare the frames before the lowest held one lost and release from there."""
+        first = min(self._held)
+        missing = first - self._next
+        self._lost_runs.append((self._next, first))
+        self.lost += missing
+        self.gaps += 1
+        span = f"seq {self._next}" if missing == 1 else f"seq {self._next}..{first - 1} ({missing} frames)"
+        self.events.append((now, "lost", f"{span} lost: {why}"))
+        batch, _ = self._held.pop(first)
+        self._next = first
+        self._release(batch, now, out, gap_counted=True)
+        self._drain(now, out)
+
+    def _restart(self, now: float, why: str) -> list[ImuBatch]:
+        out: list[ImuBatch] = []
+        while self._held:
+            self._skip_to_held(now, out, "stream restarted")
+        self._reset_stream()
+        self.epoch += 1
+        self.events.append((now, "restart", why))
+        return out

@@ -1,0 +1,404 @@
+"""The incident core: a pure function from the messages of an incident to the messages it answers.
+
+::
+
+    Inbound(kind, key, payload, received)  ──►  IncidentCore  ──►  Outbound(key, Pose | Status)
+        imu       firetrack/{incident}/{responder}/imu        decode ─► FrameGate ─► ResponderTracker ─► pose
+        fix       firetrack/{incident}/{responder}/fix        decode ─► fix type: to the local frame ─┘
+        presence  firetrack/{incident}/{responder}/presence   (b"1" connected, b"0" gone)
+    tick(now)                                                 held frames released, one Status per responder
+
+The core has no threads, sockets or clocks: time comes in with every message (``received``,
+the service's wall clock when the shell took it) and with every :meth:`IncidentCore.tick`.
+Live (:class:`service.shell.service.IncidentService`), ``replay`` (the same, from a
+recording), ``reprocess``, ``exercise``, ``eval ipin`` and the warm-up all feed this one
+class, so they give the same poses.
+
+**The same poses, bit for bit.** For the same inbound messages in the same order with the
+same ``received`` times, the poses are identical whatever the rounds they come in:
+:meth:`feed_round` joins a responder's frames of one round into one pipeline batch, and the
+pipeline gives the same events for any batching (``tests/test_pipeline.py``); frames are run
+one at a time only while a checkpoint fix waits for its step. Ticks are the exception: a tick
+releases frames held for a missing one, so a live run whose frames waited for a tick may
+differ from a replay that does not send the same ticks.
+
+A message that cannot be used is counted against its responder with a reason (``Status``
+``rejected``), logged a few times per window, and dropped; nothing a wearable sends reaches
+another responder's state, and an exception in one message is counted in ``errors`` and the
+next message goes on.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from pdr.events import MotionEvent, bearing_deg
+from pdr.floors import FloorElevations
+from service.core import alarms
+from service.core.fix_types import FixRejected, fix_type_of
+from service.core.gate import FrameGate
+from service.core.responder import Responder, continues, frame_of
+from service.core.tracker import (
+    CheckpointFix,
+    PoseEstimate,
+    ResponderTracker,
+    TrackerSettings,
+    tracker_settings_for,
+)
+from service.protocol import wire
+from service.protocol.incident import IncidentConfig
+
+log = logging.getLogger("firetrack.service")
+
+INBOUND_KINDS = ("imu", "fix", "presence")
+
+
+class Inbound(NamedTuple):
+    """A message as the shell took it: ``received`` is the service's wall clock (unix s) then."""
+
+    kind: str
+    key: str
+    payload: bytes
+    received: float
+
+
+class Outbound(NamedTuple):
+    """A message the core answers with: the shell encodes and publishes it on ``key``."""
+
+    key: str
+    message: wire.WireMessage
+
+
+@dataclass(frozen=True)
+class CoreSettings:
+    tracker: TrackerSettings | None = None  # None: tracker_settings_for(the incident)
+    lost_contact_s: float = wire.LOST_CONTACT_S  # s without a frame -> lost-contact alarm
+    rejected_window_s: float = 10.0  # s
+    rejected_burst: int = 5  # rejects within the window -> alarm
+    reorder_window: int = 4  # frames a late frame may be overtaken by
+    entry_sigma_m: float | None = 50.0  # m: responders not yet placed by a checkpoint start at the origin
+    # with this σ at their first step (None: no pose until a checkpoint places them)
+    log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
+    max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
+    fix_future_s: float = 2.0  # s: a fix this far ahead of the newest sample is from the future (a wrong clock)
+
+
+@dataclass
+class CoreCounters:
+    frames_processed: int = 0
+    tracker_batches: int = 0  # tracker calls: frames_processed / tracker_batches frames each on average
+    errors: int = 0  # exceptions caught while processing (each logged)
+    received: dict = field(default_factory=lambda: {"imu": 0, "fix": 0})  # payloads taken, good or bad
+
+
+class IncidentCore:
+    """Every responder of one incident: ``outputs = core.feed_round(inbound)``, ``core.tick(now)``."""
+
+    def __init__(self, incident: IncidentConfig, settings: CoreSettings | None = None):
+        settings = settings or CoreSettings()
+        if settings.tracker is None:  # the incident's declination and field reach the compass
+            settings = dataclasses.replace(settings, tracker=tracker_settings_for(incident))
+        self.incident = incident
+        self.id = incident.id
+        self.settings = settings
+        self.responders: dict[str, Responder] = {}
+        self.unattributed: dict[str, int] = {}  # rejects whose key names no valid responder
+        self.counters = CoreCounters()
+        self.recording_failed = False  # set by the shell: every Status then carries the alarm
+        self._dirty: dict[str, Responder] = {}  # responders with frames waiting for the round's end
+        self._out: list[Outbound] = []
+        self._now = 0.0
+        self._presence: dict[str, bool] = {}  # liveliness seen before a responder's first frame
+
+    # ------------------------------------------------------------------ inputs
+    def feed_round(self, items: Iterable[Inbound]) -> list[Outbound]:
+        """Messages taken together: each is decoded and gated in turn, then every responder's
+        new frames go through its tracker as one batch (a fix first runs the frames that came
+        before it). The poses are those of :meth:`feed` one message at a time, bit for bit."""
+        for item in items:
+            try:
+                self._take(item)
+            except Exception:  # a bug must not stop the incident: log it, count it, go on
+                self.counters.errors += 1
+                log.exception("error while processing %s", item.key)
+        self._run_dirty()
+        out, self._out = self._out, []
+        return out
+
+    def feed(self, item: Inbound) -> list[Outbound]:
+        """One message: a round of one (what ``reprocess`` of a single message does)."""
+        return self.feed_round((item,))
+
+    def tick(self, now: float) -> list[Outbound]:
+        """Time passes: frames held for a missing one beyond the gate's wait are released, and
+        every responder's Status is answered."""
+        self._now = now
+        for r in list(self.responders.values()):
+            try:
+                for b in r.gate.expire(now):
+                    self._process(r, b)
+            except Exception:
+                self.counters.errors += 1
+                log.exception("error while releasing the held frames of %s", r.id)
+        self._run_dirty()
+        for r in list(self.responders.values()):
+            try:
+                self._out.append(Outbound(wire.key(self.id, r.id, "status"), self.status_of(r, now)))
+            except Exception:
+                self.counters.errors += 1
+                log.exception("status of %s", r.id)
+        out, self._out = self._out, []
+        return out
+
+    # ------------------------------------------------------------------ queries
+    def status_of(self, r: Responder, now: float) -> wire.Status:
+        heard = r.gate.last_heard if r.gate.last_heard is not None else r.first_heard
+        motion, since = r.tracker.motion
+        rejected = dict(r.gate.counts)
+        tr = r.tracker
+        for reasons in (r.fixes_rejected, tr.fix_rejects, {"unused": tr.fixes_unused}):
+            for reason, n in reasons.items():
+                if n:
+                    rejected[f"fix_{reason}"] = rejected.get(f"fix_{reason}", 0) + n
+        return wire.Status(
+            responder=r.id, t=tr.device_time, motion=motion.value, motion_since=since,
+            alarms=alarms.of_responder(r, now, self.settings, self.recording_failed), rejected=rejected,
+            frames=r.gate.accepted, gaps=r.gate.gaps, last_heard=heard, steps=tr.steps,
+            fixes={"applied": tr.fixes_applied, "queued": tr.fixes_queued}, utc_offset=r.utc_offset,
+        )
+
+    def track(self, rid: str) -> dict | None:
+        """The responder's track so far as columns (``t, x, y, floor, heading``) and whether it
+        is the smoothed one; None for an unknown responder."""
+        r = self.responders.get(rid)
+        if r is None:
+            return None
+        sm = r.tracker.smoothed_track()
+        if sm is not None and len(sm["t"]):
+            return {"track": sm, "smoothed": True}
+        arr = np.array(r.tracker.pdr_track, float).reshape(-1, 4)
+        cols = {"t": arr[:, 0], "x": arr[:, 1], "y": arr[:, 2], "floor": arr[:, 3], "heading": np.full(len(arr), np.nan)}
+        return {"track": cols, "smoothed": False}
+
+    def frame_accounting(self) -> dict[str, int]:
+        """Over all responders: frames rejected by reason, declared lost, still held by a gate."""
+        out: dict[str, int] = dict(self.unattributed)
+        for r in self.responders.values():
+            for reason, n in r.gate.counts.items():
+                out[reason] = out.get(reason, 0) + n
+            out["lost"] = out.get("lost", 0) + r.gate.lost
+            out["held"] = out.get("held", 0) + r.gate.held + len(r.backlog)
+        return {k: v for k, v in out.items() if v}
+
+    # ------------------------------------------------------------------ per message
+    def _take(self, item: Inbound) -> None:
+        kind, key, payload, now = item
+        self._now = now
+        if kind in self.counters.received:
+            self.counters.received[kind] += 1
+        if kind == "imu":
+            self._on_imu(key, payload, now)
+        elif kind == "fix":
+            self._on_fix(key, payload, now)
+        elif kind == "presence":
+            self._on_presence(key, payload)
+        else:
+            raise ValueError(f"unknown inbound kind {kind!r}; expected one of {INBOUND_KINDS}")
+
+    def _responder_of(self, key: str, now: float, reason_on_fail: str) -> Responder | None:
+        try:
+            _, rid, _ = wire.parse_key(key)
+        except ValueError as e:
+            self.unattributed[reason_on_fail] = self.unattributed.get(reason_on_fail, 0) + 1
+            log.warning("rejected a sample on %r: %s", key, e)
+            return None
+        r = self.responders.get(rid)
+        return r if r is not None else self._new_responder(rid, now)
+
+    def _new_responder(self, rid: str, now: float) -> Responder:
+        s = self.settings
+        r = Responder(id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=self._tracker(rid),
+                      first_heard=now, present=self._presence.get(rid))
+        self.responders[rid] = r
+        log.info("responder %s appeared", rid)
+        return r
+
+    def _tracker(self, rid: str) -> ResponderTracker:
+        """A fresh tracker; not yet placed, it starts at the incident origin with a wide σ
+        until a checkpoint fix says where the responder is."""
+        cfg, s = self.incident, self.settings
+        entry = (None if s.entry_sigma_m is None
+                 else CheckpointFix(0.0, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)"))
+        return ResponderTracker(rid, FloorElevations(cfg.elevations()), cfg.start_floor, s.tracker, entry=entry)
+
+    def _on_presence(self, key: str, payload: bytes) -> None:
+        try:
+            _, rid, _ = wire.parse_key(key)
+        except ValueError:
+            return
+        alive = payload == b"1"
+        self._presence[rid] = alive
+        r = self.responders.get(rid)
+        if r is not None:
+            r.present = alive
+        log.info("wearable of %s %s", rid, "connected" if alive else "disconnected")
+
+    def _reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
+        """A frame turned away before the gate saw it: counted there like the gate's own."""
+        r.gate.count(reason, detail, now)
+        self._note_reject(r, reason, detail, now)
+
+    def _note_reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
+        """Every reject feeds the burst alarm; the log gets at most a few lines per window."""
+        r.rejects.append(now)
+        while r.logged and now - r.logged[0] > self.settings.rejected_window_s:
+            r.logged.popleft()
+        if len(r.logged) < self.settings.log_rejects_per_window:
+            r.logged.append(now)
+            log.warning("%s: rejected a frame (%s): %s", r.id, reason, detail)
+
+    def _on_imu(self, key: str, payload: bytes, now: float) -> None:
+        r = self._responder_of(key, now, "bad_key")
+        if r is None:
+            return
+        try:
+            batch = wire.decode(payload, expect=wire.ImuBatch)
+        except wire.WireError as e:
+            self._reject(r, e.reason, e.detail, now)
+            return
+        if batch.responder != r.id:
+            self._reject(r, "schema", f"responder {batch.responder!r} in a frame on the key of {r.id!r}", now)
+            return
+        if batch.utc_offset is not None:
+            r.utc_offset = batch.utc_offset
+        rejected_before = r.gate.rejected
+        released = r.gate.offer(batch, now)
+        if r.gate.rejected > rejected_before:  # the gate records why in its newest event
+            _, reason, detail = r.gate.events[-1]
+            self._note_reject(r, reason, f"frame {batch.seq}: {detail}", now)
+        for b in released:
+            self._process(r, b)
+
+    def _process(self, r: Responder, b: wire.ImuBatch) -> None:
+        if r.gate.epoch != r.epoch:  # a new stream (rebooted wearable, another device): a fresh tracker
+            self._run_backlog(r)  # the old stream's last frames end the old track
+            log.warning("%s: new stream (device %s); the track restarts", r.id, b.device)
+            r.epoch = r.gate.epoch
+            r.tracker = self._tracker(r.id)
+        if r.backlog and (not continues(r.backlog[-1], b) or len(r.backlog) >= self.settings.max_coalesce):
+            self._run_backlog(r)
+        r.backlog.append(b)
+        if r.tracker.fix_waiting:  # frame by frame until the fix is applied (see fix_waiting)
+            self._run_backlog(r)
+        else:
+            self._dirty[r.id] = r
+
+    def _run_dirty(self) -> None:
+        dirty, self._dirty = self._dirty, {}
+        for r in dirty.values():
+            try:
+                self._run_backlog(r)
+            except Exception:
+                self.counters.errors += 1
+                log.exception("error while running the frames of %s", r.id)
+
+    def _run_backlog(self, r: Responder) -> None:
+        """The responder's waiting frames through its tracker as one batch; poses out."""
+        batches, r.backlog = r.backlog, []
+        if not batches:
+            return
+        try:
+            outputs = r.tracker.on_frame(frame_of(batches), batches[0].carry)
+        except ValueError as e:  # e.g. a frame the gate let through that the pipeline cannot take
+            if len(batches) > 1:  # the check comes before any state changes: find the culprit alone
+                for b in batches:
+                    r.backlog = [b]
+                    self._run_backlog(r)
+                return
+            self._reject(r, "pipeline", f"frame {batches[0].seq}: {e}", self._now)
+            return
+        r.seq, r.seq_oldest = batches[-1].seq, batches[0].seq
+        self.counters.frames_processed += len(batches)
+        self.counters.tracker_batches += 1
+        for o in outputs:
+            if isinstance(o, PoseEstimate):
+                self._answer_pose(r, o)
+            elif isinstance(o, MotionEvent):
+                log.info("%s is %s since device time %.1f", r.id, o.state.value, o.since)
+
+    def _on_fix(self, key: str, payload: bytes, now: float) -> None:
+        r = self._responder_of(key, now, "bad_key")
+        if r is None:
+            return
+        try:
+            fix = wire.decode(payload, expect=wire.Fix)
+        except wire.WireError as e:
+            self._count_fix_reject(r, e.reason, e.detail)
+            return
+        if fix.responder != r.id:
+            self._count_fix_reject(r, "schema", f"responder {fix.responder!r} in a fix on the key of {r.id!r}")
+            return
+        self._run_backlog(r)  # the frames that came before the fix go first (its time is judged against them)
+        try:
+            fix = self._on_device_clock(r, fix)
+            domain = fix_type_of(fix.source).to_domain(fix, self.incident)
+        except FixRejected as e:
+            self._count_fix_reject(r, e.reason, str(e))
+            return
+        except ValueError as e:  # a domain fix that checks itself (service.fusion.fixes)
+            self._count_fix_reject(r, "unknown_reference", str(e))
+            return
+        pose = r.tracker.on_fix(domain)
+        log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
+        if pose is not None:
+            self._answer_pose(r, pose)
+
+    def _on_device_clock(self, r: Responder, fix: wire.Fix) -> wire.Fix:
+        """The fix with ``t`` on the responder's device clock, or :class:`FixRejected`: a UTC
+        time before the wearable has said its clock offset (``clock_unknown``), a time ahead of
+        the newest sample (``future``: a wrong clock), or older than the estimator's window
+        (``too_old``)."""
+        if fix.time_base == "utc":
+            if r.utc_offset is None:
+                raise FixRejected("clock_unknown", f"{fix.source} fix in UTC, but the wearable of {r.id} has not "
+                                                   "said its clock offset yet (ImuBatch.utc_offset)")
+            fix = fix.model_copy(update={"t": fix.t - r.utc_offset, "time_base": "device"})
+        tr = r.tracker
+        if math.isfinite(tr.model.last_time):  # judged against the samples taken so far
+            ahead = fix.t - tr.device_time
+            if ahead > self.settings.fix_future_s:
+                raise FixRejected("future", f"{fix.source} fix {ahead:.1f} s ahead of the newest sample "
+                                            f"(device time {tr.device_time:.2f} s): check its clock and time_base")
+            if -ahead > tr.max_fix_age_s:
+                raise FixRejected("too_old", f"{fix.source} fix {-ahead:.1f} s behind the newest sample; the "
+                                             f"estimator keeps {tr.max_fix_age_s:.0f} s")
+        return fix
+
+    def _count_fix_reject(self, r: Responder, reason: str, detail: str) -> None:
+        r.fixes_rejected[reason] = r.fixes_rejected.get(reason, 0) + 1
+        log.warning("%s: fix rejected (%s): %s", r.id, reason, detail)
+
+    # ------------------------------------------------------------------ outputs
+    def _answer_pose(self, r: Responder, p: PoseEstimate) -> None:
+        self._out.append(Outbound(wire.key(self.id, r.id, "pose"), self.pose_message(r, p)))
+        r.poses += 1
+
+    def pose_message(self, r: Responder, p: PoseEstimate) -> wire.Pose:
+        """The wire form of a pose: geodetic position, compass bearing, symmetric covariance;
+        ``published_at`` is the core's time, which the shell restamps when it publishes."""
+        lat, lon, _ = self.incident.to_geodetic(p.x, p.y)
+        cov = np.asarray(p.cov, float)
+        cov = 0.5 * (cov + cov.T)
+        return wire.Pose(
+            responder=r.id, t=p.t, x=p.x, y=p.y, floor=int(p.floor), lat=float(lat), lon=float(lon),
+            heading_deg=bearing_deg(p.heading) if math.isfinite(p.heading) else 0.0, cov=cov, steps=p.steps,
+            source=p.source, seq=max(r.seq, 0), published_at=self._now,
+            utc=None if r.utc_offset is None else p.t + r.utc_offset,
+        )
+

@@ -1,0 +1,54 @@
+"""One responder's state inside the incident core, and how its frames are joined for the tracker."""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pdr.pipeline import ImuFrame
+from service.core.gate import FrameGate
+from service.core.tracker import ResponderTracker
+from service.protocol import wire
+
+
+@dataclass
+class Responder:
+    """What the core keeps per responder: the frame gate, the tracker and the counters that
+    ``Status`` reports. Nothing here touches the network or a clock."""
+
+    id: str
+    gate: FrameGate
+    tracker: ResponderTracker
+    first_heard: float  # service time of the first message
+    seq: int = -1  # seq of the newest frame the tracker has seen
+    seq_oldest: int = -1  # seq of the oldest frame in the tracker's latest batch
+    backlog: list = field(default_factory=list)  # released frames waiting for the tracker (one round)
+    epoch: int = 0  # the gate's stream epoch the tracker belongs to
+    poses: int = 0
+    rejects: deque = field(default_factory=lambda: deque(maxlen=1024))  # service times of rejects
+    fixes_rejected: dict = field(default_factory=dict)
+    present: bool | None = None  # liveliness: None unknown, True token alive, False token gone
+    utc_offset: float | None = None  # s, UTC minus the device clock, as the wearable last said
+    logged: deque = field(default_factory=lambda: deque(maxlen=64))
+
+
+def continues(prev: wire.ImuBatch, b: wire.ImuBatch) -> bool:
+    """Can ``b`` join ``prev`` in one pipeline batch: later samples, the same sensors."""
+    return (prev.mag is None) == (b.mag is None) and len(b.t) > 0 and len(prev.t) > 0 and b.t[0] > prev.t[-1]
+
+
+def frame_of(batches: list[wire.ImuBatch]) -> ImuFrame:
+    """One pipeline frame of consecutive wire frames (see :func:`continues`)."""
+    if len(batches) == 1:
+        b = batches[0]
+        return ImuFrame(b.t, b.acc, b.gyr, b.mag, b.pressure_t, b.pressure)
+
+    def cat(name):
+        parts = [getattr(b, name) for b in batches if getattr(b, name) is not None]
+        return np.concatenate(parts) if parts else None
+
+    pt = [b.pressure_t for b in batches if b.pressure_t is not None and b.pressure is not None]
+    pv = [b.pressure for b in batches if b.pressure_t is not None and b.pressure is not None]
+    return ImuFrame(cat("t"), cat("acc"), cat("gyr"), cat("mag"),
+                    np.concatenate(pt) if pt else None, np.concatenate(pv) if pv else None)

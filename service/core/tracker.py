@@ -1,0 +1,252 @@
+"""One responder in the service: raw frames and fixes in, poses and motion changes out.
+
+:class:`ResponderTracker` joins a motion model (:mod:`service.core.motion`: the handheld PDR
+pipeline, or the model registered for the wearable's carry position) with a track estimator
+(:mod:`service.fusion.estimators`: the gtsam fusion, or dead reckoning alone) and applies
+fixes at their own time. A dead-reckoning baseline with the same checkpoint resets is always
+kept beside the estimator (``pdr_track``), so every run can be compared with it. The live
+service, replays, ``firetrack reprocess`` and ``firetrack eval ipin`` all reach this class
+through the incident core, so they give the same poses.
+
+Floors. The motion model owns the floor (its floor tracker); a checkpoint with a floor
+anchors it there, and the estimators receive checkpoints without a floor, so a floor is
+never corrected twice.
+
+Placement. A responder has no position until the first checkpoint fix (an operator at the
+door, a tag reader, the IPIN initial landmark) or, when the incident configures an entry
+point, until the first step (placed there with a wide sigma; the first checkpoint then
+corrects the whole track). Steps before placement are counted (Status) but make no pose.
+
+Fix timing. A fix stamped later than the newest step waits until a step passes its time,
+then attaches there (so an IPIN landmark reached after the last step before it attaches to
+that step's pose, as it would live). A fix stamped in the past goes to the estimator at once,
+which attaches it to the pose of its time and corrects the history after it.
+"""
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pdr.events import MotionEvent, MotionState, PoseEstimate, StepEvent
+from pdr.floors import FloorElevations
+from pdr.pipeline import ImuFrame, PipelineSettings
+from service.core.motion import DEFAULT_CARRY, MotionModel, motion_model_for
+from service.fusion.estimators import DeadReckoningEstimator, TrackEstimator, make_estimator
+from service.fusion.fixes import CheckpointFix  # noqa: F401  (re-exported: the tracker's fix type)
+
+__all__ = ["CheckpointFix", "PoseEstimate", "ResponderTracker", "TrackerSettings", "tracker_settings_for"]
+
+
+@dataclass
+class TrackerSettings:
+    pipeline: PipelineSettings = field(default_factory=PipelineSettings)
+    engine: str = "fusion"  # the track estimator (service.fusion.estimators): "fusion" (gtsam) or "dr"
+    fusion: object | None = None  # service.fusion.FusionSettings, None = defaults
+
+
+def tracker_settings_for(incident, engine: str = "fusion") -> TrackerSettings:
+    """Tracker settings for an incident: its declination (and WMM dip, when configured) reach
+    the compass; everything else is the default."""
+    import math
+
+    from pdr.heading import HeadingSettings
+
+    inc = incident.field_inclination_deg
+    heading = HeadingSettings(
+        declination=math.radians(incident.declination_deg),
+        field_inclination=math.radians(inc) if inc is not None else math.nan,
+    )
+    return TrackerSettings(pipeline=PipelineSettings(heading=heading), engine=engine)
+
+
+class ResponderTracker:
+    def __init__(self, responder: str, floors: FloorElevations, start_floor: int = 0,
+                 settings: TrackerSettings | None = None, entry: CheckpointFix | None = None,
+                 carry: str = DEFAULT_CARRY):
+        self.responder = responder
+        self.settings = settings or TrackerSettings()
+        self.floors = floors
+        self._start_floor = start_floor
+        self._carry = carry
+        self.model: MotionModel = motion_model_for(carry)(self.settings, floors, start_floor)
+        self._anchored: int | None = None  # the floor the latest checkpoint anchored
+        self._frames = 0
+        self._entry = entry
+        self._placed_at: CheckpointFix | None = None
+        self._pending_fixes: list[tuple[float, int, object]] = []  # (t, order, fix) waiting for a step
+        self._order = 0
+        make_estimator(self.settings.engine, self.settings.fusion)  # an unknown engine fails here, not mid-walk
+        self.estimator: TrackEstimator | None = None  # once placed and walking
+        self.baseline = DeadReckoningEstimator()  # dead reckoning with the same resets, always kept (cheap)
+        self.pdr_track: list[tuple[float, float, float, int]] = []  # (t, x, y, floor) of the baseline
+        self.live: PoseEstimate | None = None
+        self.last_step: StepEvent | None = None
+        self.fixes_applied = 0
+        self.fixes_rejected = 0  # refused by the estimator's gates ...
+        self.fix_rejects: dict[str, int] = {}  # ... by the estimator's reason (gnss_gate, too_old, ...)
+        self.fixes_unused = 0  # nothing to apply them to (see _apply_fix)
+        self._first_step_after_placement = True
+
+    # ------------------------------------------------------------------ what Status reads
+    @property
+    def steps(self) -> int:
+        return self.model.steps
+
+    @property
+    def floor(self) -> int:
+        return self.model.floor
+
+    @property
+    def motion(self) -> tuple[MotionState, float]:
+        """The motion state and the device time it began."""
+        m = self.model
+        since = m.state_since if math.isfinite(m.state_since) else self.device_time
+        return m.state, since
+
+    @property
+    def device_time(self) -> float:
+        """Device time of the newest sample taken (0 before the first)."""
+        t = self.model.last_time
+        return t if math.isfinite(t) else 0.0
+
+    # ------------------------------------------------------------------ inputs
+    def on_frame(self, frame: ImuFrame, carry: str | None = None) -> list[PoseEstimate | MotionEvent]:
+        """Consecutive samples; ``carry`` (the wire frame's) picks the motion model at the first frame."""
+        if self._frames == 0 and carry is not None and carry != self._carry:
+            self._carry = carry
+            self.model = motion_model_for(carry)(self.settings, self.floors, self._start_floor)
+            if self._anchored is not None:
+                self.model.anchor_floor(self._anchored)
+        self._frames += 1
+        return self._consume(self.model.update(frame))
+
+    def finish(self) -> list[PoseEstimate | MotionEvent]:
+        out = self._consume(self.model.finish())
+        # fixes after the last step attach to it
+        while self._pending_fixes:
+            _, _, fix = self._pending_fixes.pop(0)
+            p = self._apply_fix(fix)
+            if p is not None:
+                out.append(p)
+        return out
+
+    @property
+    def fixes_queued(self) -> int:
+        """Fixes waiting for a step to pass their time."""
+        return len(self._pending_fixes)
+
+    @property
+    def max_fix_age_s(self) -> float:
+        """How far behind the newest sample a fix may be and still be used (the estimator's window)."""
+        if self.settings.engine != "fusion":
+            return math.inf
+        from service.fusion.settings import FusionSettings
+
+        return (self.settings.fusion or FusionSettings()).lag_s
+
+    @property
+    def fix_waiting(self) -> bool:
+        """A checkpoint fix waits for the first step past its time. Applying it re-anchors the
+        motion model's floor (and may place the track) between two frames, so until then frames
+        must come one at a time for the result not to depend on how they were batched. GNSS
+        and UWB fixes only touch the estimator, which sees the same sequence of steps and
+        fixes however the frames were batched."""
+        return any(isinstance(f, CheckpointFix) for _, _, f in self._pending_fixes)
+
+    def on_fix(self, fix) -> PoseEstimate | None:
+        """Apply a fix now if its time is covered by the steps so far, else when a step passes it."""
+        last_t = self.last_step.t if self.last_step else -math.inf
+        if fix.t <= last_t and (self.estimator is not None or not isinstance(fix, CheckpointFix)):
+            return self._apply_fix(fix)
+        self._order += 1
+        bisect.insort(self._pending_fixes, (fix.t, self._order, fix), key=lambda r: (r[0], r[1]))
+        return None
+
+    # ------------------------------------------------------------------ internals
+    def _consume(self, events) -> list[PoseEstimate | MotionEvent]:
+        out: list[PoseEstimate | MotionEvent] = []
+        for ev in events:
+            if isinstance(ev, MotionEvent):
+                out.append(ev)
+                continue
+            while self._pending_fixes and self._pending_fixes[0][0] < ev.t:
+                _, _, fix = self._pending_fixes.pop(0)
+                p = self._apply_fix(fix)
+                if p is not None:
+                    out.append(p)
+            p = self._step(ev)
+            if p is not None:
+                out.append(p)
+        return out
+
+    def _anchor_floor(self, floor: int) -> None:
+        self._anchored = floor
+        self.model.anchor_floor(floor)
+
+    def _place(self, fix: CheckpointFix) -> None:
+        self._placed_at = fix
+        if fix.floor is not None:
+            self._anchor_floor(fix.floor)
+        floor = fix.floor if fix.floor is not None else self.model.floor
+        self.baseline.start(fix.t, fix.x, fix.y, math.nan, math.nan, fix.sigma, floor)
+        self.pdr_track.append((fix.t, fix.x, fix.y, floor))
+        self.estimator = None  # a new track: the estimator starts at the first step from here
+        self._first_step_after_placement = True
+
+    def _step(self, ev: StepEvent) -> PoseEstimate | None:
+        self.last_step = ev
+        if self._placed_at is None:
+            if self._entry is None:
+                return None
+            self._place(dataclasses.replace(self._entry, t=ev.t - 1e-6))
+        if self._first_step_after_placement:  # the heading before the first placed step is the step's own
+            self._first_step_after_placement = False
+            ev = dataclasses.replace(ev, heading_change=0.0)
+        pt = self.baseline.add_step(ev)
+        self.pdr_track.append((pt.t, pt.x, pt.y, pt.floor))
+        if self.estimator is None:
+            p0 = self._placed_at
+            self.estimator = make_estimator(self.settings.engine, self.settings.fusion)
+            self.estimator.start(p0.t, p0.x, p0.y, ev.heading, ev.heading_sigma, p0.sigma,
+                                 p0.floor if p0.floor is not None else ev.floor)
+        self.live = self._published(self.estimator.add_step(ev), ev.index)
+        return self.live
+
+    def _published(self, p: PoseEstimate, steps: int) -> PoseEstimate:
+        """The estimator's pose with the step count and the source the service reports."""
+        return dataclasses.replace(p, steps=steps, source="fused" if self.fixes_applied > 1 else "pdr")
+
+    def _apply_fix(self, fix) -> PoseEstimate | None:
+        if isinstance(fix, CheckpointFix) and (self._placed_at is None or self._first_step_after_placement):
+            self._place(fix)  # not walked from the last placement yet: this one is where the track starts
+            self.fixes_applied += 1
+            return None
+        if isinstance(fix, CheckpointFix):
+            if fix.floor is not None:
+                self._anchor_floor(fix.floor)
+            # the floor is the motion model's (anchored above): estimators get x, y only
+            fix = dataclasses.replace(fix, floor=None)
+            if self.baseline is not None:
+                self.baseline.add_fix(fix)
+        if self.estimator is None:  # before the track has a first step: counted
+            self.fixes_unused += 1
+            return None
+        outcome = self.estimator.add_fix(fix)
+        if outcome.verdict == "unused":
+            self.fixes_unused += 1
+            return None
+        if outcome.verdict == "rejected":
+            self.fixes_rejected += 1
+            reason = outcome.reason or "gated"
+            self.fix_rejects[reason] = self.fix_rejects.get(reason, 0) + 1
+            return None
+        self.fixes_applied += 1
+        self.live = self._published(outcome.pose, self.live.steps if self.live else 0)
+        return self.live
+
+    def smoothed_track(self) -> dict[str, np.ndarray] | None:
+        return None if self.estimator is None else self.estimator.smoothed_track()

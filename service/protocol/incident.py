@@ -1,0 +1,308 @@
+"""An incident's configuration: where the building is, its floors, checkpoints, anchors, plans.
+
+Loaded from JSON (or TOML) by :func:`load_incident`; every problem becomes an
+:class:`IncidentConfigError` naming the file, the field path (``floors[2].elevation_m``) and
+what is wrong. The navigation frame is local ENU (x East, y North, z Up, metres) on the tangent
+plane at ``origin``; conversions go through pymap3d on the WGS-84 ellipsoid.
+
+Floor plans and their georeference: :mod:`service.protocol.floorplan`.
+"""
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pymap3d
+from pydantic import (
+    Field,
+    PrivateAttr,
+    ValidationError,
+    ValidationInfo,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
+
+from service.protocol.floorplan import (  # noqa: F401  (re-exported: the config's plan types)
+    ControlPoint,
+    FloorPlan,
+    Georeference,
+    _Config,
+    _scalar_or_array,
+    enu_to_plan_pixel,
+    plan_pixel_to_enu,
+    resolve_plan,
+)
+from service.protocol.wire import ID_PATTERN, error_location
+
+DEFAULT_INCIDENT_PATH = Path(__file__).resolve().parents[2] / "deploy" / "incidents" / "ipin-museum.json"
+DEFAULT_FLOOR_HEIGHT_M = 3.0
+POSITION_AGREEMENT_M = 0.05  # x, y and lat, lon given together must agree this well
+
+
+class IncidentConfigError(ValueError):
+    """A configuration file that cannot be used: ``path`` and ``problem`` (field path + what)."""
+
+    def __init__(self, path: str | Path, problem: str):
+        super().__init__(f"{path}: {problem}")
+        self.path = str(path)
+        self.problem = problem
+
+
+class UnknownCheckpointError(KeyError):
+    """A checkpoint name the incident does not know (message lists the known ones)."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0])
+
+
+class Origin(_Config):
+    """The ENU origin: WGS-84 latitude, longitude (deg) and ellipsoidal height (m)."""
+
+    lat: float = Field(ge=-90.0, le=90.0)
+    lon: float = Field(ge=-180.0, le=180.0)
+    alt_m: float = 0.0
+
+
+class Floor(_Config):
+    """A floor: its integer number, a name people use, and its elevation (m, any common datum;
+    default ``number * floor_height_m``)."""
+
+    number: int
+    name: str | None = None
+    elevation_m: float | None = None
+
+
+class Checkpoint(_Config):
+    """A named point an operator can place a responder at (a :class:`service.protocol.wire.Fix` with
+    ``source="checkpoint"`` and ``name``). Give ``x, y`` (ENU, m) or ``lat, lon`` (deg); after
+    loading both are filled. ``sigma_m`` is the 1-sigma horizontal uncertainty."""
+
+    name: str = Field(min_length=1, max_length=128)
+    x: float | None = None
+    y: float | None = None
+    lat: float | None = Field(None, ge=-90.0, le=90.0)
+    lon: float | None = Field(None, ge=-180.0, le=180.0)
+    floor: int
+    sigma_m: float = Field(0.5, gt=0.0)
+    note: str | None = None
+
+    @model_validator(mode="after")
+    def _position_given(self) -> Checkpoint:
+        if (self.x is None) != (self.y is None):
+            raise PydanticCustomError("position", "give x and y together")
+        if (self.lat is None) != (self.lon is None):
+            raise PydanticCustomError("position", "give lat and lon together")
+        if self.x is None and self.lat is None:
+            raise PydanticCustomError("position", "a checkpoint needs x, y (local ENU, m) or lat, lon (deg)")
+        return self
+
+
+class UwbAnchor(_Config):
+    """A UWB anchor at ENU ``x, y, z`` (m)."""
+
+    id: str = Field(pattern=ID_PATTERN)
+    x: float
+    y: float
+    z: float = 0.0
+    floor: int | None = None
+
+
+class IncidentConfig(_Config):
+    """Everything the service and console know about the place of an incident."""
+
+    id: str = Field("demo", pattern=ID_PATTERN)
+    name: str = ""
+    notes: str | list[str] | None = None
+    origin: Origin
+    declination_deg: float = Field(0.0, ge=-180.0, le=180.0, description="magnetic declination, East positive")
+    field_inclination_deg: float | None = Field(None, ge=-90.0, le=90.0, description="magnetic dip (down positive), e.g. from the WMM; lets the compass reject fields with the wrong dip")
+    field_norm_ut: float | None = Field(None, gt=0.0, description="magnetic field strength (µT), e.g. from the WMM")
+    floor_height_m: float = Field(DEFAULT_FLOOR_HEIGHT_M, gt=0.0, description="default floor spacing")
+    floors: list[Floor] = Field(default_factory=lambda: [Floor(number=0, name="Ground floor", elevation_m=0.0)])
+    start_floor: int = 0
+    checkpoints: list[Checkpoint] = Field(default_factory=list)
+    uwb_anchors: list[UwbAnchor] = Field(default_factory=list)
+    floor_plans: list[FloorPlan] = Field(default_factory=list)
+
+    _base_dir: Path = PrivateAttr(default_factory=Path.cwd)
+
+    # -- validation across fields -------------------------------------------------------
+    @model_validator(mode="after")
+    def _resolve(self, info: ValidationInfo) -> IncidentConfig:
+        base = (info.context or {}).get("base_dir") if info is not None else None
+        if base is not None:
+            self._base_dir = Path(base)
+        problems: list[str] = []
+        self._resolve_floors(problems)
+        numbers = {f.number for f in self.floors}
+        if self.start_floor not in numbers:
+            problems.append(f"start_floor: floor {self.start_floor} is not configured; floors: {sorted(numbers)}")
+        seen: dict[str, int] = {}
+        for i, cp in enumerate(self.checkpoints):
+            if cp.name in seen:
+                problems.append(f"checkpoints[{i}].name: {cp.name!r} is used twice (also checkpoints[{seen[cp.name]}])")
+            seen.setdefault(cp.name, i)
+            problems += [f"checkpoints[{i}].{p}" for p in self._resolve_checkpoint(cp)]
+        ids: dict[str, int] = {}
+        for i, a in enumerate(self.uwb_anchors):
+            if a.id in ids:
+                problems.append(f"uwb_anchors[{i}].id: {a.id!r} is used twice (also uwb_anchors[{ids[a.id]}])")
+            ids.setdefault(a.id, i)
+            if a.floor is not None and a.floor not in numbers:
+                problems.append(f"uwb_anchors[{i}].floor: floor {a.floor} is not configured; floors: {sorted(numbers)}")
+        for i, plan in enumerate(self.floor_plans):
+            problems += [f"floor_plans[{i}].{p}" for p in self._resolve_plan(plan)]
+        if problems:
+            raise PydanticCustomError("incident", "{problems}", {"problems": "; ".join(problems)})
+        return self
+
+    def _resolve_floors(self, problems: list[str]) -> None:
+        if not self.floors:
+            problems.append("floors: at least one floor is needed")
+            return
+        first: dict[int, int] = {}
+        for i, f in enumerate(self.floors):
+            if f.number in first:
+                problems.append(f"floors[{i}].number: floor {f.number} is configured twice (also floors[{first[f.number]}])")
+            first.setdefault(f.number, i)
+            if f.elevation_m is None:
+                f.elevation_m = f.number * self.floor_height_m
+            if f.name is None:
+                f.name = "Ground floor" if f.number == 0 else f"Floor {f.number}"
+        order = sorted(range(len(self.floors)), key=lambda i: self.floors[i].number)
+        for a, b in zip(order, order[1:]):
+            fa, fb = self.floors[a], self.floors[b]
+            if fa.number != fb.number and not fb.elevation_m > fa.elevation_m:
+                problems.append(f"floors[{b}].elevation_m: {fb.elevation_m} m for floor {fb.number} is not above "
+                                f"{fa.elevation_m} m of floor {fa.number} (elevations must rise with the number)")
+        self.floors = [self.floors[i] for i in order]
+
+    def _resolve_checkpoint(self, cp: Checkpoint) -> list[str]:
+        problems = []
+        if cp.floor not in {f.number for f in self.floors}:
+            problems.append(f"floor: floor {cp.floor} is not configured; floors: {[f.number for f in self.floors]}")
+        if cp.lat is not None:
+            x, y, _ = self.to_enu(cp.lat, cp.lon)
+            if cp.x is not None and math.hypot(x - cp.x, y - cp.y) > POSITION_AGREEMENT_M:
+                problems.append(f"x, y: ({cp.x}, {cp.y}) m disagrees with lat, lon ({cp.lat}, {cp.lon}), which is "
+                                f"({x:.3f}, {y:.3f}) m from the origin")
+            cp.x, cp.y = x, y
+        else:
+            cp.lat, cp.lon, _ = self.to_geodetic(cp.x, cp.y)
+        return problems
+
+    def _resolve_plan(self, plan: FloorPlan) -> list[str]:
+        if plan.floor not in {f.number for f in self.floors}:
+            return [f"floor: floor {plan.floor} is not configured; floors: {[f.number for f in self.floors]}"]
+        return resolve_plan(plan, self._base_dir, self.to_enu)
+
+    def to_enu(self, lat, lon, alt=None):
+        """WGS-84 (deg, deg, m; ``alt`` default the origin's height) -> local ENU (x, y, z) m."""
+        o = self.origin
+        x, y, z = pymap3d.geodetic2enu(lat, lon, o.alt_m if alt is None else alt, o.lat, o.lon, o.alt_m)
+        return _scalar_or_array(x), _scalar_or_array(y), _scalar_or_array(z)
+
+    def to_geodetic(self, x, y, z=0.0):
+        """Local ENU (m) -> WGS-84 (lat deg, lon deg, ellipsoidal height m)."""
+        o = self.origin
+        lat, lon, alt = pymap3d.enu2geodetic(x, y, z, o.lat, o.lon, o.alt_m)
+        return _scalar_or_array(lat), _scalar_or_array(lon), _scalar_or_array(alt)
+
+    def elevations(self) -> dict[int, float]:
+        """Configured elevation (m) of each floor number: a prior for the floor tracker
+        (``pdr.floors.FloorElevations(cfg.elevations())``)."""
+        return {f.number: float(f.elevation_m) for f in self.floors}
+
+    def floor(self, number: int) -> Floor:
+        for f in self.floors:
+            if f.number == number:
+                return f
+        raise ValueError(f"floor {number} is not configured; floors: {[f.number for f in self.floors]}")
+
+    # -- checkpoints --------------------------------------------------------------------
+    def checkpoint(self, name: str) -> Checkpoint:
+        for cp in self.checkpoints:
+            if cp.name == name:
+                return cp
+        known = ", ".join(cp.name for cp in self.checkpoints) or "none"
+        raise UnknownCheckpointError(f"incident {self.id!r} has no checkpoint {name!r}; known: {known}")
+
+    def add_checkpoint(self, name: str, *, floor: int, x: float | None = None, y: float | None = None,
+                       lat: float | None = None, lon: float | None = None, sigma_m: float = 0.5,
+                       note: str | None = None, replace: bool = False) -> Checkpoint:
+        """Add (or with ``replace`` overwrite) a checkpoint; positions as in the config file."""
+        cp = Checkpoint(name=name, floor=floor, x=x, y=y, lat=lat, lon=lon, sigma_m=sigma_m, note=note)
+        problems = self._resolve_checkpoint(cp)
+        if problems:
+            raise ValueError(f"checkpoint {name!r}: " + "; ".join(problems))
+        existing = [i for i, c in enumerate(self.checkpoints) if c.name == name]
+        if existing and not replace:
+            raise ValueError(f"checkpoint {name!r} exists already (pass replace=True to move it)")
+        if existing:
+            self.checkpoints[existing[0]] = cp
+        else:
+            self.checkpoints.append(cp)
+        return cp
+
+    # -- plans --------------------------------------------------------------------------
+    def floor_plan(self, floor: int, fallback: bool = False) -> FloorPlan | None:
+        """The plan of ``floor``; with ``fallback``, when it has no available image, the available
+        plan of the nearest floor (buildings keep their outline; the IPIN museum's .cal gives
+        one geometry for all its floors)."""
+        own = next((p for p in self.floor_plans if p.floor == floor), None)
+        if own is not None and (own.available or not fallback):
+            return own
+        if not fallback:
+            return None
+        usable = [p for p in self.floor_plans if p.available and p.georeferenced]
+        return min(usable, key=lambda p: (abs(p.floor - floor), p.floor)) if usable else own
+
+
+# ------------------------------------------------------------------------------------------
+# Loading
+# ------------------------------------------------------------------------------------------
+def _describe(exc: ValidationError) -> str:
+    parts = []
+    for e in exc.errors(include_url=False):
+        where = error_location(e["loc"])
+        msg = e["msg"]
+        if e["type"] not in ("incident", "missing") and not isinstance(e.get("input"), (dict, list)):
+            msg += f" (got {e.get('input')!r})"
+        parts.append(f"{where}: {msg}" if where else msg)
+    return "; ".join(parts)
+
+
+def incident_from_dict(data: Any, base_dir: str | Path | None = None, source: str | Path = "<config>") -> IncidentConfig:
+    """Validate an already parsed configuration; relative image paths resolve against ``base_dir``."""
+    if not isinstance(data, dict):
+        raise IncidentConfigError(source, f"the top level must be a table/object, got {type(data).__name__}")
+    try:
+        return IncidentConfig.model_validate(data, context={"base_dir": Path(base_dir) if base_dir else Path.cwd()})
+    except ValidationError as e:
+        raise IncidentConfigError(source, _describe(e)) from None
+
+
+def load_incident(path: str | Path) -> IncidentConfig:
+    """Read an incident configuration (``.json``, or ``.toml``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise IncidentConfigError(path, "file not found" if not path.exists() else "not a file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise IncidentConfigError(path, f"cannot read: {e}") from None
+    try:
+        data = tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
+    except json.JSONDecodeError as e:
+        raise IncidentConfigError(path, f"not valid JSON: {e.msg} at line {e.lineno} column {e.colno}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise IncidentConfigError(path, f"not valid TOML: {e}") from None
+    return incident_from_dict(data, base_dir=path.resolve().parent, source=path)
+
+
+def default_incident() -> IncidentConfig:
+    """The demo incident: the IPIN 2023 museum in Nuremberg (``deploy/incidents/ipin-museum.json``)."""
+    return load_incident(DEFAULT_INCIDENT_PATH)

@@ -1,0 +1,51 @@
+"""Key expressions: ``firetrack/{incident}/{responder}/{kind}``, the one place their rules live.
+
+Incident and responder ids match ``[A-Za-z0-9_.-]{1,64}``, so they never contain a
+key-expression separator or wildcard (``/``, ``*``, ``$``, ``#``, ``?``). The service, the
+recorder, the console and the wearables all build and parse keys here.
+"""
+from __future__ import annotations
+
+import re
+
+KEY_KINDS = ("imu", "fix", "pose", "status", "track", "presence", "truth")
+KEY_ROOT = "firetrack"
+ID_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"
+_ID_RE = re.compile(ID_PATTERN)
+
+
+def check_id(what: str, value: str) -> str:
+    if not isinstance(value, str) or not _ID_RE.match(value):
+        raise ValueError(f"{what} id {value!r} must match [A-Za-z0-9_.-]{{1,64}} "
+                         "(no '/', '*', '$', '#', '?', spaces or empty)")
+    return value
+
+
+def check_kind(kind: str) -> str:
+    if kind not in KEY_KINDS:
+        raise ValueError(f"unknown key kind {kind!r}; known: {', '.join(KEY_KINDS)}")
+    return kind
+
+
+def key(incident: str, responder: str, kind: str) -> str:
+    """``firetrack/{incident}/{responder}/{kind}``: where one responder's messages of a kind go."""
+    return f"{KEY_ROOT}/{check_id('incident', incident)}/{check_id('responder', responder)}/{check_kind(kind)}"
+
+
+def key_all(incident: str, kind: str) -> str:
+    """``firetrack/{incident}/*/{kind}``: subscribe to a kind for every responder of an incident."""
+    return f"{KEY_ROOT}/{check_id('incident', incident)}/*/{check_kind(kind)}"
+
+
+def parse_key(k: str) -> tuple[str, str, str]:
+    """``firetrack/{incident}/{responder}/{kind}`` -> ``(incident, responder, kind)``; ValueError
+    for anything else (wrong root, wrong number of chunks, bad id, unknown kind)."""
+    parts = str(k).split("/")
+    if len(parts) != 4 or parts[0] != KEY_ROOT:
+        raise ValueError(f"key {k!r} is not {KEY_ROOT}/{{incident}}/{{responder}}/{{kind}}")
+    _, incident, responder, kind = parts
+    return check_id("incident", incident), check_id("responder", responder), check_kind(kind)
+
+
+def is_valid_id(value: str) -> bool:
+    return isinstance(value, str) and _ID_RE.match(value) is not None

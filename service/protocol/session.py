@@ -1,0 +1,96 @@
+"""Zenoh session configurations used by every firetrack process.
+
+* The **service** by default *is* the router: one process, an in-process zenoh router
+  listening on ``tcp/127.0.0.1:7447`` (``firetrack serve`` with no arguments). With
+  ``--connect`` it joins a standalone ``zenohd`` instead (deploy/), as a client.
+* **Wearables, the console and tools** are clients that connect to an endpoint.
+
+Multicast scouting is off everywhere: at an incident the router's address is known, and a
+laptop must not start talking to whatever else is on the fire service's network.
+"""
+from __future__ import annotations
+
+import json
+import re
+import socket
+
+import zenoh
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def free_local_port() -> int:
+    """A TCP port free on 127.0.0.1 now (tests, benchmarks, a console on ``--port 0``)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _base(mode: str) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def router_config(listen: list[str] | None = None) -> zenoh.Config:
+    """An in-process router listening on ``listen`` (default the local demo endpoint)."""
+    conf = _base("router")
+    conf.insert_json5("listen/endpoints", json.dumps(listen or [DEFAULT_ENDPOINT]))
+    return conf
+
+
+def client_config(connect: list[str] | str | None = None) -> zenoh.Config:
+    """A client session connected to ``connect`` (default the local demo endpoint)."""
+    eps = [connect] if isinstance(connect, str) else (connect or [DEFAULT_ENDPOINT])
+    conf = _base("client")
+    conf.insert_json5("connect/endpoints", json.dumps(eps))
+    return conf
+
+
+def zenoh_error(e: BaseException) -> str:
+    """zenoh's error text in one line for a person: the Rust source location it carries
+    (``... at /root/.cargo/git/checkouts/.../tcp.rs:61.``) and its backtrace removed."""
+    text = " ".join(str(e).split())
+    text = re.sub(r"\s+at\s+\S+\.rs:\d+(:\d+)?\.?", "", text)
+    text = re.sub(r"\s*\(?[Bb]acktrace:.*$", "", text)
+    return text.strip() or type(e).__name__
+
+
+def open_session(listen: list[str] | None = None, connect: list[str] | str | None = None) -> zenoh.Session:
+    """A router on ``listen`` (the service's default), or a client of ``connect`` that also
+    listens on ``listen`` when given. Raises ``ConnectionError`` with one clear line."""
+    if isinstance(connect, str):
+        connect = [connect]
+    if connect:
+        conf = client_config(connect)
+        if listen:
+            conf.insert_json5("listen/endpoints", json.dumps(listen))
+    else:
+        conf = router_config(listen)
+    try:
+        return zenoh.open(conf)
+    except Exception as e:  # zenoh raises its own ZError; say what could not be opened
+        where = (f"cannot reach a zenoh router at {', '.join(connect)}" if connect
+                 else f"could not listen on {', '.join(listen or [DEFAULT_ENDPOINT])}")
+        raise ConnectionError(f"{where}: {zenoh_error(e)}") from None
+
+
+def open_client(connect: list[str] | str | None = None, wait_s: float = 0.0, on_wait=None) -> zenoh.Session:
+    """A client session to ``connect`` (default the local demo endpoint). A router that is not
+    up yet is retried for up to ``wait_s`` seconds (``on_wait(message)`` is told once), then
+    ``ConnectionError`` with one clear line."""
+    import time
+
+    deadline = time.monotonic() + max(0.0, wait_s)
+    told = False
+    while True:
+        try:
+            return open_session(None, connect or DEFAULT_ENDPOINT)
+        except ConnectionError as e:
+            if time.monotonic() >= deadline:
+                raise
+            if on_wait is not None and not told:
+                on_wait(f"{e}; retrying for up to {wait_s:.0f} s ...")
+                told = True
+            time.sleep(min(0.5, max(0.0, deadline - time.monotonic())))

@@ -1,0 +1,165 @@
+"""Terminal output shared by the commands: errors without tracebacks, tables, progress, JSON."""
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Iterable, Iterator
+from typing import TypeVar
+
+import numpy as np
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+)
+
+T = TypeVar("T")
+
+out = Console(soft_wrap=True)  # results
+err = Console(stderr=True, soft_wrap=True)  # progress, warnings, errors
+
+
+def fail(message: str) -> None:
+    err.print(f"[bold red]error:[/] {message}", highlight=False)
+
+
+def warn(message: str) -> None:
+    err.print(f"[yellow]warning:[/] {message}", highlight=False)
+
+
+def progress(items: Iterable[T], description: str, total: int | None = None) -> Iterator[T]:
+    """A progress bar on stderr (hidden when stderr is not a terminal)."""
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+        console=err, transient=True, disable=not sys.stderr.isatty(),
+    ) as bar:
+        task = bar.add_task(description, total=total if total is not None else getattr(items, "__len__", lambda: None)())
+        for item in items:
+            yield item
+            bar.advance(task)
+
+
+def _default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def print_json(obj) -> None:
+    sys.stdout.write(json.dumps(obj, default=_default, indent=2) + "\n")
+    sys.stdout.flush()
+
+
+def parse_params(pairs: list[str] | None) -> dict[str, str]:
+    """``["k=v", ...]`` -> ``{"k": "v"}``, with a clear error for a malformed pair."""
+    params: dict[str, str] = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise ValueError(f"--param expects name=value, got {pair!r}")
+        params[key.strip()] = value.strip()
+    return params
+
+
+class progress_bar:
+    """``with progress_bar("replaying") as update: update(done, total)`` — a bar on stderr
+    when it is a terminal, nothing otherwise (logs and CI stay clean)."""
+
+    def __init__(self, description: str):
+        self._bar = Progress(
+            TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+            console=err, transient=True, disable=not sys.stderr.isatty(),
+        )
+        self._description = description
+        self._task = None
+
+    def __enter__(self):
+        self._bar.__enter__()
+        self._task = self._bar.add_task(self._description, total=None)
+
+        def update(done: int, total: int) -> None:
+            self._bar.update(self._task, completed=done, total=total)
+
+        return update
+
+    def __exit__(self, *exc):
+        return self._bar.__exit__(*exc)
+
+
+# ------------------------------------------------------------------------------------------
+# What every long-running command does the same way
+# ------------------------------------------------------------------------------------------
+def stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM (Ctrl-C, systemd stop). A second Ctrl-C interrupts
+    at once (KeyboardInterrupt, which the commands catch and end quietly)."""
+    stop = threading.Event()
+
+    def handler(signum, frame):
+        if stop.is_set():  # a second Ctrl-C: the user means it
+            raise KeyboardInterrupt
+        err.print(f"\n{signal.Signals(signum).name}: shutting down ...")
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return stop
+
+
+def setup_logging(verbose: bool) -> None:
+    """Log lines on stderr; INFO with ``--verbose``, else warnings and errors only. On a
+    terminal they are coloured; into a file or journal (systemd) each record is one plain,
+    unwrapped line with its time and level."""
+    level = logging.INFO if verbose else logging.WARNING
+    if sys.stderr.isatty():
+        from rich.logging import RichHandler
+
+        handler: logging.Handler = RichHandler(console=err, show_path=False)
+        fmt = "%(message)s"
+    else:
+        handler = logging.StreamHandler(sys.stderr)
+        fmt = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+    handler.setFormatter(logging.Formatter(fmt))
+    logging.basicConfig(level=level, handlers=[handler], force=True)
+
+
+def incident_or_exit(config, incident_id: str | None = None):
+    """The incident config at ``config`` (default: the IPIN museum demo), under ``incident_id``
+    when given; a clear error and exit code 2 when it cannot be read."""
+    import typer
+
+    from service.protocol.incident import (
+        IncidentConfigError,
+        default_incident,
+        load_incident,
+    )
+
+    try:
+        cfg = load_incident(config) if config else default_incident()
+    except IncidentConfigError as e:
+        fail(str(e))
+        raise typer.Exit(2)
+    if incident_id and incident_id != cfg.id:
+        cfg = cfg.model_copy(update={"id": incident_id})
+    return cfg
+
+
+def client_or_exit(connect: str, wait_s: float = 0.0):
+    """A zenoh client session to ``connect`` (a router not up yet is waited for up to
+    ``wait_s``), or one clear line and exit code 1."""
+    import typer
+
+    from service.protocol.session import open_client
+
+    try:
+        return open_client(connect, wait_s, on_wait=warn)
+    except ConnectionError as e:
+        fail(str(e))
+        raise typer.Exit(1)

@@ -1,0 +1,319 @@
+"""The zenoh shell of one incident: sessions, subscriptions, the worker thread, the recorder.
+
+Everything an incident decides happens in :class:`service.core.incident_core.IncidentCore`;
+this shell only moves messages between zenoh and the core, and stamps the time::
+
+    firetrack/{incident}/*/imu       FIFO channel ─┐
+    firetrack/{incident}/*/fix       callback ─────┤  worker thread: rounds ─► IncidentCore ─► .../pose
+    firetrack/{incident}/*/presence  liveliness ───┤                                        └► .../status
+    status timer (1 Hz) ── tick ───────────────────┘
+    firetrack/{incident}/*/track     queryable: the core's track of the responder
+
+Threads. Frames wait in zenoh's own FIFO channel until the worker takes them (no Python
+callback per frame, so frames never queue for the GIL behind the worker); fixes, presence and
+the once-a-second tick come by callback through a queue. The worker stamps each message with
+the service clock as it takes it, records it (the order a recording is read back in is the
+order the core saw), feeds the core a round at a time and publishes what the core answers.
+Track queries read the core between rounds.
+"""
+from __future__ import annotations
+
+import gc
+import logging
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+import zenoh
+
+from service.core.incident_core import CoreSettings, Inbound, IncidentCore, Outbound
+from service.protocol import wire
+from service.protocol.incident import IncidentConfig
+from service.shell.sharding import in_shard
+
+log = logging.getLogger("firetrack.service")
+
+
+@dataclass
+class ServiceSettings:
+    core: CoreSettings = field(default_factory=CoreSettings)
+    status_period_s: float = 1.0  # s between Status messages
+    max_queue: int = 200_000  # callback messages waiting for the worker (beyond: the callbacks block)
+    max_round: int = 5000  # messages the worker takes before it runs the core
+    imu_channel: int = 20_000  # frames zenoh may hold for the worker (beyond: back-pressure to the router)
+    idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
+    warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
+
+
+class IncidentService:
+    """The service of one incident on an open zenoh session: ``start()``, ``close()``."""
+
+    def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
+                 recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1)):
+        if session is None:
+            raise ValueError("IncidentService needs an open zenoh session; offline, use service.core.IncidentCore")
+        self.session = session
+        self.settings = settings or ServiceSettings()
+        self.core = IncidentCore(incident, self.settings.core)
+        self.incident = incident
+        self.id = incident.id
+        self.shard = shard  # (k, K): this worker serves the responders with in_shard(id, k, K)
+        self.recorder = recorder
+        self.recorder_error: str | None = None
+        self.clock = clock
+        self.busy_s = 0.0  # wall time the worker spent on rounds (the benchmark's capacity figure)
+        self.pose_hook = None  # callable(responder_id, Pose, oldest seq of its batch) after each publication
+        self.profiler = None  # a cProfile.Profile the worker runs under, when set before start()
+        self._queue: queue.Queue = queue.Queue(maxsize=self.settings.max_queue)
+        self._stop = threading.Event()
+        self._core_lock = threading.Lock()  # the worker holds it per round; track queries wait for it
+        self._rec_lock = threading.Lock()
+        self._threads: list[threading.Thread] = []
+        self._decl: list = []
+        self._publishers: dict[str, object] = {}
+        self._imu = None  # the frames' subscriber (a zenoh FIFO channel), once started
+        self._looks = 0  # times the worker looked for input ...
+        self._last_busy_look = 0  # ... and the last time it found some (wait_idle)
+
+    # ------------------------------------------------------------------ what the core counts
+    @property
+    def responders(self):
+        return self.core.responders
+
+    @property
+    def frames_processed(self) -> int:
+        return self.core.counters.frames_processed
+
+    @property
+    def tracker_batches(self) -> int:
+        return self.core.counters.tracker_batches
+
+    @property
+    def received(self) -> dict:
+        return self.core.counters.received
+
+    @property
+    def errors(self) -> int:
+        return self.core.counters.errors
+
+    def frame_accounting(self) -> dict[str, int]:
+        with self._core_lock:
+            return self.core.frame_accounting()
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> IncidentService:
+        if self.settings.warm_up:
+            from service.core.warmup import warm_up
+
+            w = warm_up(self.incident, self.settings.core)
+            log.info("warmed up in %.2f s (a simulated responder: %d poses, %d fixes applied)",
+                     w.seconds, w.poses, w.fixes_applied)
+        s = self.session
+        self._imu = s.declare_subscriber(wire.key_all(self.id, "imu"),
+                                         zenoh.handlers.FifoChannel(self.settings.imu_channel))
+        self._decl += [
+            s.declare_subscriber(wire.key_all(self.id, "fix"), self._enqueue),
+            s.declare_queryable(wire.key_all(self.id, "track"), self._on_track_query),
+            s.liveliness().declare_subscriber(wire.key_all(self.id, "presence"), self._on_presence, history=True),
+        ]
+        # the cyclic garbage collector's full passes stall the worker for tens of ms once the
+        # heap holds many trackers; what exists at start-up (modules, config) never dies, so
+        # it leaves the collector's view, and young collections run less often
+        gc.freeze()
+        gc.set_threshold(20_000, 50, 100)
+        for target, name in ((self._work, "worker"), (self._tick_loop, "status")):
+            th = threading.Thread(target=target, name=f"firetrack-{name}", daemon=True)
+            th.start()
+            self._threads.append(th)
+        log.info("service for incident %r started", self.id)
+        return self
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Stop taking input, finish what is queued, stop the threads, undeclare everything."""
+        for d in self._decl:
+            try:
+                d.undeclare()
+            except Exception:  # already gone with a closed session
+                pass
+        self._decl.clear()
+        self._queue.put(None)  # the worker takes the frames still in the channel first, then stops
+        self._stop.set()
+        for th in self._threads:
+            th.join(timeout)
+        self._threads.clear()
+        if self._imu is not None:
+            try:
+                self._imu.undeclare()
+            except Exception:
+                pass
+            self._imu = None
+
+    def wait_idle(self, timeout: float = 10.0) -> bool:
+        """Block until everything received so far is processed (tests, benchmarks): the worker
+        has looked at its inputs since the call and found nothing left to do."""
+        deadline = time.monotonic() + timeout
+        seen = self._looks
+        while time.monotonic() < deadline:
+            if self._looks > seen + 1 and self._last_busy_look < self._looks and self._queue.unfinished_tasks == 0:
+                return True
+            time.sleep(0.005)
+        return False
+
+    # ------------------------------------------------------------------ zenoh callbacks
+    def _mine(self, key: str) -> bool:
+        return self.shard[1] == 1 or in_shard(key, *self.shard)
+
+    def _enqueue(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if self._mine(key):
+            self._queue.put(("fix", key, sample.payload.to_bytes()))
+
+    def _on_presence(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if self._mine(key):
+            self._queue.put(("presence", key, b"1" if sample.kind == zenoh.SampleKind.PUT else b"0"))
+
+    def _tick_loop(self) -> None:
+        while not self._stop.wait(self.settings.status_period_s):
+            self._queue.put(("tick", "", b""))
+
+    # ------------------------------------------------------------------ worker
+    def _work(self) -> None:
+        if self.profiler is not None:
+            self.profiler.enable()
+        try:
+            self._work_loop()
+        finally:
+            if self.profiler is not None:
+                self.profiler.disable()
+
+    def _work_loop(self) -> None:
+        """Rounds: take the frames waiting in zenoh's channel (up to ``max_round``), then what
+        the callbacks queued, stamp each with the clock as it is taken, and feed the core.
+        Idle, a round is a frame or two; behind, the rounds grow and every responder's frames
+        go through its pipeline as one batch, which costs far less per frame, so the worker
+        catches up instead of falling further behind."""
+        quick, slow = self.settings.idle_poll_s
+        last_frame = -math.inf
+        while True:
+            items = self._take_frames(self.settings.max_round)
+            wait = 0.0 if items else quick if time.monotonic() - last_frame < 1.0 else slow
+            taken, ticks, stop = self._take_queued(items, wait)
+            self._looks += 1
+            try:
+                if items or ticks:
+                    self._last_busy_look = self._looks
+                    if items and items[0].kind == "imu":
+                        last_frame = time.monotonic()
+                    self._run_round(items, ticks)
+            finally:
+                for _ in range(taken):
+                    self._queue.task_done()
+            if stop:
+                return
+
+    def _take_frames(self, limit: int | None) -> list[Inbound]:
+        """Frames waiting in zenoh's channel for this worker's responders, stamped as taken."""
+        out: list[Inbound] = []
+        if self._imu is None:
+            return out
+        while limit is None or len(out) < limit:
+            try:
+                sample = self._imu.try_recv()
+            except zenoh.ZError:  # undeclared (closing)
+                break
+            if sample is None:
+                break
+            key = str(sample.key_expr)
+            if self._mine(key):
+                out.append(Inbound("imu", key, sample.payload.to_bytes(), self.clock()))
+        return out
+
+    def _take_queued(self, items: list[Inbound], wait: float) -> tuple[int, int, bool]:
+        """Append what the callbacks queued to ``items``, waiting up to ``wait`` s for the
+        first. Returns how many queue entries were taken, how many were ticks, and whether one
+        asked the worker to stop (the frames still in the channel are then taken too)."""
+        try:
+            pending = [self._queue.get(timeout=wait) if wait > 0 else self._queue.get_nowait()]
+        except queue.Empty:
+            return 0, 0, False
+        while len(items) + len(pending) < self.settings.max_round:
+            try:
+                pending.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        stop = None in pending
+        ticks = 0
+        for p in pending:
+            if p is None:
+                continue
+            if p[0] == "tick":
+                ticks += 1
+            else:
+                items.append(Inbound(*p, self.clock()))
+        if stop:
+            items += self._take_frames(None)
+        return len(pending), ticks, stop
+
+    def _run_round(self, items: list[Inbound], ticks: int) -> None:
+        started = time.perf_counter()
+        try:
+            for m in items:
+                self._record(m.key, m.payload, m.received)
+            with self._core_lock:
+                self.core.recording_failed = self.recorder_error is not None
+                out = self.core.feed_round(items) if items else []
+                if ticks:
+                    out += self.core.tick(self.clock())
+            self._publish(out)
+        finally:
+            self.busy_s += time.perf_counter() - started
+
+    # ------------------------------------------------------------------ output
+    def _publish(self, out: list[Outbound]) -> None:
+        for o in out:
+            msg = o.message
+            if isinstance(msg, wire.Pose):  # stamped when it leaves, not when the round began
+                msg = msg.model_copy(update={"published_at": self.clock()})
+            payload = wire.encode(msg)
+            pub = self._publishers.get(o.key)
+            if pub is None:
+                pub = self._publishers[o.key] = self.session.declare_publisher(o.key)
+            try:
+                pub.put(payload)
+            except Exception:
+                log.exception("publishing on %s", o.key)
+            if isinstance(msg, wire.Pose) and self.pose_hook is not None:
+                r = self.core.responders.get(msg.responder)
+                self.pose_hook(msg.responder, msg, r.seq_oldest if r is not None else -1)
+            self._record(o.key, payload, msg.published_at if isinstance(msg, wire.Pose) else self.clock())
+
+    def _on_track_query(self, query: zenoh.Query) -> None:
+        with self._core_lock:
+            rids = list(self.core.responders)
+        for rid in rids:  # each worker answers for its own responders; zenoh merges the replies
+            k = wire.key(self.id, rid, "track")
+            if not zenoh.KeyExpr(k).intersects(query.key_expr):
+                continue
+            try:
+                with self._core_lock:  # the worker changes the smoother; read it between rounds
+                    t = self.core.track(rid)
+                query.reply(k, wire.encode_track(rid, t["track"], t["smoothed"]))
+            except Exception:
+                log.exception("track query for %s", rid)
+
+    def _record(self, key: str, payload: bytes, now: float) -> None:
+        if self.recorder is None or self.recorder_error is not None:
+            return  # a failure is reported once, and in every Status since
+        try:
+            with self._rec_lock:
+                self.recorder.write(key, payload, now)
+                self.recorder.flush_if_due(now)
+        except Exception as e:  # a full disk must be loud, not silent
+            self.recorder_error = str(e)
+            log.error("recording failed, the incident is no longer being recorded: %s", e)
+
+
+decode_track = wire.decode_track  # the reply format lives with the wire format

@@ -1,0 +1,92 @@
+"""More than one core: the responders of an incident shared between worker processes.
+
+The per-responder work (numpy and gtsam under Python's GIL) runs on one core per process,
+so ``firetrack serve --workers K`` runs K :class:`service.shell.service.IncidentService` workers:
+the first in the main process beside the router, the others in their own processes, each
+a zenoh client of that router. Every worker subscribes to the whole incident and keeps the
+responders whose id hashes to it (:func:`service.shell.service.in_shard`) — it looks at the key
+only, so the others' frames cost it a callback, not a decode. Each worker publishes the
+poses and status of its own responders and answers ``track`` queries for them; to the
+console and the wearables the K workers look like one service.
+"""
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import time
+from pathlib import Path
+
+
+def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop, ready, stats_path: str | None,
+                log_poses: bool = False) -> None:  # pragma: no cover - runs in a child process
+    import signal
+
+    from service.protocol.incident import incident_from_dict
+    from service.protocol.session import open_client
+    from service.shell.service import IncidentService
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us through ``stop``
+    cfg = incident_from_dict(config, base_dir=base_dir)
+    session = open_client(endpoint)
+    svc = IncidentService(session, cfg, shard=(k, n))
+    poses: list = []
+    if log_poses:
+        svc.pose_hook = lambda rid, msg, oldest: poses.append((rid, oldest, msg.published_at))
+    svc.start()
+    ready.set()
+    stop.wait()
+    _drain(svc, quiet_s=0.5, timeout=20.0)
+    stats = {"shard": k, "frames_processed": svc.frames_processed, "busy_s": svc.busy_s,
+             "tracker_batches": svc.tracker_batches, "frames_not_processed": svc.frame_accounting(),
+             "responders": len(svc.responders), "errors": svc.errors, "poses": poses}
+    svc.close()
+    session.close()
+    if stats_path:
+        Path(stats_path).write_text(json.dumps(stats))
+
+
+def _drain(svc, quiet_s: float, timeout: float) -> None:
+    """Until the worker's queue is empty and nothing new has come in for ``quiet_s`` (frames
+    still in flight from the router when the stop came are processed, not dropped)."""
+    deadline = time.monotonic() + timeout
+    last, since = None, time.monotonic()
+    while time.monotonic() < deadline:
+        svc.wait_idle(max(0.0, deadline - time.monotonic()))
+        seen = sum(svc.received.values())
+        if seen != last:
+            last, since = seen, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            return
+        time.sleep(0.05)
+
+
+class WorkerPool:
+    """Workers 1..K-1 of an incident (worker 0 is the caller's own IncidentService)."""
+
+    def __init__(self, endpoint: str, cfg, n: int, stats_dir: str | None = None, log_poses: bool = False):
+        self.ctx = mp.get_context("spawn")
+        self.stop = self.ctx.Event()
+        self.procs = []
+        self.stats_paths = []
+        config = cfg.model_dump(mode="json")
+        base = str(getattr(cfg, "_base_dir", Path.cwd()))
+        for k in range(1, n):
+            ready = self.ctx.Event()
+            path = str(Path(stats_dir) / f"worker{k}.json") if stats_dir else None
+            p = self.ctx.Process(target=worker_main, args=(endpoint, config, base, k, n, self.stop, ready, path, log_poses),
+                                 name=f"firetrack-worker-{k}", daemon=True)
+            p.start()
+            self.procs.append((p, ready))
+            self.stats_paths.append(path)
+
+    def wait_ready(self, timeout: float = 60.0) -> bool:
+        deadline = time.monotonic() + timeout
+        return all(r.wait(max(0.0, deadline - time.monotonic())) for _, r in self.procs)
+
+    def close(self, timeout: float = 20.0) -> list[dict]:
+        self.stop.set()
+        for p, _ in self.procs:
+            p.join(timeout)
+            if p.is_alive():
+                p.kill()
+        return [json.loads(Path(s).read_text()) for s in self.stats_paths if s and Path(s).exists()]
