@@ -462,6 +462,8 @@ def test_an_ipin_recording_replayed_at_10x_moves_its_marker(stack, browser):
 def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
     svc, console, cl, cfg, endpoint = stack
     url = console.url
+    # declared first: a subscriber takes a moment to reach the router, and the fix below must not pass it by
+    fixes = Collector(cl, wire.key(cfg.id, "foxtrot", "fix"))
     status, inc = http(url + "api/incident")
     assert status == 200 and inc["id"] == cfg.id and [f["number"] for f in inc["floors"]] == [-2, -1, 0]
     plan = inc["plans"]["0"]
@@ -509,7 +511,6 @@ def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
     assert status == 400 and "floor 7" in body["error"] and "[-2, -1, 0]" in body["error"]
     status, body = post("api/fix", {"responder": "foxtrot", "name": "no-such-door"})
     assert status == 404 and "no-such-door" in body["error"] and "t01-lm1" in body["error"]
-    fixes = Collector(cl, wire.key(cfg.id, "foxtrot", "fix"))
     status, body = post("api/fix", {"responder": "foxtrot", "name": "t01-lm2"})
     assert status == 200 and body["sent"]["name"] == "t01-lm2" and body["sent"]["t"] == 77.5
     assert wait_until(lambda: len(fixes.all()) == 1, 5)
