@@ -8,7 +8,7 @@ WebSockets and stops the server and its thread, each step bounded in time.
 HTTP API (JSON; errors are ``{"error": "..."}`` with a 4xx status naming what is wrong):
 
 ======================  =========================================================================
-``GET /``               the page (``static/index.html``); ``/static/*`` its script and style
+``GET /``               the page (``static/index.html``); ``/static/*`` its modules, style, Leaflet
 ``GET /ws``             WebSocket: a ``snapshot`` on connect, then one ``update`` per batch period
                         (latest pose/status of each changed responder), ``checkpoints`` and ``fix``
 ``GET /api/incident``   floors, checkpoints, a plan per floor (image URL, size, pixel -> ENU matrix)
@@ -33,6 +33,7 @@ import errno
 import json
 import logging
 import math
+import mimetypes
 import threading
 import time
 from pathlib import Path
@@ -48,6 +49,12 @@ from service.protocol import wire
 from service.protocol.incident import IncidentConfig, UnknownCheckpointError
 
 log = logging.getLogger("firetrack.console")
+
+# The page is ES modules, which browsers run only when served with a JavaScript type. aiohttp
+# >= 3.10 types static files from Python's own table; older ones from the system's, where .js
+# can be text/plain (the Windows registry): say what .js and .css are.
+mimetypes.add_type("text/javascript", ".js")
+mimetypes.add_type("text/css", ".css")
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 BATCH_PERIOD_S = 0.15  # one update message per page at most this often
