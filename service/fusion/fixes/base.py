@@ -48,7 +48,11 @@ class FixContext:
     covariance (for a gate); ``anchor(id, x, y)`` the key of a surveyed point's variable (new
     ones get a tight prior); ``state`` a dict the fusion keeps per fix source for this track
     (e.g. the time of the last factor); ``info`` what to log with the decision;
-    ``reject(reason, detail)`` refuses the fix.
+    ``reject(reason, detail)`` refuses the fix. ``between`` is ``(key a, key b, α)`` when the
+    fix's time falls inside a step whose two poses are in the window (see :func:`position_factor`),
+    else None. ``slip`` (m) is the distance walked between the fix's time and the pose ``key``: a
+    fix type that attaches to ``key`` adds it to its sigma; :attr:`position_slip` is what is left
+    of it for a fix placed with :func:`position_factor` (0 when it interpolates).
     """
 
     key: int
@@ -60,6 +64,36 @@ class FixContext:
     state: dict
     info: dict = field(default_factory=dict)
     rejected: tuple[str, str] | None = None
+    between: tuple[int, int, float] | None = None  # (key before, key after, share of that step walked at the fix's time)
 
     def reject(self, reason: str, detail: str = "") -> None:
         self.rejected = (reason, detail)
+
+    @property
+    def position_slip(self) -> float:
+        """m, the interpolation error left for :func:`position_factor`: none inside a step."""
+        return 0.0 if self.between is not None else self.slip
+
+
+def position_factor(ctx: FixContext, z, noise):
+    """The walker was at ``z`` (m, ENU) at the fix's time: on the pose of that time, or, when the
+    fix falls inside a step (``ctx.between``), on the point of that step walked by then,
+    ``p = (1−α)·p_a + α·p_b`` (the step is a straight line; α its share walked at the fix's
+    time), so a fix between two poses does not drag the nearer one to where it was not."""
+    import gtsam
+    import numpy as np
+
+    if ctx.between is None:
+        return gtsam.PoseTranslationPrior2D(ctx.key, np.asarray(z, float), noise)
+    ka, kb, alpha = ctx.between
+    zx, zy = float(z[0]), float(z[1])
+
+    def error(this, values, jacobians):
+        a, b = values.atPose2(ka), values.atPose2(kb)
+        if jacobians is not None:
+            ca, sa, cb, sb = math.cos(a.theta()), math.sin(a.theta()), math.cos(b.theta()), math.sin(b.theta())
+            jacobians[0] = (1.0 - alpha) * np.array([[ca, -sa, 0.0], [sa, ca, 0.0]])
+            jacobians[1] = alpha * np.array([[cb, -sb, 0.0], [sb, cb, 0.0]])
+        return np.array([(1.0 - alpha) * a.x() + alpha * b.x() - zx, (1.0 - alpha) * a.y() + alpha * b.y() - zy])
+
+    return gtsam.CustomFactor(noise, [ka, kb], error)

@@ -1,7 +1,8 @@
 """Checkpoint fixes: the responder was at a surveyed point (an operator at a door, a tag reader).
 
-Trusted, so no gate: a Gaussian ``PoseTranslationPrior2D`` on the pose of its time, σ =
-``hypot(max(sigma, checkpoint_sigma_floor_m), slip)``. The seeds reset the position at a
+Trusted, so no gate: a Gaussian position factor (:func:`.base.position_factor`) on the point of
+the step walked at its time, σ = ``max(sigma, checkpoint_sigma_floor_m)`` (on the pose of its
+time, σ grown by the slip, when that step has left the window). The seeds reset the position at a
 checkpoint (seed 002 §2.10); as a prior in the factor graph it also straightens the history
 walked before it. A translation prior leaves the heading free (a ``PriorFactorPose2`` with a
 huge θ sigma would leak a made-up heading prior).
@@ -12,9 +13,7 @@ import math
 import numbers
 from dataclasses import dataclass
 
-import numpy as np
-
-from service.fusion.fixes.base import FixContext, FixRejected, finite, positive
+from service.fusion.fixes.base import FixContext, FixRejected, finite, position_factor, positive
 
 
 @dataclass(frozen=True)
@@ -40,9 +39,8 @@ class CheckpointFix:
     def factors(self, ctx: FixContext):
         import gtsam
 
-        sigma = math.hypot(max(self.sigma, ctx.settings.checkpoint_sigma_floor_m), ctx.slip)
-        return [gtsam.PoseTranslationPrior2D(ctx.key, np.array([self.x, self.y]),
-                                             gtsam.noiseModel.Isotropic.Sigma(2, sigma))]
+        sigma = math.hypot(max(self.sigma, ctx.settings.checkpoint_sigma_floor_m), ctx.position_slip)
+        return [position_factor(ctx, (self.x, self.y), gtsam.noiseModel.Isotropic.Sigma(2, sigma))]
 
 
 def to_local(msg, incident) -> CheckpointFix:

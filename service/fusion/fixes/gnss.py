@@ -11,7 +11,8 @@ evidence, each refusal counted by reason:
 * ``gnss_gate``: the innovation ν = z − p̂ fails the χ² test ``νᵀ(Σ_p + σ²I)⁻¹ν >
   χ²₂(gnss_gate_probability)`` against the pose's marginal.
 
-What passes is a ``PoseTranslationPrior2D`` with σ = hypot(accuracy, slip) under a robust
+What passes is a position factor (:func:`.base.position_factor`: on the point of the step walked
+at the fix's time, or on the pose of its time with σ = hypot(accuracy, slip)) under a robust
 kernel (``gnss_kernel``).
 """
 from __future__ import annotations
@@ -22,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.fusion.fixes.base import FixContext, finite, positive
+from service.fusion.fixes.base import FixContext, finite, position_factor, positive
 
 
 @functools.lru_cache(maxsize=8)
@@ -62,7 +63,7 @@ class GnssFix:
         last = ctx.state.get("last_t", -math.inf)
         if self.t - last < s.gnss_min_interval_s:
             return ctx.reject("gnss_interval", f"{self.t - last:.1f} s after the last GNSS factor")
-        sigma = math.hypot(self.accuracy, ctx.slip)
+        sigma = math.hypot(self.accuracy, ctx.position_slip)
         p, cov = ctx.position_marginal()
         nu = np.array([self.x, self.y]) - p
         s2 = cov + sigma * sigma * np.eye(2)  # blas-ok: 2x2, one fix at a time
@@ -73,8 +74,7 @@ class GnssFix:
             return ctx.reject("gnss_gate", f"Mahalanobis² {d2:.1f} > {gate:.1f}")
         ctx.state["last_t"] = self.t
         base = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
-        return [gtsam.PoseTranslationPrior2D(ctx.key, np.array([self.x, self.y]),
-                                             robust(s.gnss_kernel, s.gnss_kernel_width, base))]
+        return [position_factor(ctx, (self.x, self.y), robust(s.gnss_kernel, s.gnss_kernel_width, base))]
 
 
 def to_local(msg, incident) -> GnssFix:
