@@ -38,15 +38,16 @@ class Candidate:
 
 def _grid() -> tuple[Candidate, ...]:
     """The numbers chosen on the IPIN walks: the step-length slope b (m·s, ``L = a + b·f``), the
-    extra turn sigma of a step on stairs (rad) and the compass window gate (rad; inf: none)."""
+    stationary sigma of the PDR heading's error (rad; how far the graph may turn the dead
+    reckoning's heading without a fix) and the spacing of GNSS factors (s)."""
     out = []
     for b in (0.20, 0.22, 0.24):
-        for stairs_deg in (0.0, 10.0):
-            for gate_deg in (math.inf, 15.0):
-                out.append(Candidate(f"b={b:.2f} stairs={stairs_deg:g}° window={gate_deg:g}°", (
+        for c_deg in (10.0, 15.0):
+            for gnss_s in (5.0, 10.0):
+                out.append(Candidate(f"b={b:.2f} pdr-heading σ={c_deg:g}° gnss every {gnss_s:g} s", (
                     ("pipeline.profile.coefficients.b", b),
-                    ("fusion.stairs_turn_sigma_rad", float(np.radians(stairs_deg))),
-                    ("fusion.mag_window_gate_rad", float(np.radians(gate_deg))))))
+                    ("fusion.pdr_heading_sigma_rad", float(np.radians(c_deg))),
+                    ("fusion.gnss_min_interval_s", gnss_s))))
     return tuple(out)
 
 
