@@ -31,6 +31,8 @@ class Responder:
     present: bool | None = None  # liveliness: None unknown, True token alive, False token gone
     utc_offset: float | None = None  # s, UTC minus the device clock, as the wearable last said
     logged: deque = field(default_factory=lambda: deque(maxlen=64))
+    last_checkpoint: object | None = None  # service.core.plausibility.Reference of the last checkpoint fix taken
+    fixes_flagged: int = 0  # checkpoint fixes taken but flagged as implausible jumps
 
 
 def continues(prev: wire.ImuBatch, b: wire.ImuBatch) -> bool:
