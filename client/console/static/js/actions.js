@@ -1,8 +1,12 @@
 /* global L */
 /* What the operator does: select a responder, place a checkpoint fix where the map is clicked
-   or at a named checkpoint, and name a new checkpoint. Each action is confirmed in the dialog
-   and sent to the console server (POST /api/fix, /api/checkpoint), which publishes it. The
-   SELECTED panel shows the selected responder and enables the actions that apply. */
+   or at a named checkpoint, name a new checkpoint, report the selected responder accounted
+   for or missing (PAR). Each action is confirmed in the dialog and sent to the console server
+   (POST /api/fix, /api/checkpoint, /api/par), which publishes it to the service under the
+   logged-in operator's name. The service answers each with an audit ("audit" messages): a
+   refusal, or a fix taken but flagged as further than a person can walk, shows as a notice
+   and on the responder (S.flags). The SELECTED panel shows the selected responder and enables
+   the actions that apply. */
 import {S} from "./state.js";
 import {$, MOTION_LABELS, ask, setText, toast} from "./ui.js";
 import {postJSON} from "./api.js";
@@ -31,6 +35,13 @@ export function renderSelection() {
   const r = S.selected ? S.responders.get(S.selected) : null;
   setText($("sel-id"), S.selected || "none");
   $("btn-fix-cp").disabled = !r || !$("cp-select").value;
+  $("btn-par-ok").disabled = $("btn-par-missing").disabled = !r;
+  const flag = r ? S.flags[r.id] : null;
+  $("sel-flag").hidden = !flag;
+  if (flag) {
+    setText($("sel-flag"), `⚠ FIX FLAGGED: ${flag.operator || flag.actor} moved ${flag.responder} ` +
+            `${Math.round(flag.jump_m)} m; at most ${Math.round(flag.walkable_m)} m was walkable`);
+  }
   if (!r) { setText($("sel-info"), "Click a marker or a roster row."); return; }
   const p = r.pose, s = r.status, parts = [];
   if (p) {
@@ -111,9 +122,38 @@ export function onMapClick(x, y, point) {
   if (addMode) { addCheckpointAt(x, y); return; }
   const hit = responderAt(point);
   if (hit) { select(hit); return; }
+  if (S.session && S.session.role === "viewer") return;  // viewers look; they do not place fixes
   if (S.mode !== "live") { toast("Fixes are placed in LIVE mode", "error"); return; }
   if (!S.selected) { toast("Select a responder first: click a marker or a roster row", "error"); return; }
   fixAtPoint(x, y);
+}
+
+async function par(accounted) {
+  const id = S.selected;
+  if (!id) return;
+  const ok = await ask(accounted ? `${id} accounted for?` : `${id} MISSING?`,
+    accounted ? `Report ${id} as seen and well (PAR). The service records it under your name.`
+              : `Report ${id} as NOT accounted for (PAR). The service records it under your name.`);
+  if (ok) await send("/api/par", {responder: id, accounted},
+                     () => `PAR for ${id} recorded: ${accounted ? "accounted for" : "MISSING"}`, `PAR for ${id} not sent`);
+}
+
+const ACTION_WORDS = {fix: "fix", checkpoint: "checkpoint", ack: "acknowledgement", par: "PAR", device_fix: "fix"};
+
+function onAudit(a) {
+  const who = a.operator ? `${a.operator} (${a.actor})` : a.actor;
+  if (a.outcome === "refused") {
+    toast(`The service refused the ${ACTION_WORDS[a.action]} by ${who}${a.responder ? ` for ${a.responder}` : ""}: ` +
+          `${a.reason}${a.detail ? ` — ${a.detail}` : ""}`, "error");
+  } else if ((a.flags || []).includes("implausible_jump")) {
+    S.flags[a.responder] = a;
+    toast(`⚠ Fix for ${a.responder} by ${who} taken but FLAGGED: ${Math.round(a.jump_m)} m from where ` +
+          `${a.responder} was, at most ${Math.round(a.walkable_m)} m walkable`, "error");
+    renderSelection();
+  } else if (a.action === "fix" && S.flags[a.responder]) {
+    delete S.flags[a.responder];  // a plausible fix since: the flag is history (it stays in the recording)
+    renderSelection();
+  }
 }
 
 /** afterSelect(): what else shows the selection (the roster) refreshes. */
@@ -122,10 +162,13 @@ export function bindActions(afterSelect) {
   $("btn-fix-cp").onclick = fixAtCheckpoint;
   $("cp-select").onchange = () => renderSelection();
   $("btn-add-cp").onclick = () => setAddMode(!addMode);
+  $("btn-par-ok").onclick = () => par(true);
+  $("btn-par-missing").onclick = () => par(false);
+  onMessage("audit", (m) => onAudit(m.audit));
   onMessage("checkpoints", (m) => { S.checkpoints = m.checkpoints; fillCheckpointList(); drawCheckpoints(); });
   onMessage("fix", (m) => {
     const f = m.fix;
     const where = f.name ? `checkpoint ${f.name}` : `(${f.x.toFixed(1)}, ${f.y.toFixed(1)}) m, floor ${f.floor}`;
-    toast(`Fix for ${f.responder} at ${where} sent by the console`, "ok");
+    toast(`Fix for ${f.responder} at ${where} sent by ${f.operator || "the console"}`, "ok");
   });
 }

@@ -4,10 +4,12 @@
    Life of an alarm (one per responder and kind, S.alarms): raised, it flashes until
    acknowledged; acknowledged, it stays listed while it lasts; when it ends after
    acknowledgement it leaves the list; a new occurrence raises it again (count + 1). The list
-   (#alarms) shows unacknowledged alarms first, then by the time they were raised. */
+   (#alarms) shows unacknowledged alarms first, then by the time they were raised. An
+   acknowledgement is also sent to the service (POST /api/ack), which records who made it. */
 import {S, serverNow} from "./state.js";
-import {$, ago, setText} from "./ui.js";
+import {$, ago, setText, toast} from "./ui.js";
 import {select} from "./actions.js";
+import {postJSON} from "./api.js";
 
 const LABELS = {man_down: "MAN DOWN", lost_contact: "LOST CONTACT", rejected_frames: "BAD DATA",
                 disconnected: "WEARABLE OFF"};
@@ -43,6 +45,9 @@ export function evaluateAlarms() {
 export function acknowledge(key) {
   const e = S.alarms.get(key);
   if (!e) return;
+  // the service records who acknowledged what (an operator action); the page does not wait for it
+  postJSON("/api/ack", {responder: e.responder, alarm: e.kind})
+    .catch((err) => toast(`Acknowledgement of ${e.responder} not recorded: ${err.message}`, "error"));
   e.acked = true;
   if (!e.active) S.alarms.delete(key);
   S.dirty = true;

@@ -1,7 +1,8 @@
 /* The roster: one row per responder, sortable by any column (click a header; again to reverse).
    A column is one entry of COLUMNS: its header, the value it sorts by and the text it shows.
    Rows are marked .selected, .alarmed (an active alarm), .other (on another floor than the one
-   shown) and .stale (not heard for STALE_S). */
+   shown), .stale (not heard for STALE_S) and .flagged (its latest checkpoint fix was an
+   implausible jump, taken because an authorised operator sent it). */
 import {S, alarmSets, serverNow} from "./state.js";
 import {$, MOTION_LABELS, ago, setText} from "./ui.js";
 import {select} from "./actions.js";
@@ -56,7 +57,8 @@ export function renderRoster() {
     if (tbody.children[i] !== tr) tbody.insertBefore(tr, tbody.children[i] || null);
     COLUMNS.forEach((c, j) => setText(tr.children[j], c.text(r, now)));
     const cls = [r.id === S.selected ? "selected" : "", al.active.has(r.id) ? "alarmed" : "",
-                 r.pose && r.pose.floor !== S.floor ? "other" : "", !(now - r.lastRx <= STALE_S) ? "stale" : ""]
+                 r.pose && r.pose.floor !== S.floor ? "other" : "", !(now - r.lastRx <= STALE_S) ? "stale" : "",
+                 S.flags[r.id] ? "flagged" : ""]
       .filter(Boolean).join(" ");
     if (tr.className !== cls) tr.className = cls;
   });

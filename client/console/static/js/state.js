@@ -19,6 +19,8 @@ export const S = {
   clockOffset: 0,         // server clock - page clock (s), from each message's "now"
   connected: false,
   rejected: {},           // the service's counts of ignored messages, by reason
+  flags: {},              // responder -> the service's audit of its latest implausible fix
+  session: null,          // who is logged in: {auth: "open"|"required", user, role}
   settings: {lost_contact_s: 10, trail_points: 120},
   dirty: true,            // the responders layer must be redrawn
   messages: 0,
