@@ -130,6 +130,26 @@ class Collector:
             return list(self.items)
 
 
+class FixCollector(Collector):
+    """The fixes a console publishes, as operator actions on its own key (``.../{actor}/op``)."""
+
+    def __init__(self, session, cfg, responder: str, actor: str = "console"):
+        self.responder = responder
+        super().__init__(session, wire.key(cfg.id, actor, "op"))
+
+    def _on(self, sample):
+        op = wire.decode(sample.payload.to_bytes(), expect=wire.OperatorAction)
+        if op.action == "fix" and op.responder == self.responder:
+            with self._lock:
+                self.items.append((op, wire.decode(op.fix, expect=wire.Fix)))
+
+    def all(self):  # the fixes
+        return [f for _, f in super().all()]
+
+    def actions(self):
+        return [op for op, _ in super().all()]
+
+
 def imu_frames(responder: str, t0: float, seconds: float, still: bool, seq0: int = 0, seed: int = 0,
                rate: float = 50.0) -> list[wire.ImuBatch]:
     """Synthetic frames from device time ``t0``: motionless, or a 1.8 Hz vertical bounce the
@@ -181,7 +201,7 @@ def test_markers_move_a_map_click_places_a_fix_and_review_scrubs_the_track(stack
     # long enough to still be walking when the fix is sent (it applies at the next step); stopped after
     frames = {r: imu_frames(r, 1000.0, 150.0, still=False, seed=i) for i, r in enumerate(ids)}
     wearables = {r: Wearable(cl, cfg.id, r) for r in ids}
-    fixes = Collector(cl, wire.key(cfg.id, "alpha", "fix"))
+    fixes = FixCollector(cl, cfg, "alpha")
     stop = threading.Event()
     sender = threading.Thread(target=send_paced, args=(wearables, frames, 8.0, stop), daemon=True)
     page = Page(browser, console.url)
@@ -236,7 +256,8 @@ def test_markers_move_a_map_click_places_a_fix_and_review_scrubs_the_track(stack
         page.page.locator("#modal-ok").click()
         assert wait_until(lambda: len(fixes.all()) == 1, 5), "the console published no fix"
         fix = fixes.all()[0]
-        assert fix.source == "checkpoint" and fix.operator == "console" and fix.floor == cfg.start_floor
+        assert fix.source == "checkpoint" and fix.operator == "local" and fix.floor == cfg.start_floor
+        assert fixes.actions()[0].operator == "local"  # the open demo console: whoever is at this machine
         assert math.dist((fix.x, fix.y), (cp.x, cp.y)) <= 1.5 * metres_per_px  # the click, within a pixel
         assert fix.t >= later["t"]  # stamped with alpha's latest device time
         assert wait_until(lambda: svc.responders["alpha"].tracker.fixes_applied > applied_before, 15), \
@@ -463,7 +484,7 @@ def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
     svc, console, cl, cfg, endpoint = stack
     url = console.url
     # declared first: a subscriber takes a moment to reach the router, and the fix below must not pass it by
-    fixes = Collector(cl, wire.key(cfg.id, "foxtrot", "fix"))
+    fixes = FixCollector(cl, cfg, "foxtrot")
     status, inc = http(url + "api/incident")
     assert status == 200 and inc["id"] == cfg.id and [f["number"] for f in inc["floors"]] == [-2, -1, 0]
     plan = inc["plans"]["0"]
@@ -514,7 +535,7 @@ def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
     status, body = post("api/fix", {"responder": "foxtrot", "name": "t01-lm2"})
     assert status == 200 and body["sent"]["name"] == "t01-lm2" and body["sent"]["t"] == 77.5
     assert wait_until(lambda: len(fixes.all()) == 1, 5)
-    assert fixes.all()[0] == wire.Fix.checkpoint("foxtrot", 77.5, name="t01-lm2", operator="console")
+    assert fixes.all()[0] == wire.Fix.checkpoint("foxtrot", 77.5, name="t01-lm2", operator="local")
 
     # checkpoints: added, visible to the page's next load, duplicates and bad floors refused
     status, body = post("api/checkpoint", {"name": "door-7", "x": 3.5, "y": -4.0, "floor": -1, "note": "side door"})
