@@ -23,7 +23,7 @@ from service.protocol import wire
 from service.protocol.access import check_password, load_roster
 from service.protocol.tls import TlsConfigError, TlsIdentity
 from tests.security_util import bare_tls_client, tls_client, walking_frames
-from tests.zenoh_util import free_port, wait_until
+from tests.zenoh_util import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 

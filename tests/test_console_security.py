@@ -168,8 +168,11 @@ def test_every_operator_action_is_in_the_recording_with_who_did_it(secured):
     live = svc.responders["ff1"].tracker.live
     far = {"responder": "ff1", "x": live.x + 86.0, "y": live.y, "floor": 0}  # the forged-fix distance, by an operator
     assert b.request("POST", "/api/fix", far)[0] == 200
+    assert wait_until(lambda: len(console.server.audits) == 1, 10)  # zenoh orders per key: one at a time
     assert b.request("POST", "/api/par", {"responder": "ff1", "accounted": True})[0] == 200
-    assert wait_until(lambda: len(console.server.audits) == 2 and svc.wait_idle(0.2), 10)
+    assert b.request("POST", "/api/ack", {"responder": "ff1", "alarm": "man_down"})[0] == 200
+    assert b.request("POST", "/api/checkpoint", {"name": "stair-B", "x": 4.0, "y": 1.0, "floor": 0})[0] == 201
+    assert wait_until(lambda: len(console.server.audits) == 4 and svc.wait_idle(0.2), 10)
     flagged = console.server.audits[0]
     assert flagged["flags"] == ["implausible_jump"] and flagged["outcome"] == "accepted"
     assert console.server.flags["ff1"]["operator"] == "alice"  # shown on the console
@@ -179,11 +182,14 @@ def test_every_operator_action_is_in_the_recording_with_who_did_it(secured):
     msgs = list(read_recording(rec_path))
     assert msgs[0].kind == "access"  # the policy the service enforced, before any input
     ops = [(m.responder, wire.decode(m.payload)) for m in msgs if m.kind == "op"]
-    assert [(actor, op.operator, op.action) for actor, op in ops] == [("console-1", "alice", "fix"),
-                                                                      ("console-1", "alice", "par")]
+    assert [(actor, op.operator, op.action) for actor, op in ops] == [
+        ("console-1", "alice", "fix"), ("console-1", "alice", "par"), ("console-1", "alice", "ack"),
+        ("console-1", "alice", "checkpoint")]
+    assert (ops[2][1].alarm, ops[3][1].name, ops[1][1].accounted) == ("man_down", "stair-B", True)
     audits = [wire.decode(m.payload) for m in msgs if m.kind == "audit"]
     assert [(a.actor, a.operator, a.action, a.flags) for a in audits] == [
-        ("console-1", "alice", "fix", ["implausible_jump"]), ("console-1", "alice", "par", [])]
+        ("console-1", "alice", "fix", ["implausible_jump"]), ("console-1", "alice", "par", []),
+        ("console-1", "alice", "ack", []), ("console-1", "alice", "checkpoint", [])]
     # reprocessed, the recording gives the same verdicts
     again = reprocess(rec_path, default_incident())["audits"]
     assert [(a["actor"], a["operator"], a["action"], a["outcome"], a["flags"]) for a in again] == [

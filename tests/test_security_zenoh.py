@@ -22,7 +22,6 @@ from service.protocol.tls import TlsConfigError
 from service.shell.service import IncidentService, ServiceSettings
 from tests.security_util import (
     INCIDENT,
-    Tap,
     bare_tls_client,
     identity,
     make_pki,
@@ -340,3 +339,49 @@ def test_the_shipped_zenohd_config_is_tls_only_with_mtls_and_default_deny():
     everyone = next(p for p in acl["policies"] if p["subjects"] == ["everyone"])
     rules = {r["id"]: r for r in acl["rules"]}
     assert all(rules[r]["messages"] == ["declare_subscriber", "declare_queryable"] for r in everyone["rules"])
+
+
+def test_a_simulator_publishes_for_its_own_walkers_only_and_replay_and_record_need_a_service_identity(pkidir,
+                                                                                                       tmp_path):
+    from client.simulate import SimulationPublisher
+    from service.cli.record import record, replay
+    from service.review.recorder import IncidentRecorder
+
+    with secure_service(pkidir) as (svc, endpoint, tap):
+        sim = tls_client(endpoint, identity(pkidir, "sim"))
+        try:
+            pub = SimulationPublisher(sim, INCIDENT, 2, 50.0, 0, prefix="sim", start_spread_s=0.0)
+            pub.run(2.0)
+            pub.close()
+            for b in walking_frames("ff1", 1.0):  # a simulator is no wearable of the roster
+                sim.put(wire.key(INCIDENT, "ff1", "imu"), wire.encode(b))
+            assert wait_until(lambda: {"sim-000", "sim-001"} <= set(svc.responders) and svc.wait_idle(0.2), 10)
+            time.sleep(SETTLE_S)
+            assert set(svc.responders) == {"sim-000", "sim-001"}
+        finally:
+            sim.close()
+
+        # a recording of ff2 replayed into the secured incident with the service's identity
+        path = tmp_path / "ff2.mcap"
+        with IncidentRecorder(path, INCIDENT) as rec:
+            for i, b in enumerate(walking_frames("ff2", 1.0, t0=2000.0)):
+                rec.write(wire.key(INCIDENT, "ff2", "imu"), wire.encode(b), 100.0 + 0.1 * i)
+        with pytest.raises(ConnectionError):
+            replay(path, endpoint.replace("tls/", "tcp/"), speed=0, quiet=True)
+        out = tmp_path / "rec.mcap"
+        import threading
+
+        ready, stop = threading.Event(), threading.Event()
+        recorder = threading.Thread(target=record, args=(endpoint, INCIDENT, out), daemon=True,
+                                    kwargs=dict(stop_event=stop, ready=ready, quiet=True, tls=identity(pkidir, "svc")))
+        recorder.start()
+        assert ready.wait(10)
+        done = replay(path, endpoint, speed=0, quiet=True, tls=identity(pkidir, "svc"), wait_for_subscribers_s=2.0)
+        assert done["messages"] == 10
+        assert wait_until(lambda: "ff2" in svc.responders and svc.responders["ff2"].gate.accepted == 10, 10)
+        time.sleep(SETTLE_S)
+        stop.set()
+        recorder.join(10)
+        from service.review.recorder import read_recording
+
+        assert sum(m.kind == "imu" and m.responder == "ff2" for m in read_recording(out)) == 10
