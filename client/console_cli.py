@@ -17,6 +17,7 @@ from service.protocol.terminal import (
     incident_or_exit,
     out,
     stop_on_signals,
+    warn_plan_problems,
 )
 
 
@@ -33,6 +34,7 @@ def console_command(
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s")
     cfg = incident_or_exit(config, incident)
+    warn_plan_problems(cfg)
     stop = stop_on_signals()
     session = client_or_exit(connect)
     try:

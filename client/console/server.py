@@ -143,6 +143,7 @@ class ConsoleServer:
         self.board = LiveBoard()
         self.pages: set[_Page] = set()
         self.fixes_sent = 0
+        self.commands_sent = 0
         self.added_checkpoints: set[str] = set()
         self._subs: list = []
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -209,6 +210,7 @@ class ConsoleServer:
         r.add_get(r"/plan/{floor:-?\d+}.png", self._plan)
         r.add_post("/api/fix", self._fix)
         r.add_post("/api/checkpoint", self._checkpoint)
+        r.add_post("/api/command", self._command)
         runner = web.AppRunner(app, access_log=None, shutdown_timeout=1.0)
         await runner.setup()
         site = web.TCPSite(runner, self.host, self.port)
@@ -309,6 +311,7 @@ class ConsoleServer:
             "id": cfg.id, "name": cfg.name, "origin": cfg.origin.model_dump(), "start_floor": cfg.start_floor,
             "floors": [{"number": f.number, "name": f.name, "elevation_m": f.elevation_m} for f in cfg.floors],
             "checkpoints": self._checkpoints_json(), "plans": plans,
+            "roster": [m.model_dump() for m in cfg.roster],
             "settings": {"lost_contact_s": self.lost_contact_s, "batch_period_s": self.batch_period_s,
                          "trail_points": self.board.trail_points},
         }
@@ -443,6 +446,40 @@ class ConsoleServer:
         log.info("console: checkpoint fix for %s sent: %s", fix.responder, sent)
         self._send_all({"type": "fix", "now": time.time(), "fix": sent})
         return web.json_response({"sent": sent, "key": key})
+
+    async def _command(self, request: web.Request) -> web.Response:
+        """A roll call (``{"action": "par"}``) or an evacuation order (``{"action": "evacuate"}``)
+        to every responder this console knows, or to ``"responders": [...]``; each wearable
+        acknowledges, and the service's Status says who has not."""
+        try:
+            body = await self._body(request)
+            action = body.get("action")
+            if action not in ("par", "evacuate"):
+                raise _HttpError(400, f"'action' must be 'par' (roll call) or 'evacuate', got {action!r}")
+            known = self.board.responders()
+            wanted = body.get("responders", known)
+            if not isinstance(wanted, list) or not all(isinstance(r, str) and wire.is_valid_id(r) for r in wanted):
+                raise _HttpError(400, "'responders' must be a list of responder ids")
+            if not wanted:
+                raise _HttpError(409, "no responder is known to this console yet")
+        except _HttpError as e:
+            return _error(e.status, e.args[0])
+        self.commands_sent += 1
+        now = time.time()
+        order_id = f"{action}-{int(now)}-{self.commands_sent}"
+        payloads = [(wire.key(self.cfg.id, rid, "command"),
+                     wire.encode(wire.Command(responder=rid, id=order_id, action=action, issued_at=now,
+                                              issued_by="console"))) for rid in wanted]
+
+        def put_all():
+            for key, payload in payloads:
+                self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
+        await asyncio.get_running_loop().run_in_executor(None, put_all)
+        log.info("console: %s %s sent to %d responder(s)", action, order_id, len(wanted))
+        self._send_all({"type": "command", "now": now, "command": {"id": order_id, "action": action,
+                                                                    "responders": wanted, "issued_at": now}})
+        return web.json_response({"id": order_id, "action": action, "responders": wanted, "issued_at": now})
 
     async def _checkpoint(self, request: web.Request) -> web.Response:
         try:

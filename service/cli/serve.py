@@ -20,6 +20,7 @@ from service.protocol.terminal import (
     out,
     setup_logging,
     stop_on_signals,
+    warn_plan_problems,
 )
 
 _console_starter: Callable | None = None  # (session, cfg, port) -> an object with close(); raises ValueError
@@ -46,6 +47,7 @@ def serve_command(
     """Run the service for one incident: one pipeline per responder, poses and status out."""
     setup_logging(verbose)
     cfg = incident_or_exit(config, incident_id)
+    warn_plan_problems(cfg)
     if workers < 1:
         fail(f"--workers must be at least 1, got {workers}")
         raise typer.Exit(2)

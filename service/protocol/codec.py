@@ -165,6 +165,8 @@ def json_schema() -> dict:
                 "track": "queryable of the service: a responder's track",
                 "presence": "liveliness token of a connected wearable",
                 "truth": "ground truth from a replayed recording or the simulator (for scoring)",
+                "command": "Command (par: roll call; evacuate), console/service -> wearable",
+                "ack": "Ack of a command, wearable -> service",
             },
         },
         "x-limits": {"max_payload_bytes": MAX_PAYLOAD_BYTES, "max_samples": MAX_SAMPLES,

@@ -114,6 +114,16 @@ class UwbAnchor(_Config):
     floor: int | None = Field(None, description="the floor it is mounted on (informative)")
 
 
+class Member(_Config):
+    """A responder expected at the incident: the roster that accountability (PAR) is counted
+    against. ``id`` is the responder id their wearable publishes under."""
+
+    id: str = Field(pattern=ID_PATTERN, description="the responder id of their wearable")
+    name: str | None = Field(None, description="how people call them")
+    team: str | None = Field(None, description="crew or company, e.g. 'Engine 1'")
+    role: str | None = Field(None, description="e.g. 'officer', 'nozzle', 'search', 'safety'")
+
+
 class IncidentConfig(_Config):
     """Everything the service and console know about the place of an incident."""
 
@@ -129,6 +139,7 @@ class IncidentConfig(_Config):
     start_floor: int = 0
     checkpoints: list[Checkpoint] = Field(default_factory=list)
     uwb_anchors: list[UwbAnchor] = Field(default_factory=list)
+    roster: list[Member] = Field(default_factory=list, description="the responders expected, with team and role")
     uwb_tag_height_m: float = Field(1.2, ge=0.0, le=3.0, description="m, height of a responder's UWB tag above the "
                                                                        "floor (shoulder or helmet)")
     floor_plans: list[FloorPlan] = Field(default_factory=list)
@@ -159,6 +170,11 @@ class IncidentConfig(_Config):
             ids.setdefault(a.id, i)
             if a.floor is not None and a.floor not in numbers:
                 problems.append(f"uwb_anchors[{i}].floor: floor {a.floor} is not configured; floors: {sorted(numbers)}")
+        seen_members: dict[str, int] = {}
+        for i, m in enumerate(self.roster):
+            if m.id in seen_members:
+                problems.append(f"roster[{i}].id: {m.id!r} is listed twice (also roster[{seen_members[m.id]}])")
+            seen_members.setdefault(m.id, i)
         for i, plan in enumerate(self.floor_plans):
             problems += [f"floor_plans[{i}].{p}" for p in self._resolve_plan(plan)]
         if problems:

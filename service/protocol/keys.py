@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import re
 
-KEY_KINDS = ("imu", "fix", "pose", "status", "track", "presence", "truth")
+KEY_KINDS = ("imu", "fix", "pose", "status", "track", "presence", "truth", "command", "ack")
 KEY_ROOT = "firetrack"
 ID_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"
 _ID_RE = re.compile(ID_PATTERN)
