@@ -22,6 +22,9 @@ from service.protocol.terminal import (
     warn,
 )
 
+DEMO_DOWN_AT_S = 45.0  # s into the demo when one simulated walker collapses (man-down 30 s later)
+SIM_START_T = 1000.0  # s, the simulated walkers' device clock at their start (client.simulate)
+
 TLS_HELP = "mutual TLS with this identity directory (firetrack certs issue): TLS only, plain TCP refused"
 
 
@@ -159,11 +162,17 @@ def demo_command(
             th.start()
             threads.append(th)
         pub = SimulationPublisher(session, cfg.id, responders, 50.0, 1, bounds=building_bounds(cfg), floors=(0, 0))
+        down = None
+        if responders:  # so that every demo shows the man-down alarm: the last walker collapses
+            down = pub.names[-1]
+            pub.fleet.collapse(len(pub.names) - 1, at=SIM_START_T + DEMO_DOWN_AT_S)
         sim = threading.Thread(target=pub.run, args=(seconds if math.isfinite(seconds) else 24 * 3600.0, stop),
                                daemon=True)
         sim.start()
         out.print(f"[bold]firetrack demo[/]: incident {cfg.id} ({cfg.name}), router {where}")
         out.print(f"  {len(walks)} replayed IPIN walk(s) (ipin-1..), {responders} simulated walker(s) (sim-000..)")
+        if down is not None:
+            out.print(f"  {down} collapses {DEMO_DOWN_AT_S:.0f} s in: MAN DOWN shows about 35 s later")
         out.print(f"  open the console: http://127.0.0.1:{port}/   (Ctrl-C to stop)")
         stop.wait(None if math.isinf(seconds) else seconds)
         stop.set()

@@ -19,6 +19,7 @@ from service.protocol.terminal import (
     out,
     stop_on_signals,
     tls_or_exit,
+    warn_plan_problems,
 )
 
 
@@ -51,6 +52,7 @@ def console_command(
     cfg = incident_or_exit(config, incident)
     if identity is None:
         insecure("firetrack console")
+    warn_plan_problems(cfg)
     stop = stop_on_signals()
     session = client_or_exit(connect, tls=identity)
     try:

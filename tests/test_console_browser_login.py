@@ -118,9 +118,10 @@ def test_an_operator_logs_in_places_a_fix_sees_a_far_one_flagged_and_reports_a_p
                   timeout_ms=5000)
         assert "FIX FLAGGED" in page.page.locator("#sel-flag").inner_text()
 
-        page.page.locator("#btn-par-ok").click()
-        page.page.locator("#modal-ok").click()
+        page.page.locator("#btn-par").click()  # the roll call, issued by alice
         assert wait_until(lambda: any(x["action"] == "par" for x in console.server.audits), 10)
+        par = next(x for x in console.server.audits if x["action"] == "par")
+        assert (par["operator"], par["outcome"]) == ("alice", "recorded")
         assert svc.responders["ff1"].fixes_flagged == 1
     finally:
         page.close()
@@ -134,7 +135,7 @@ def test_a_viewer_sees_the_map_and_no_actions(secured, browser):  # noqa: F811
         page.wait("() => window.__firetrack.ready && window.__firetrack.connected")
         assert page.page.locator("#who-name").inner_text() == "vic · VIEWER"
         page.wait("() => { const s = window.__firetrack.snapshot().ff1; return s && s.pose; }")
-        for sel in ("#btn-add-cp", "#btn-fix-cp", "#btn-par-ok"):
+        for sel in ("#btn-add-cp", "#btn-fix-cp", "#btn-par", "#btn-evacuate"):
             assert page.page.locator(sel).is_hidden(), sel
         pose = page.js("window.__firetrack.snapshot().ff1.pose")
         page.page.locator('#roster tbody tr[data-id="ff1"]').click()

@@ -98,7 +98,7 @@ def test_no_login_no_data_and_no_action(secured):
     assert status == 401 and "log in" in body["error"]
     for path, body in (("/api/checkpoint", {"name": "x", "x": 0.0, "y": 0.0, "floor": 0}),
                        ("/api/ack", {"responder": "ff1", "alarm": "man_down"}),
-                       ("/api/par", {"responder": "ff1", "accounted": True})):
+                       ("/api/command", {"action": "par"})):
         assert b.request("POST", path, body)[0] == 401
     assert svc.received["op"] == 0
 
@@ -130,12 +130,14 @@ def test_login_cookie_origin_host_roles_and_actions(secured):
     status, body, _ = b.request("POST", "/api/fix", fix)
     assert status == 200 and body["operator"] == "alice" and body["key"] == wire.key(INCIDENT, "console-1", "op")
     assert b.request("POST", "/api/ack", {"responder": "ff1", "alarm": "man_down"})[0] == 200
-    assert b.request("POST", "/api/par", {"responder": "ff1", "accounted": False, "note": "not at the door"})[0] == 200
+    status, body, _ = b.request("POST", "/api/command", {"action": "par"})  # the roll call goes to ff1's wearable
+    assert status == 200 and body["operator"] == "alice" and body["responders"] == ["ff1"]
     assert b.request("POST", "/api/checkpoint", {"name": "door-7", "x": 1.0, "y": 2.0, "floor": 0})[0] == 201
     assert wait_until(lambda: len(console.server.audits) == 4, 10), console.server.audits
     got = [(a["actor"], a["operator"], a["action"], a["outcome"]) for a in console.server.audits]
     assert got == [("console-1", "alice", "fix", "accepted"), ("console-1", "alice", "ack", "recorded"),
                    ("console-1", "alice", "par", "recorded"), ("console-1", "alice", "checkpoint", "recorded")]
+    assert console.server.audits[2]["order"] == body["id"]
 
     # a viewer reads and does not act
     v = Browser(console.port)
@@ -144,6 +146,7 @@ def test_login_cookie_origin_host_roles_and_actions(secured):
     status, body, _ = v.request("POST", "/api/fix", fix)
     assert status == 403 and "viewer" in body["error"]
     assert v.request("POST", "/api/ack", {"responder": "ff1", "alarm": "man_down"})[0] == 403
+    assert v.request("POST", "/api/command", {"action": "evacuate"})[0] == 403
 
     # logout ends the session; revoking ends another's within a second or two
     assert v.request("POST", "/api/logout", {})[0] == 200
@@ -169,7 +172,8 @@ def test_every_operator_action_is_in_the_recording_with_who_did_it(secured):
     far = {"responder": "ff1", "x": live.x + 86.0, "y": live.y, "floor": 0}  # the forged-fix distance, by an operator
     assert b.request("POST", "/api/fix", far)[0] == 200
     assert wait_until(lambda: len(console.server.audits) == 1, 10)  # zenoh orders per key: one at a time
-    assert b.request("POST", "/api/par", {"responder": "ff1", "accounted": True})[0] == 200
+    status, par, _ = b.request("POST", "/api/command", {"action": "par"})
+    assert status == 200
     assert b.request("POST", "/api/ack", {"responder": "ff1", "alarm": "man_down"})[0] == 200
     assert b.request("POST", "/api/checkpoint", {"name": "stair-B", "x": 4.0, "y": 1.0, "floor": 0})[0] == 201
     assert wait_until(lambda: len(console.server.audits) == 4 and svc.wait_idle(0.2), 10)
@@ -185,7 +189,10 @@ def test_every_operator_action_is_in_the_recording_with_who_did_it(secured):
     assert [(actor, op.operator, op.action) for actor, op in ops] == [
         ("console-1", "alice", "fix"), ("console-1", "alice", "par"), ("console-1", "alice", "ack"),
         ("console-1", "alice", "checkpoint")]
-    assert (ops[2][1].alarm, ops[3][1].name, ops[1][1].accounted) == ("man_down", "stair-B", True)
+    assert (ops[2][1].alarm, ops[3][1].name, ops[1][1].order, ops[1][1].responders) == (
+        "man_down", "stair-B", par["id"], ["ff1"])
+    orders = [wire.decode(m.payload) for m in msgs if m.kind == "command"]
+    assert [(c.responder, c.id, c.issued_by) for c in orders] == [("ff1", par["id"], "alice")]
     audits = [wire.decode(m.payload) for m in msgs if m.kind == "audit"]
     assert [(a.actor, a.operator, a.action, a.flags) for a in audits] == [
         ("console-1", "alice", "fix", ["implausible_jump"]), ("console-1", "alice", "par", []),

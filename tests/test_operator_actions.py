@@ -93,12 +93,12 @@ def test_only_authorised_actors_reach_the_graph_and_revoked_identities_nothing()
                            _fix_op("ff1", "ff1", live.t, live.x, live.y),  # a wearable cannot act as an operator
                            _fix_op("console-1", "nobody", live.t, 0.0, 0.0),  # no such responder
                            _op("console-1", action="ack", responder="ff1", alarm="man_down"),
-                           _op("console-1", action="par", responder="ff1", accounted=False, note="not at the door"),
+                           _op("console-1", action="evacuate", order="evacuate-1", responders=["ff1"]),
                            _op("svc", action="checkpoint", name="door-7", x=1.0, y=2.0, floor=0)])
     got = [(a.actor, a.action, a.outcome, a.reason) for a in _audits(out)]
     assert got == [("mallory", "fix", "refused", "unauthorised"), ("ff1", "fix", "refused", "unauthorised"),
                    ("console-1", "fix", "refused", "unknown_responder"), ("console-1", "ack", "recorded", None),
-                   ("console-1", "par", "recorded", None), ("svc", "checkpoint", "recorded", None)]
+                   ("console-1", "evacuate", "recorded", None), ("svc", "checkpoint", "recorded", None)]
     assert r.tracker.fixes_applied + r.tracker.fixes_queued == before  # none reached the graph
     # a revoked wearable: its frames, fixes and presence are refused before any state is made
     ff2 = walking_frames("ff2", 2.0)
@@ -124,7 +124,7 @@ def test_actions_and_policies_reprocess_bit_for_bit_in_any_rounds():
     t = float(frames[k - 1].t[-1])
     items = ([_access(enforce=True, operators=["console-1"], revoked=[])] + _imu(frames[:k])
              + [_fix_op("console-1", "ff1", t, 60.0, 0.0), _fix_op("mallory", "ff1", t, 0.0, 0.0),
-                _op("console-1", action="par", responder="ff1", accounted=True)] + _imu(frames[k:]))
+                _op("console-1", action="par", order="par-1", responders=["ff1"])] + _imu(frames[k:]))
 
     def run(size):
         core, out = IncidentCore(default_incident()), []

@@ -134,7 +134,7 @@ def test_roles_console_viewer_anchor_publish_only_what_they_may(pkidir):
 
             def op(operator):
                 return wire.encode(wire.OperatorAction(action="par", operator=operator, utc=time.time(),
-                                                       responder="ff1", accounted=True))
+                                                       order="par-1", responders=["ff1"]))
             # refused by the router: a console or viewer publishing a raw fix, a viewer acting, one actor
             # acting on another's key
             sessions["console-1"].put(wire.key(INCIDENT, "ff1", "fix"), fix)
@@ -385,3 +385,32 @@ def test_a_simulator_publishes_for_its_own_walkers_only_and_replay_and_record_ne
         from service.review.recorder import read_recording
 
         assert sum(m.kind == "imu" and m.responder == "ff2" for m in read_recording(out)) == 10
+
+
+def test_only_consoles_give_orders_and_a_wearable_hears_and_answers_its_own(pkidir):
+    from client.wearable import Wearable
+
+    with secure_service(pkidir) as (svc, endpoint, tap):
+        s1, s2, console = (tls_client(endpoint, identity(pkidir, n)) for n in ("ff1", "ff2", "console-1"))
+        w1 = Wearable(s1, INCIDENT, "ff1")
+        try:
+            for b in walking_frames("ff1", 1.0):
+                w1.send("imu", b)
+            assert wait_until(lambda: "ff1" in svc.responders, 10)
+            time.sleep(SETTLE_S)
+
+            def order(action, oid, by):
+                return wire.encode(wire.Command(responder="ff1", id=oid, action=action, issued_at=time.time(),
+                                                issued_by=by))
+            s2.put(wire.key(INCIDENT, "ff1", "command"), order("evacuate", "forged-1", "chief"))  # ff2 forges one
+            heard_by_ff2 = []
+            s2.declare_subscriber(wire.key(INCIDENT, "ff1", "command"), lambda s: heard_by_ff2.append(1))
+            time.sleep(SETTLE_S)
+            console.put(wire.key(INCIDENT, "ff1", "command"), order("par", "par-7", "alice"))
+            assert wait_until(lambda: (svc.responders["ff1"].commands.get("par") or {}).get("acked_at") is not None, 10)
+            assert [(c.action, c.id) for c in w1.commands] == [("par", "par-7")]  # the forged order never came
+            assert "evacuate" not in svc.responders["ff1"].commands and heard_by_ff2 == []
+        finally:
+            w1.close()
+            for s in (s1, s2, console):
+                s.close()

@@ -25,7 +25,6 @@ HTTP API (JSON; errors are ``{"error": "..."}`` with a 4xx status naming what is
                         time, published as an operator action (``.../{actor}/op``) naming the operator
 ``POST /api/checkpoint``  ``{name, x, y, floor}`` [``sigma_m``, ``note``]: add a named checkpoint
 ``POST /api/ack``       ``{responder, alarm}``: an alarm acknowledged (recorded by the service)
-``POST /api/par``       ``{responder, accounted}`` [``note``]: a personnel accountability report
 ======================  =========================================================================
 
 Security (:mod:`client.console.auth`): every request's ``Host`` must be one of the console's
@@ -172,6 +171,7 @@ class ConsoleServer:
         self.board = LiveBoard()
         self.pages: set[_Page] = set()
         self.fixes_sent = 0
+        self.commands_sent = 0
         self.added_checkpoints: set[str] = set()
         self._subs: list = []
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -253,8 +253,8 @@ class ConsoleServer:
         r.add_post("/api/logout", self._logout)
         r.add_post("/api/fix", self._fix)
         r.add_post("/api/checkpoint", self._checkpoint)
+        r.add_post("/api/command", self._command)
         r.add_post("/api/ack", self._ack)
-        r.add_post("/api/par", self._par)
         runner = web.AppRunner(app, access_log=None, shutdown_timeout=1.0)
         await runner.setup()
         ssl_ctx = server_ssl_context(self.tls, request_client_cert=not self.logins.open) if self.https else None
@@ -466,6 +466,7 @@ class ConsoleServer:
             "id": cfg.id, "name": cfg.name, "origin": cfg.origin.model_dump(), "start_floor": cfg.start_floor,
             "floors": [{"number": f.number, "name": f.name, "elevation_m": f.elevation_m} for f in cfg.floors],
             "checkpoints": self._checkpoints_json(), "plans": plans,
+            "roster": [m.model_dump() for m in cfg.roster],
             "settings": {"lost_contact_s": self.lost_contact_s, "batch_period_s": self.batch_period_s,
                          "trail_points": self.board.trail_points},
         }
@@ -629,22 +630,45 @@ class ConsoleServer:
                                                              responder=rid, alarm=alarm))
         return web.json_response({"acknowledged": {"responder": rid, "alarm": alarm}, "operator": who.user, "key": key})
 
-    async def _par(self, request: web.Request) -> web.Response:
+    async def _command(self, request: web.Request) -> web.Response:
+        """A roll call (``{"action": "par"}``) or an evacuation order (``{"action": "evacuate"}``)
+        to every responder this console knows, or to ``"responders": [...]``; each wearable
+        acknowledges, and the service's Status says who has not. An operator's action: the
+        orders name the operator (``issued_by``), and the console publishes the action on its own
+        ``op`` key, the record of who issued it (the orders' keys name the responders only)."""
         try:
             who = self._actor_session(request)
             body = await self._body(request)
-            rid = self._responder_field(body)
-            accounted = body.get("accounted")
-            if not isinstance(accounted, bool):
-                raise _HttpError(400, f"'accounted' must be true (seen and well) or false (missing), got {accounted!r}")
-            note = body.get("note")
-            if note is not None and (not isinstance(note, str) or len(note) > 512):
-                raise _HttpError(400, "'note' must be text of at most 512 characters")
+            action = body.get("action")
+            if action not in ("par", "evacuate"):
+                raise _HttpError(400, f"'action' must be 'par' (roll call) or 'evacuate', got {action!r}")
+            known = self.board.responders()
+            wanted = body.get("responders", known)
+            if not isinstance(wanted, list) or not all(isinstance(r, str) and wire.is_valid_id(r) for r in wanted):
+                raise _HttpError(400, "'responders' must be a list of responder ids")
+            if not wanted:
+                raise _HttpError(409, "no responder is known to this console yet")
         except _HttpError as e:
             return _error(e.status, e.args[0])
-        key = await self._publish_action(wire.OperatorAction(action="par", operator=who.user, utc=time.time(),
-                                                             responder=rid, accounted=accounted, note=note))
-        return web.json_response({"par": {"responder": rid, "accounted": accounted}, "operator": who.user, "key": key})
+        self.commands_sent += 1
+        now = time.time()
+        order_id = f"{action}-{int(now)}-{self.commands_sent}"
+        payloads = [(wire.key(self.cfg.id, rid, "command"),
+                     wire.encode(wire.Command(responder=rid, id=order_id, action=action, issued_at=now,
+                                              issued_by=who.user))) for rid in wanted]
+
+        def put_all():
+            for key, payload in payloads:
+                self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
+        await asyncio.get_running_loop().run_in_executor(None, put_all)
+        await self._publish_action(wire.OperatorAction(action=action, operator=who.user, utc=now, order=order_id,
+                                                       responders=wanted))
+        log.info("console: %s %s by %s sent to %d responder(s)", action, order_id, who.user, len(wanted))
+        self._send_all({"type": "command", "now": now, "command": {"id": order_id, "action": action,
+                                                                    "responders": wanted, "issued_at": now}})
+        return web.json_response({"id": order_id, "action": action, "responders": wanted, "issued_at": now,
+                                  "operator": who.user})
 
     async def _checkpoint(self, request: web.Request) -> web.Response:
         try:

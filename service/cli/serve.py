@@ -23,6 +23,7 @@ from service.protocol.terminal import (
     stop_on_signals,
     tls_or_exit,
     warn,
+    warn_plan_problems,
 )
 
 _console_starter: Callable | None = None  # (session, cfg, port, security) -> an object with close(); raises ValueError
@@ -54,6 +55,7 @@ def serve_command(
     identity = tls_or_exit(tls, "service", what="serve")
     security = security_or_exit(identity, roster, incident_id, router=not connect)
     cfg = incident_or_exit(config, incident_id or (security.roster.incident if security and security.roster else None))
+    warn_plan_problems(cfg)
     if workers < 1:
         fail(f"--workers must be at least 1, got {workers}")
         raise typer.Exit(2)

@@ -68,7 +68,8 @@ from service.protocol.incident import IncidentConfig
 
 log = logging.getLogger("firetrack.service")
 
-INBOUND_KINDS = ("imu", "fix", "presence", "op", "access")
+INBOUND_KINDS = ("imu", "fix", "presence", "command", "ack", "op", "access")
+MAX_EARLY_ACKS = 8  # acknowledgements kept per responder while their order has not arrived
 
 
 class Inbound(NamedTuple):
@@ -98,6 +99,7 @@ class CoreSettings:
     # with this σ at their first step (None: no pose until a checkpoint places them)
     log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
     max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
+    command_answer_s: float = 30.0  # s a roll call or evacuation order may go unanswered before it alarms
     fix_future_s: float = 2.0  # s: a fix this far ahead of the newest sample is from the future (a wrong clock)
     plausibility: PlausibilitySettings = field(default_factory=PlausibilitySettings)
 
@@ -179,16 +181,22 @@ class IncidentCore:
         motion, since = r.tracker.motion
         rejected = dict(r.gate.counts)
         tr = r.tracker
+        current = alarms.of_responder(r, now, self.settings, self.recording_failed)
+        for kind in [k for k in r.alarm_since if k not in current]:
+            del r.alarm_since[kind]
+        for kind in current:
+            r.alarm_since.setdefault(kind, now)
         for reasons in (r.fixes_rejected, tr.fix_rejects, {"unused": tr.fixes_unused}):
             for reason, n in reasons.items():
                 if n:
                     rejected[f"fix_{reason}"] = rejected.get(f"fix_{reason}", 0) + n
         return wire.Status(
             responder=r.id, t=tr.device_time, motion=motion.value, motion_since=since,
-            alarms=alarms.of_responder(r, now, self.settings, self.recording_failed), rejected=rejected,
+            alarms=current, alarms_since={k: r.alarm_since[k] for k in current}, rejected=rejected,
             frames=r.gate.accepted, gaps=r.gate.gaps, last_heard=heard, steps=tr.steps,
             fixes={"applied": tr.fixes_applied, "queued": tr.fixes_queued,
                    **({"flagged": r.fixes_flagged} if r.fixes_flagged else {})}, utc_offset=r.utc_offset,
+            last_fix=tr.last_fix, first_heard=r.first_heard, commands={a: dict(o) for a, o in r.commands.items()},
         )
 
     def track(self, rid: str) -> dict | None:
@@ -226,6 +234,8 @@ class IncidentCore:
             self._on_fix(key, payload, now)
         elif kind == "presence":
             self._on_presence(key, payload)
+        elif kind in ("command", "ack"):
+            self._on_command(kind, key, payload, now)
         elif kind == "op":
             self._on_op(key, payload, now)
         elif kind == "access":
@@ -276,6 +286,37 @@ class IncidentCore:
         if r is not None:
             r.present = alive
         log.info("wearable of %s %s", rid, "connected" if alive else "disconnected")
+
+    def _on_command(self, kind: str, key: str, payload: bytes, now: float) -> None:
+        """An order to a wearable (roll call, evacuation) or its acknowledgement: kept per
+        responder and action, so Status says who has not answered."""
+        try:
+            _, rid, _ = wire.parse_key(key)
+            if kind == "ack" and rid in self._revoked:
+                self._refuse_revoked(rid, key)
+                return
+            msg = wire.decode(payload, expect=wire.Command if kind == "command" else wire.Ack)
+        except (ValueError, wire.WireError) as e:
+            self.unattributed[f"{kind}_invalid"] = self.unattributed.get(f"{kind}_invalid", 0) + 1
+            log.warning("rejected a %s on %r: %s", kind, key, e)
+            return
+        r = self.responders.get(rid)
+        if r is None or msg.responder != rid:
+            self.unattributed[f"{kind}_unknown_responder"] = self.unattributed.get(f"{kind}_unknown_responder", 0) + 1
+            return
+        if kind == "command":  # an acknowledgement may have overtaken its order (other key, other path)
+            early = r.early_acks.pop((msg.action, msg.id), None)
+            r.commands[msg.action] = {"id": msg.id, "issued_at": msg.issued_at, "issued_by": msg.issued_by,
+                                      "acked_at": early}
+            log.info("%s: %s %s issued by %s", rid, msg.action, msg.id, msg.issued_by or "?")
+            return
+        order = r.commands.get(msg.action)
+        if order is not None and order["id"] == msg.id:
+            if order["acked_at"] is None:
+                order["acked_at"] = msg.at
+                log.info("%s acknowledged %s %s", rid, msg.action, msg.id)
+        elif len(r.early_acks) < MAX_EARLY_ACKS:
+            r.early_acks[(msg.action, msg.id)] = msg.at
 
     def _reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
         """A frame turned away before the gate saw it: counted there like the gate's own."""
@@ -458,7 +499,7 @@ class IncidentCore:
             log.warning("rejected an action of %s: %s", actor, e)
             return
         base = dict(actor=actor, operator=op.operator, action=op.action, responder=op.responder, utc=op.utc,
-                    received=now)
+                    received=now, order=op.order)
         acc = self.access
         if acc.enforce and (actor in self._revoked or actor not in acc.operators):
             reason = "revoked" if actor in self._revoked else "unauthorised"
@@ -468,7 +509,7 @@ class IncidentCore:
                                    **base))
             return
         if op.action != "fix":
-            log.info("%s (%s): %s %s", actor, op.operator, op.action, op.responder or op.name or "")
+            log.info("%s (%s): %s %s", actor, op.operator, op.action, op.responder or op.name or op.order or "")
             self._audit(wire.Audit(outcome="recorded", **base))
             return
         try:

@@ -13,12 +13,13 @@ role            may (``{i}`` = the incident, ``{me}`` = the certificate's common
 ==============  ===========================================================================
 service         everything under ``firetrack/{i}/**`` (publishes pose, status, audit; answers
                 ``track``; subscribes to frames, fixes, actions, presence)
-wearable        put ``firetrack/{i}/{me}/imu`` and ``.../{me}/fix``; liveliness token
-                ``.../{me}/presence``; query its own ``.../{me}/track``. Nothing else: no other
-                responder's keys, no pose or status, no subscription
+wearable        put ``firetrack/{i}/{me}/imu``, ``.../{me}/fix`` and ``.../{me}/ack``; liveliness
+                token ``.../{me}/presence``; subscribe to its own ``.../{me}/command`` (roll
+                call, evacuation); query its own ``.../{me}/track``. Nothing else: no other
+                responder's keys, no pose or status
 anchor          put ``firetrack/{i}/*/fix`` (UWB/GNSS infrastructure measures any responder)
 console,        subscribe to ``*/pose``, ``*/status``, ``*/audit``; query ``*/track``; put
-operator        ``firetrack/{i}/{me}/op`` (its own actions only)
+operator        ``firetrack/{i}/{me}/op`` (its own actions only) and orders ``*/command``
 viewer          subscribe to ``*/pose``, ``*/status``, ``*/audit``; query ``*/track``
 simulator       like a wearable for every responder id ``{me}-...`` (exercises, the load bench)
 router          nothing as a client (a standalone zenohd's own certificate)
@@ -202,6 +203,7 @@ def access_control(roster: Roster, incident: str | None = None) -> dict:
         _rule("tracks-query", ["query"], ["ingress"], [f"{root}/*/track"]),
         _rule("tracks-reply", ["reply"], ["egress"], [f"{root}/*/track"]),
         _rule("anchor-fixes", ["put"], ["ingress"], [f"{root}/*/fix"]),
+        _rule("orders", ["put"], ["ingress"], [f"{root}/*/command"]),
     ]
     subjects = [{"id": "everyone"}]
     policies = [{"id": "everyone", "rules": ["declarations-out"], "subjects": ["everyone"]}]
@@ -218,6 +220,8 @@ def access_control(roster: Roster, incident: str | None = None) -> dict:
                          "subjects": ["readers"]})
     if subject("anchors", roster.names("anchor")):
         policies.append({"id": "anchors", "rules": ["anchor-fixes"], "subjects": ["anchors"]})
+    if subject("actors", roster.names("console", "operator")):
+        policies.append({"id": "actors", "rules": ["orders"], "subjects": ["actors"]})
     for name in roster.names("console", "operator"):
         rules.append(_rule(f"op-{name}", ["put"], ["ingress"], [f"{root}/{name}/op"]))
         subject(f"actor-{name}", [name])
@@ -225,12 +229,14 @@ def access_control(roster: Roster, incident: str | None = None) -> dict:
     for role, chunk in (("wearable", "{}"), ("simulator", "{}-$*")):
         for name in roster.names(role):
             me = f"{root}/{chunk.format(name)}"
-            ids = [f"{role}-{name}-put", f"{role}-{name}-presence", f"{role}-{name}-query", f"{role}-{name}-reply"]
-            kinds = ["imu", "fix"] + (["truth"] if role == "simulator" else [])
+            ids = [f"{role}-{name}-{what}" for what in ("put", "presence", "query", "reply", "orders-in", "orders-out")]
+            kinds = ["imu", "fix", "ack"] + (["truth"] if role == "simulator" else [])
             rules += [_rule(ids[0], ["put"], ["ingress"], [f"{me}/{k}" for k in kinds]),
                       _rule(ids[1], ["liveliness_token"], ["ingress"], [f"{me}/presence"]),
                       _rule(ids[2], ["query"], ["ingress"], [f"{me}/track"]),
-                      _rule(ids[3], ["reply"], ["egress"], [f"{me}/track"])]
+                      _rule(ids[3], ["reply"], ["egress"], [f"{me}/track"]),
+                      _rule(ids[4], ["declare_subscriber"], ["ingress"], [f"{me}/command"]),
+                      _rule(ids[5], ["put"], ["egress"], [f"{me}/command"])]
             subject(f"{role}-{name}", [name])
             policies.append({"id": f"{role}-{name}", "rules": ids, "subjects": [f"{role}-{name}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}

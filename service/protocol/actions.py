@@ -7,7 +7,7 @@ see :mod:`service.protocol.keys`):
 kind       direction                  what
 =========  =========================  ================================================================
 ``op``     console/operator → service  :class:`OperatorAction`: a fix, a new checkpoint, an alarm
-                                      acknowledged, a PAR (personnel accountability report). ``operator``
+                                      acknowledged, a roll call (PAR) or evacuation order issued. ``operator``
                                       is the person logged in at the console; the key's actor is the
                                       console's (or operator's) certificate, bound by the router's ACL.
 ``audit``  service → consoles         :class:`Audit`: what the service made of an action or of a
@@ -32,7 +32,7 @@ from pydantic_core import PydanticCustomError
 from service.protocol.arrays import Finite, Id
 from service.protocol.schema import MESSAGE_TYPES, WireMessage
 
-ACTIONS = ("fix", "checkpoint", "ack", "par")
+ACTIONS = ("fix", "checkpoint", "ack", "par", "evacuate")
 OUTCOMES = ("accepted", "refused", "recorded")
 
 
@@ -41,18 +41,21 @@ class OperatorAction(WireMessage):
 
     ``fix``: ``responder`` and ``fix`` (an encoded Fix for that responder). ``checkpoint``:
     ``name``, ``x``, ``y``, ``floor`` of a point the operator named. ``ack``: ``responder`` and
-    ``alarm`` (the alarm acknowledged). ``par``: ``responder`` and ``accounted`` (seen and
-    well, or missing). ``utc`` is the console's clock when the person acted.
+    ``alarm`` (the alarm acknowledged). ``par`` (a roll call) and ``evacuate`` (an evacuation
+    order): ``order``, the id of the :class:`service.protocol.schema.Command` sent to each of
+    ``responders``' wearables (on their ``.../command`` keys, which name no sender: this action
+    is the record of who issued it). ``utc`` is the console's clock when the person acted.
     """
 
     KIND: ClassVar[str] = "op"
-    action: Literal["fix", "checkpoint", "ack", "par"]
+    action: Literal["fix", "checkpoint", "ack", "par", "evacuate"]
     operator: str = Field(min_length=1, max_length=128, description="the person logged in at the console")
     utc: Finite = Field(description="s, Unix time UTC of the console's clock when the person acted")
     responder: Id | None = None
     fix: bytes | None = Field(None, max_length=64 * 1024, description="action fix: an encoded Fix")
     alarm: str | None = Field(None, max_length=64, description="action ack: the alarm acknowledged")
-    accounted: bool | None = Field(None, description="action par: true seen and well, false missing")
+    order: str | None = Field(None, max_length=64, description="actions par, evacuate: the order's id")
+    responders: list[Id] | None = Field(None, max_length=10_000, description="actions par, evacuate: to whom")
     name: str | None = Field(None, max_length=128, description="action checkpoint: its name")
     x: Finite | None = None
     y: Finite | None = None
@@ -62,7 +65,8 @@ class OperatorAction(WireMessage):
     @model_validator(mode="after")
     def _fields_of_action(self) -> OperatorAction:
         need = {"fix": ("responder", "fix"), "checkpoint": ("name", "x", "y", "floor"),
-                "ack": ("responder", "alarm"), "par": ("responder", "accounted")}[self.action]
+                "ack": ("responder", "alarm"), "par": ("order", "responders"),
+                "evacuate": ("order", "responders")}[self.action]
         missing = [n for n in need if getattr(self, n) is None]
         if missing:
             raise PydanticCustomError("action_fields", f"a {self.action} action needs {', '.join(missing)}")
@@ -75,7 +79,7 @@ class Audit(WireMessage):
 
     ``outcome``: ``accepted`` (the fix goes to the responder's track), ``refused`` (it never
     reaches the track; ``reason`` says why) or ``recorded`` (an action without a track effect:
-    checkpoint, ack, par). ``flags`` holds ``implausible_jump`` when the fix puts the responder
+    checkpoint, ack, par, evacuate). ``flags`` holds ``implausible_jump`` when the fix puts the responder
     ``jump_m`` from where it was, further than ``walkable_m``, what a person can cover in the
     time since (:mod:`service.core.plausibility`); an authorised fix is still accepted.
     """
@@ -83,9 +87,10 @@ class Audit(WireMessage):
     KIND: ClassVar[str] = "audit"
     actor: Id = Field(description="who published: the console/operator certificate, or the wearable")
     operator: str | None = Field(None, max_length=128, description="the person logged in, for an operator action")
-    action: Literal["fix", "checkpoint", "ack", "par", "device_fix"]
+    action: Literal["fix", "checkpoint", "ack", "par", "evacuate", "device_fix"]
     outcome: Literal["accepted", "refused", "recorded"]
     responder: Id | None = None
+    order: str | None = Field(None, max_length=64, description="par, evacuate: the order's id")
     reason: str | None = Field(None, max_length=64)
     detail: str | None = Field(None, max_length=512)
     flags: list[str] = Field(default_factory=list)

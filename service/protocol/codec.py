@@ -165,6 +165,8 @@ def json_schema() -> dict:
                 "track": "queryable of the service: a responder's track",
                 "presence": "liveliness token of a connected wearable",
                 "truth": "ground truth from a replayed recording or the simulator (for scoring)",
+                "command": "Command (par: roll call; evacuate), console/service -> wearable",
+                "ack": "Ack of a command, wearable -> service",
                 "op": "OperatorAction, console/operator -> service; the id chunk is the actor (its certificate)",
                 "audit": "Audit, service -> consoles: the verdict on an action or a flagged checkpoint fix",
                 "access": "Access, recorded by the service: the access policy in force from then on",

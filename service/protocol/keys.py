@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import re
 
-KEY_KINDS = ("imu", "fix", "pose", "status", "track", "presence", "truth", "op", "audit", "access")
+KEY_KINDS = ("imu", "fix", "pose", "status", "track", "presence", "truth", "command", "ack", "op", "audit",
+             "access")
 ACTOR_KINDS = ("op", "audit", "access")  # kinds whose id chunk is the publishing identity, not a responder
 KEY_ROOT = "firetrack"
 ID_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"

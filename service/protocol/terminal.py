@@ -188,3 +188,17 @@ def insecure(what: str) -> None:
     warn(f"INSECURE: {what} runs without TLS and without access control: any program that reaches its endpoint "
          "can read every position and forge frames, fixes and poses. Fine on one laptop for a demo; at an "
          "incident use --tls (README, Security)")
+
+
+def warn_plan_problems(cfg) -> None:
+    """Say at start-up which floor plans cannot be shown (an image not found next to a config
+    that was copied elsewhere, say); relative image paths are resolved against the config's
+    own folder."""
+    for plan in cfg.floor_plans:
+        if plan.available and plan.georeferenced:
+            continue
+        instead = cfg.floor_plan(plan.floor, fallback=True)
+        shown = (f"the console shows floor {instead.floor}'s plan instead" if instead is not None and instead.available
+                 and instead.georeferenced else "the console draws a grid instead")
+        warn(f"floor plan of floor {plan.floor}: {plan.problem or 'no usable georeference'} (image paths are "
+             f"relative to the config's folder); {shown}")

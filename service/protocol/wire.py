@@ -79,6 +79,8 @@ from service.protocol.schema import (  # noqa: F401
     MIN_RATE_HZ,
     REJECT_REASONS,
     SCHEMA_VERSION,
+    Ack,
+    Command,
     Fix,
     ImuBatch,
     Pose,

@@ -123,6 +123,8 @@ class IncidentService:
                                          zenoh.handlers.FifoChannel(self.settings.imu_channel))
         self._decl += [
             s.declare_subscriber(wire.key_all(self.id, "fix"), self._enqueue),
+            s.declare_subscriber(wire.key_all(self.id, "command"), self._enqueue),
+            s.declare_subscriber(wire.key_all(self.id, "ack"), self._enqueue),
             s.declare_subscriber(wire.key_all(self.id, "op"), self._enqueue_op),
             s.declare_queryable(wire.key_all(self.id, "track"), self._on_track_query),
             s.liveliness().declare_subscriber(wire.key_all(self.id, "presence"), self._on_presence, history=True),
@@ -175,9 +177,10 @@ class IncidentService:
         return self.shard[1] == 1 or in_shard(key, *self.shard)
 
     def _enqueue(self, sample: zenoh.Sample) -> None:
+        """Fixes, orders and acknowledgements: few, so they come by callback (kind from the key)."""
         key = str(sample.key_expr)
         if self._mine(key):
-            self._queue.put(("fix", key, sample.payload.to_bytes()))
+            self._queue.put((key.rsplit("/", 1)[-1], key, sample.payload.to_bytes()))
 
     def _enqueue_op(self, sample: zenoh.Sample) -> None:
         """An operator action: the worker of the responder it is about takes it (an action

@@ -1,9 +1,8 @@
 /* global L */
 /* What the operator does: select a responder, place a checkpoint fix where the map is clicked
-   or at a named checkpoint, name a new checkpoint, report the selected responder accounted
-   for or missing (PAR). Each action is confirmed in the dialog and sent to the console server
-   (POST /api/fix, /api/checkpoint, /api/par), which publishes it to the service under the
-   logged-in operator's name. The service answers each with an audit ("audit" messages): a
+   or at a named checkpoint, and name a new checkpoint. Each action is confirmed in the dialog
+   and sent to the console server (POST /api/fix, /api/checkpoint), which publishes it to the
+   service under the logged-in operator's name. The service answers each with an audit ("audit" messages): a
    refusal, or a fix taken but flagged as further than a person can walk, shows as a notice
    and on the responder (S.flags). The SELECTED panel shows the selected responder and enables
    the actions that apply. */
@@ -35,7 +34,6 @@ export function renderSelection() {
   const r = S.selected ? S.responders.get(S.selected) : null;
   setText($("sel-id"), S.selected || "none");
   $("btn-fix-cp").disabled = !r || !$("cp-select").value;
-  $("btn-par-ok").disabled = $("btn-par-missing").disabled = !r;
   const flag = r ? S.flags[r.id] : null;
   $("sel-flag").hidden = !flag;
   if (flag) {
@@ -128,17 +126,8 @@ export function onMapClick(x, y, point) {
   fixAtPoint(x, y);
 }
 
-async function par(accounted) {
-  const id = S.selected;
-  if (!id) return;
-  const ok = await ask(accounted ? `${id} accounted for?` : `${id} MISSING?`,
-    accounted ? `Report ${id} as seen and well (PAR). The service records it under your name.`
-              : `Report ${id} as NOT accounted for (PAR). The service records it under your name.`);
-  if (ok) await send("/api/par", {responder: id, accounted},
-                     () => `PAR for ${id} recorded: ${accounted ? "accounted for" : "MISSING"}`, `PAR for ${id} not sent`);
-}
-
-const ACTION_WORDS = {fix: "fix", checkpoint: "checkpoint", ack: "acknowledgement", par: "PAR", device_fix: "fix"};
+const ACTION_WORDS = {fix: "fix", checkpoint: "checkpoint", ack: "acknowledgement", par: "roll call",
+                      evacuate: "evacuation order", device_fix: "fix"};
 
 function onAudit(a) {
   const who = a.operator ? `${a.operator} (${a.actor})` : a.actor;
@@ -162,8 +151,6 @@ export function bindActions(afterSelect) {
   $("btn-fix-cp").onclick = fixAtCheckpoint;
   $("cp-select").onchange = () => renderSelection();
   $("btn-add-cp").onclick = () => setAddMode(!addMode);
-  $("btn-par-ok").onclick = () => par(true);
-  $("btn-par-missing").onclick = () => par(false);
   onMessage("audit", (m) => onAudit(m.audit));
   onMessage("checkpoints", (m) => { S.checkpoints = m.checkpoints; fillCheckpointList(); drawCheckpoints(); });
   onMessage("fix", (m) => {

@@ -10,13 +10,14 @@
                      floors.js plans, grids, checkpoints, floor buttons; grid.js the metre grid;
                      responders.js markers, labels, trails, ellipses
      roster.js       the responder table
-     alarms.js       alarms and their acknowledgement (sent to the service, recorded with who)
-     actions.js      selection, checkpoint fixes, new checkpoints, PAR, the service's audits and flags
+     alarms.js       alarms and their acknowledgement, one row per responder (sent to the service, recorded with who)
+     par.js          roll call (PAR) and evacuation order (recorded with the operator who issued it)
+     actions.js      selection, checkpoint fixes, new checkpoints, the service's audits and flags
      review.js       the review slider over the smoothed tracks
 
    Data: the login first (GET /api/session), then GET /api/incident once (floors, checkpoints, plans with their pixel -> ENU maps), then
    the WebSocket. This module starts everything and runs the animation-frame loop. */
-import {S, frame} from "./state.js";
+import {S, frame, seedRoster} from "./state.js";
 import {$, bindModal, modalOpen, setText, toast} from "./ui.js";
 import {getJSON} from "./api.js";
 import {connect} from "./connection.js";
@@ -28,6 +29,7 @@ import {buildFloors, renderFloorButtons, setFloor} from "./map/floors.js";
 import {drawResponders, flashPhase, initResponders} from "./map/responders.js";
 import {bindRoster, renderRoster} from "./roster.js";
 import {evaluateAlarms} from "./alarms.js";
+import {bindPar} from "./par.js";
 import {bindActions, fillCheckpointList, onMapClick, renderSelection, select, setAddMode} from "./actions.js";
 import {bindReview, reviewPositions, setReviewOffset} from "./review.js";
 
@@ -89,11 +91,13 @@ async function start() {
   bindRoster();
   bindActions(renderRoster);
   bindReview();
+  bindPar();
   const inc = await getJSON("/api/incident");
   S.incident = inc;
   S.settings = {...S.settings, ...inc.settings};
   S.floors = inc.floors;
   S.checkpoints = inc.checkpoints;
+  seedRoster(inc.roster);
   $("incident-name").textContent = `${inc.name || inc.id}`;
   document.title = `firetrack · ${inc.name || inc.id}`;
   createMap($("map"), onMapClick);
