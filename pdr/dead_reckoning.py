@@ -13,6 +13,7 @@ steps (so it is optimistic on long straight legs; the factor graph does better).
 from __future__ import annotations
 
 import math
+
 import numpy as np
 
 from pdr.events import PoseEstimate, StepEvent

@@ -95,6 +95,21 @@ class MotionEvent:
 
 
 @dataclass(frozen=True)
+class FloorEvent:
+    """The barometer moved the responder to another floor at ``t`` (device clock, s): a
+    staircase or a lift passed a floor's level, or a dwell was recognised as another floor's
+    (``reason``, see :class:`pdr.floors.FloorChange`). A fix that names the floor is not one.
+
+    It lets a responder who changes floor without walking (a lift) be shown on the new floor
+    before the next step; steps carry their floor anyway."""
+
+    t: float
+    floor: int
+    floor_from: int
+    reason: str = "height"
+
+
+@dataclass(frozen=True)
 class PoseEstimate:
     """Where a track estimator puts the responder after a step or a fix: the one pose type
     from the estimator (dead reckoning, the factor graph) to the wire's ``Pose``.

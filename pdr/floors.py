@@ -6,39 +6,64 @@ from :class:`pdr.height.BarometricAltimeter`) into a floor at every sample plus
 :class:`FloorChange` events. :class:`StairsDetector` flags stair steps from their height
 change, and :func:`stair_step_length` gives the horizontal length such a step covers.
 
-Floor switching has two paths, both with hysteresis, on the drift-corrected height ``z``.
-Between adjacent floors ``k`` and ``k+1`` (gap ``g = e_{k+1} - e_k``):
+**The building's real levels are learned, the configuration is only a prior.** A configured
+floor height is a guess (the IPIN museum's floor -1 is one, at 3.0 m spacing); real storeys
+differ by tens of per cent, and a barometer reads heights a few per cent off (temperature).
+So the tracker keeps, per floor, the barometric level ``r_f`` it has *seen* that floor at, and
+predicts the levels it has not seen from the ones it has:
 
-* threshold path (a Schmitt trigger): up when ``z`` passes ``e_k + (½ + m)·g``, down when
-  it falls below ``e_{k+1} - (½ + m)·g`` (``m`` = ``switch_margin``), held for ``dwell_s``
-  without a break. Several floors at once (a lift) are allowed. Floors passed on a
-  staircase are reported while the responder passes their level, which is where they are.
-* settle path: ``z`` stays within ``settle_band·g`` of another floor's elevation for
-  ``settle_s``. It catches a floor whose measured height falls short of the threshold,
-  e.g. a barometer that reads low or a configured floor height that is too large.
+* **Dwell.** The walker is on a level when the drift-corrected height ``z = h − b`` stays
+  within ``dwell_band_m`` (max − min) for ``dwell_window_s``: walking about a floor, standing
+  on it, or a long stop on a stair landing. Stairs (≈0.15-0.3 m/s of climb) and lifts
+  (≈0.3-1 m/s) are not.
+* **Which floor a new dwell is on.** Its level ``z̄`` (the window mean) is matched to a floor
+  already seen if within ``match_fraction`` of the local gap between predicted levels. Else it
+  is a floor not seen yet:
+  - between two floors already seen, the one whose level, interpolated between them in the
+    proportion of the configured elevations, is nearest (a floor visited between two known
+    floors);
+  - beyond the floors seen, counted from the nearest seen floor ``a``: each candidate ``f`` on
+    that side implies a scale ``q_f = (z̄ − r_a) / (e_f − e_a)`` of real to configured spacing,
+    and the one nearest the expected scale ``α̂`` in ratio, ``min |ln(q_f / α̂)|``, wins, if
+    ``q_f / α̂`` lies in ``scale_range`` (the prior: the configuration may be off by −45 % to
+    +50 %). ``α̂`` is 1 until two floors have been seen, then the ratio of their seen to their
+    configured separation, and the range narrows to ``learned_scale_range``. No candidate in
+    range: the dwell is not on a floor (a half-landing) and nothing changes.
+  The level of a newly seen floor is the running mean of its first dwell.
+* **Predicted levels** of floors not seen: interpolated between seen floors (configured
+  proportions), extrapolated beyond them with ``α̂``, or the configuration itself at the start.
+* **Between dwells** (stairs, a lift) the floor follows the height with a Schmitt trigger on
+  the predicted levels: up past ``ℓ_k + (½ + m)(ℓ_{k+1} − ℓ_k)``, down likewise, held for
+  ``dwell_s`` (``m`` = ``switch_margin``), so floors passed on a staircase are reported while
+  the responder passes them; several at once (a lift) are allowed. A dwell's decision
+  overrides it.
+* **Fixes.** :meth:`FloorTracker.anchor` (a checkpoint that names the floor) sets the floor and
+  makes the current height that floor's level; a level the current dwell had taught to
+  another floor is forgotten (it was that one, mislabelled).
 
-A landing halfway up a stair, with noise smaller than ``m·g``, therefore never changes the
-floor. A floor height in the configuration that is off is tolerated while the measured
-height of the floor reached falls less than ``0.3·g`` short of its configured elevation
-(seen from the floor left) or overshoots it by less than ``0.7·g`` on the threshold path
-(``m = 0.2``), and lies within ``±0.4·g`` of it on the settle path. A barometer that reads
-short is the sensitive side, so when in doubt configure the lower floor height.
+What this buys and its limit. A single-floor trip is labelled right for any real spacing
+within the scale range of the configured one (the ratio rule puts the boundary between one
+and two floors at ``√2``); once two floors have been seen, trips over several floors are
+counted with the learned spacing. Still ambiguous, for any method without more evidence: a
+*first* trip that skips floors while the configuration is far off (two floors of 2.6 m read as
+one of 5.2 m against a configured 3.6 m): a fix with a floor, or a dwell on the floor passed,
+settles it.
 
-Drift. The tracker keeps a slowly varying offset ``b`` between the input height and the
-building elevation, ``z = h - b``. Whenever ``z`` lies within ``drift_band·g`` of the
-current floor's elevation the offset follows the residual with time constant ``drift_tau_s``:
+**Drift.** The tracker keeps a slowly varying offset ``b`` between the input height and the
+level frame. Whenever ``z`` lies within ``drift_band`` of the local gap of the current floor's seen
+level, the offset and its rate ``ḃ`` follow the residual ``e = z − r_floor`` as a critically
+damped second-order loop with time constant ``τ_d`` (``drift_tau_s``)::
 
-    b_i = b_{i-1} + (1 - exp(-Δt_i / τ_d)) · (z_i - e_floor)
+    b ← b + ḃ·Δt   (always),      b ← b + 2 (Δt/τ_d) e,      ḃ ← ḃ + (Δt/τ_d²) e
 
-This cancels weather drift of the barometer (about 1 hPa ≈ 8 m per hour) and a floor height
-that is slightly off, while the band keeps a long stop on a half-landing from dragging the
-estimate. Residual error against a steady drift rate ``r`` is ``r·τ_d``: 0.3 m for 1 hPa/h
-and the default 120 s. A fix that names the floor (a checkpoint) resets ``b`` through
-:meth:`FloorTracker.anchor`.
+which cancels weather drift of the barometer (about 1 hPa ≈ 8 m per hour) without the lag
+``ḃ·τ_d`` a first-order follower leaves on a steady drift. That matters here because a level
+learned on a dwell is learned in the drift-corrected frame: a lag would be built into it and
+grow with every new floor. ``|ḃ|`` is kept below :data:`MAX_DRIFT_RATE`.
 
-Streaming: state is the floor, the offset, the starts of pending switches and the last
-time; batches of any size give the same output as one batch (the recursion is compiled with numba,
-like the AHRS kernels, because it is sequential by nature).
+Streaming: the state is the floor, the offset, the learned levels, the open dwell and the
+samples of the dwell window; batches of any size give the same output as one batch (the
+recursion is compiled with numba, like the AHRS kernels, because it is sequential by nature).
 """
 from __future__ import annotations
 
@@ -112,23 +137,32 @@ class FloorElevations:
 # ------------------------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class FloorSettings:
-    """Every number of the floor tracker, with its unit."""
+    """Every number of the floor tracker, with its unit (see the module docstring)."""
 
-    switch_margin: float = 0.2  # fraction of the floor gap beyond the midpoint, in [0, 0.5)
-    dwell_s: float = 1.0  # s, how long the height must stay past a threshold
-    settle_band: float = 0.4  # fraction of the smaller adjacent gap: "close to a floor"
-    settle_s: float = 10.0  # s, how long the height must stay close to another floor
+    switch_margin: float = 0.2  # fraction of the predicted gap beyond the midpoint, in [0, 0.5)
+    dwell_s: float = 1.0  # s, how long the height must stay past a threshold between dwells
+    dwell_window_s: float = 6.0  # s, the height is steady over this long: the walker is on a level
+    dwell_max_rate: float = 0.05  # m/s, largest least-squares climb rate over the window that is still "steady"
+    dwell_band_m: float = 1.0  # m, and largest range (max − min) over the window
+    match_fraction: float = 0.3  # a dwell within this fraction of the local gap of a seen floor's level is on it
+    learn_s: float = 15.0  # s, a dwell on no floor seen yet teaches a new level only once it has lasted this long
+    scale_range: tuple[float, float] = (0.55, 1.5)  # plausible real/configured spacing, relative to the expected
     drift_tau_s: float = 120.0  # s, time constant of the drift offset; 0 or inf disables it
-    drift_band: float = 0.25  # fraction of the smaller adjacent gap around a floor where drift is learned
+    drift_band: float = 0.25  # fraction of the local gap around a seen floor's level where the drift is learned
     max_dt: float = 5.0  # s, a longer gap between samples counts as this long
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.switch_margin < 0.5:
             raise ValueError("switch_margin must lie in [0, 0.5)")
-        if not 0.0 <= self.settle_band < 0.5 or not 0.0 <= self.drift_band < 0.5:
-            raise ValueError("settle_band and drift_band must lie in [0, 0.5)")
-        if self.dwell_s < 0 or self.settle_s < 0 or self.drift_tau_s < 0 or self.max_dt <= 0:
-            raise ValueError("dwell_s, settle_s, drift_tau_s must not be negative; max_dt positive")
+        if not 0.0 < self.match_fraction < 0.5 or not 0.0 <= self.drift_band < 0.5:
+            raise ValueError("match_fraction must lie in (0, 0.5) and drift_band in [0, 0.5)")
+        lo, hi = self.scale_range
+        if not 0.0 < lo < 1.0 < hi:
+            raise ValueError(f"scale_range must be (lo, hi) with 0 < lo < 1 < hi, got {self.scale_range}")
+        if self.dwell_s < 0 or self.drift_tau_s < 0 or self.max_dt <= 0:
+            raise ValueError("dwell_s and drift_tau_s must not be negative; max_dt positive")
+        if not (self.dwell_window_s > 0 and self.dwell_max_rate > 0 and self.dwell_band_m > 0 and self.learn_s >= 0):
+            raise ValueError("dwell_window_s, dwell_max_rate and dwell_band_m must be positive, learn_s not negative")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,7 +173,7 @@ class FloorChange:
     floor_from: int
     floor_to: int
     elevation: float  # m, the drift-corrected height when the change was decided
-    reason: str = "height"  # "height" (the tracker decided) or "anchor" (a fix said so)
+    reason: str = "height"  # "height" (passed a threshold), "dwell" (a dwell's level), "anchor" (a fix said so)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -151,89 +185,273 @@ class FloorTrack:
     changes: list[FloorChange]
 
 
-@njit(cache=True)
-def _track_run(t, h, state, elev, up, down, drift_hw, settle_hw, dwell, settle_s, tau, max_dt):  # pragma: no cover
-    """Hysteresis, dwell and drift over one batch; returns (floor index, z) per sample.
+# state vector of the tracker (float64), see _track_run
+_K, _B, _PEND, _PEND_TO, _TPREV, _IN_DWELL, _DWELL_ID, _DSUM, _DCNT, _DFLOOR, _HEAD, _COUNT, _REJECTED, _DSTART, _RATE = range(15)
+_STATE = 15
+MAX_DRIFT_RATE = 25.0 / 3600.0  # m/s: 3 hPa/h, a fast weather change; the drift rate estimate stays below it
+_UNDECIDED = -2.0  # the open dwell's floor while it is too young to teach a new level
+_EXIT_FACTOR = 2.0  # a dwell ends when the window's rate or range passes this many times the entry limits
+_RING = 1024  # samples the dwell window can hold (6 s at 170 Hz; barometers give 1-25 Hz)
+_REASONS = ("", "height", "dwell")
 
-    ``state`` (float64[6], in place): floor index, offset b, start of a pending threshold
-    switch, last time, start of a pending settle switch, the floor index it settles to
-    (times NaN when nothing is pending / before the first sample). ``up[k]`` is the
-    height above which floor k is reached from below (``up[0] = -inf``), ``down[k]`` the
-    height below which the floor falls to k from above (``down[-1] = +inf``);
-    ``drift_hw[k]``/``settle_hw[k]`` are the half-widths of the drift and settle bands.
+
+@njit(cache=True)
+def _predict(r, known, elev, pred):  # pragma: no cover - compiled
+    """Predicted level of every floor from the seen ones (module docstring); returns α̂."""
+    nf = elev.shape[0]
+    lo, hi, n = -1, -1, 0
+    for f in range(nf):
+        if known[f] > 0:
+            n += 1
+            if lo < 0:
+                lo = f
+            hi = f
+    alpha = 1.0
+    if n >= 2:
+        alpha = (r[hi] - r[lo]) / (elev[hi] - elev[lo])
+        if not alpha > 0.0:
+            alpha = 1.0
+    for f in range(nf):
+        if known[f] > 0:
+            pred[f] = r[f]
+            continue
+        below, above = -1, -1
+        for g in range(f - 1, -1, -1):
+            if known[g] > 0:
+                below = g
+                break
+        for g in range(f + 1, nf):
+            if known[g] > 0:
+                above = g
+                break
+        if below >= 0 and above >= 0:
+            pred[f] = r[below] + (r[above] - r[below]) * (elev[f] - elev[below]) / (elev[above] - elev[below])
+        elif below >= 0:
+            pred[f] = r[below] + alpha * (elev[f] - elev[below])
+        else:
+            pred[f] = r[above] + alpha * (elev[f] - elev[above])
+    return alpha
+
+
+@njit(cache=True)
+def _local_gap(pred, f):  # pragma: no cover - compiled
+    nf = pred.shape[0]
+    gap = np.inf
+    if f > 0:
+        gap = min(gap, abs(pred[f] - pred[f - 1]))
+    if f + 1 < nf:
+        gap = min(gap, abs(pred[f + 1] - pred[f]))
+    return gap
+
+
+@njit(cache=True)
+def _match(level, r, known, pred, match_fraction):  # pragma: no cover - compiled
+    """The seen floor whose level is within ``match_fraction`` of its local gap of ``level`` (nearest), else -1."""
+    best, best_d = -1, np.inf
+    for f in range(r.shape[0]):
+        if known[f] > 0:
+            d = abs(level - r[f])
+            if d <= match_fraction * _local_gap(pred, f) and d < best_d:
+                best, best_d = f, d
+    return best
+
+
+@njit(cache=True)
+def _decide(level, r, known, elev, pred, alpha, match_fraction, scale_lo, scale_hi):  # pragma: no cover - compiled
+    """The floor index of a dwell at ``level``, or -1 when it is on no floor (module docstring)."""
+    nf = elev.shape[0]
+    best = _match(level, r, known, pred, match_fraction)
+    if best >= 0:
+        return best
+    a, da = -1, np.inf  # the seen floor nearest in level
+    for f in range(nf):
+        if known[f] > 0 and abs(level - r[f]) < da:
+            a, da = f, abs(level - r[f])
+    if a < 0:
+        return -1
+    step = 1 if level > r[a] else -1
+    c = -1  # the next seen floor on that side
+    f = a + step
+    while 0 <= f < nf:
+        if known[f] > 0:
+            c = f
+            break
+        f += step
+    if c >= 0:  # between two seen floors: the nearest interpolated level, if close
+        best, best_d = -1, np.inf
+        f = a + step
+        while f != c:
+            d = abs(level - pred[f])
+            if d < best_d:
+                best, best_d = f, d
+            f += step
+        if best >= 0 and best_d <= match_fraction * _local_gap(pred, best):
+            return best
+        return -1
+    f = a + step  # beyond the seen floors: the fewest floors whose implied spacing is plausible
+    while 0 <= f < nf:
+        q = (level - r[a]) / (elev[f] - elev[a]) / alpha
+        if scale_lo <= q <= scale_hi:
+            return f
+        if q < scale_lo:
+            return -1  # farther floors imply even smaller spacings
+        f += step
+    return -1
+
+
+@njit(cache=True)
+def _track_run(t, h, S, ring_t, ring_z, r, known, learned_in, pred, elev, P):  # pragma: no cover - compiled
+    """The tracker over one batch; returns (floor index, z, reason of a change) per sample.
+
+    ``S`` (float64[_STATE]) holds the floor index, the offset b, the start and target of a
+    pending threshold switch, the last time, the open dwell (flag, id, running sum and count of
+    z, its floor) and the ring buffer's head and count; ``ring_t``/``ring_z`` the dwell window;
+    ``r``/``known``/``learned_in`` the learned levels (known: 0 not seen, 1 seen on a dwell,
+    2 start or fix), ``pred`` the predicted levels. ``P`` = switch margin, dwell_s, window,
+    max rate, band, match fraction, scale lo, scale hi, τ_d, max_dt, learn_s, drift band. All updated in place.
     """
+    margin, hold, window, max_rate, band, match, s_lo, s_hi, tau, max_dt, learn_s, drift_fraction = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7], P[8], P[9], P[10], P[11]
     n = t.shape[0]
     nf = elev.shape[0]
+    cap = ring_t.shape[0]
     out_k = np.empty(n, dtype=np.int64)
     out_z = np.empty(n)
-    k, b, pend, t_prev, pend_s, target_s = int(state[0]), state[1], state[2], state[3], state[4], int(state[5])
+    out_why = np.zeros(n, dtype=np.int64)
+    alpha = _predict(r, known, elev, pred)
     for i in range(n):
+        k = int(S[_K])
+        t_prev = S[_TPREV]
         dt = 0.0 if math.isnan(t_prev) else min(max(t[i] - t_prev, 0.0), max_dt)
-        t_prev = t[i]
-        z = h[i] - b
-        # threshold path: past the midpoint towards another floor by the margin
+        S[_TPREV] = t[i]
+        S[_B] += S[_RATE] * dt  # the weather keeps drifting between updates
+        z = h[i] - S[_B]
+        # the dwell window: push, drop what is older than the window
+        head, count = int(S[_HEAD]), int(S[_COUNT])
+        ring_t[(head + count) % cap] = t[i]
+        ring_z[(head + count) % cap] = z
+        if count < cap:
+            count += 1
+        else:
+            head = (head + 1) % cap
+        while count > 1 and ring_t[head] <= t[i] - window:
+            head = (head + 1) % cap
+            count -= 1
+        S[_HEAD], S[_COUNT] = head, count
+        # threshold path on the predicted levels
         c = k
-        while c + 1 < nf and z > up[c + 1]:
+        while c + 1 < nf and z > pred[c] + (0.5 + margin) * (pred[c + 1] - pred[c]):
             c += 1
         if c == k:
-            while c > 0 and z < down[c - 1]:
+            while c > 0 and z < pred[c] - (0.5 + margin) * (pred[c] - pred[c - 1]):
                 c -= 1
-        new_k = k
+        new_k, why = k, 0
         if c != k:
-            if math.isnan(pend):
-                pend = t[i]
-            if t[i] - pend >= dwell:
-                new_k = c
+            if math.isnan(S[_PEND]) or int(S[_PEND_TO]) != c:
+                S[_PEND], S[_PEND_TO] = t[i], c
+            if t[i] - S[_PEND] >= hold:
+                new_k, why = c, 1
         else:
-            pend = math.nan
-        # settle path: close to another floor's elevation for settle_s
-        j = np.searchsorted(elev, z)
-        near = j if j < nf and (j == 0 or elev[j] - z < z - elev[j - 1]) else j - 1
-        if near != k and abs(z - elev[near]) < settle_hw[near]:
-            if math.isnan(pend_s) or near != target_s:
-                pend_s = t[i]
-                target_s = near
-            if new_k == k and t[i] - pend_s >= settle_s:
-                new_k = near
+            S[_PEND] = math.nan
+        # steady height over the window: least-squares rate and range
+        span = t[i] - ring_t[head]
+        steady = False
+        if span >= 0.9 * window and count >= 3:
+            st = 0.0
+            sz = 0.0
+            zmin, zmax = np.inf, -np.inf
+            for j in range(count):
+                q = (head + j) % cap
+                st += ring_t[q] - t[i]
+                sz += ring_z[q]
+                zmin = min(zmin, ring_z[q])
+                zmax = max(zmax, ring_z[q])
+            mt, mz = st / count, sz / count
+            num, den = 0.0, 0.0
+            for j in range(count):
+                q = (head + j) % cap
+                dtj = ring_t[q] - t[i] - mt
+                num += dtj * (ring_z[q] - mz)
+                den += dtj * dtj
+            rate = num / den if den > 0.0 else 0.0
+            # hysteresis: a dwell is entered under the limits and left only well past them
+            x = 1.0 if S[_IN_DWELL] == 0.0 else _EXIT_FACTOR
+            steady = abs(rate) <= x * max_rate and zmax - zmin <= x * band
+        if steady:
+            if S[_IN_DWELL] == 0.0:  # a new dwell: on a floor seen before?
+                S[_IN_DWELL] = 1.0
+                S[_DWELL_ID] += 1.0
+                S[_DSTART] = ring_t[head]
+                S[_DSUM], S[_DCNT] = mz * count, float(count)
+                f = _match(mz, r, known, pred, match)
+                S[_DFLOOR] = f if f >= 0 else _UNDECIDED
+            else:
+                S[_DSUM] += z
+                S[_DCNT] += 1.0
+            if S[_DFLOOR] == _UNDECIDED and t[i] - S[_DSTART] >= learn_s:  # long enough: a floor not seen yet?
+                level = S[_DSUM] / S[_DCNT]
+                f = _decide(level, r, known, elev, pred, alpha, match, s_lo, s_hi)
+                if f >= 0 and not math.isnan(S[_REJECTED]) and abs(level - S[_REJECTED]) <= match * _local_gap(pred, f):
+                    f = -1  # back at a level already judged to be on no floor (a landing)
+                if f < 0:
+                    S[_REJECTED] = level
+                elif known[f] == 0:
+                    known[f], r[f], learned_in[f] = 1, level, S[_DWELL_ID]
+                    alpha = _predict(r, known, elev, pred)
+                S[_DFLOOR] = f
+            f = int(S[_DFLOOR])
+            if f >= 0:
+                if f != new_k:
+                    why = 2
+                new_k = f
+                S[_PEND] = math.nan
         else:
-            pend_s = math.nan
+            S[_IN_DWELL] = 0.0
+        if tau > 0.0 and known[new_k] > 0 and abs(z - r[new_k]) <= drift_fraction * _local_gap(pred, new_k):
+            e = z - r[new_k]  # near a seen floor's level: follow the drift (critically damped, ramps without lag)
+            g = dt / tau
+            S[_B] += 2.0 * g * e
+            S[_RATE] = min(max(S[_RATE] + g / tau * e, -MAX_DRIFT_RATE), MAX_DRIFT_RATE)
         if new_k != k:
-            k = new_k
-            pend = math.nan
-            pend_s = math.nan
-        r = z - elev[k]
-        if tau > 0.0 and abs(r) < drift_hw[k]:
-            b += (1.0 - math.exp(-dt / tau)) * r
-        out_k[i] = k
+            S[_K] = new_k
+            S[_PEND] = math.nan
+            S[_REJECTED] = math.nan
+        else:
+            why = 0
+        out_k[i] = new_k
         out_z[i] = z
-    state[0], state[1], state[2], state[3], state[4], state[5] = k, b, pend, t_prev, pend_s, target_s
-    return out_k, out_z
+        out_why[i] = why
+    return out_k, out_z, out_why
 
 
 class FloorTracker:
-    """Streaming floor from height: ``track = tracker.update(t, height_m)``.
+    """Streaming floor from height: ``track = tracker.update(t, height_m)`` (module docstring).
 
-    The first height the tracker sees is taken as the elevation of ``start_floor``, so the
+    The first height the tracker sees is taken as the level of ``start_floor``, so the
     input may be relative to the start (an altimeter with ``start_height_m=0``) or in the
     building's frame. Non-finite heights keep the previous floor.
     """
 
     def __init__(self, elevations: FloorElevations, start_floor: int, settings: FloorSettings | None = None):
         self.elevations = elevations
-        self.settings = settings or FloorSettings()
-        s = self.settings
+        self.settings = s = settings or FloorSettings()
         self._floors = elevations.floors
-        e = elevations.heights
-        self._elev = e
-        gaps = np.diff(e)
-        lo = 0.5 + s.switch_margin
-        self._up = np.concatenate([[-np.inf], e[:-1] + lo * gaps])
-        self._down = np.concatenate([e[1:] - lo * gaps, [np.inf]])
-        nearest_gap = np.minimum(np.concatenate([[np.inf], gaps]), np.concatenate([gaps, [np.inf]]))
-        self._drift_hw = np.where(np.isfinite(nearest_gap), s.drift_band * nearest_gap, np.inf)  # lone floor: always
-        self._settle_hw = np.where(np.isfinite(nearest_gap), s.settle_band * nearest_gap, 0.0)
-        self._tau = s.drift_tau_s if math.isfinite(s.drift_tau_s) else 0.0
-        self._state = np.array([float(self._index(start_floor)), math.nan, math.nan, math.nan, math.nan, -1.0])
+        self._elev = elevations.heights
+        nf = self._elev.shape[0]
+        k0 = self._index(start_floor)
+        self._state = np.full(_STATE, np.nan)
+        self._state[[_K, _PEND_TO, _IN_DWELL, _DWELL_ID, _DSUM, _DCNT, _DFLOOR, _HEAD, _COUNT, _RATE]] = [
+            k0, -1, 0, 0, 0, 0, -1, 0, 0, 0.0]
+        self._ring_t = np.zeros(_RING)
+        self._ring_z = np.zeros(_RING)
+        self._r = self._elev.copy()  # learned levels (z frame: the start floor at its configured elevation)
+        self._known = np.zeros(nf, dtype=np.int64)
+        self._known[k0] = 2
+        self._learned_in = np.zeros(nf)
+        self._pred = self._elev.copy()
+        tau = s.drift_tau_s if math.isfinite(s.drift_tau_s) else 0.0
+        self._params = np.array([s.switch_margin, s.dwell_s, s.dwell_window_s, s.dwell_max_rate, s.dwell_band_m,
+                                 s.match_fraction, s.scale_range[0], s.scale_range[1], tau, s.max_dt, s.learn_s,
+                                 s.drift_band])
         self._last_h = math.nan
         self._history: deque[FloorChange] = deque(maxlen=256)
 
@@ -247,12 +465,23 @@ class FloorTracker:
     @property
     def floor(self) -> int:
         """The current floor."""
-        return int(self._floors[int(self._state[0])])
+        return int(self._floors[int(self._state[_K])])
 
     @property
     def offset(self) -> float:
-        """The offset b (m) between the input height and the building elevation (NaN before data)."""
-        return float(self._state[1])
+        """The offset b (m) between the input height and the level frame (NaN before data)."""
+        return float(self._state[_B])
+
+    @property
+    def levels(self) -> dict[int, float]:
+        """The levels (m, level frame) of the floors seen so far: on a dwell, at the start or from a fix."""
+        return {int(self._floors[f]): float(self._r[f]) for f in np.flatnonzero(self._known > 0)}
+
+    @property
+    def predicted_levels(self) -> dict[int, float]:
+        """The level (m, level frame) every configured floor is expected at now."""
+        _predict(self._r, self._known, self._elev, self._pred)
+        return {int(f): float(v) for f, v in zip(self._floors, self._pred)}
 
     def floor_at(self, t: float) -> int:
         """The floor at time ``t`` (the last 256 changes are remembered)."""
@@ -270,17 +499,18 @@ class FloorTracker:
         if h.shape != t.shape:
             raise ValueError(f"height has {h.shape[0]} samples, t has {t.shape[0]}")
         n = t.shape[0]
-        k0 = int(self._state[0])
+        k0 = int(self._state[_K])
         k_out = np.full(n, k0, dtype=np.int64)
         z_out = np.full(n, np.nan)
+        why_out = np.zeros(n, dtype=np.int64)
         good = np.flatnonzero(np.isfinite(h) & np.isfinite(t))
         if good.size:
-            if math.isnan(self._state[1]):
-                self._state[1] = h[good[0]] - self._elev[k0]
-            s = self.settings
-            k, z = _track_run(t[good], h[good], self._state, self._elev, self._up, self._down, self._drift_hw,
-                              self._settle_hw, s.dwell_s, s.settle_s, self._tau, s.max_dt)
+            if math.isnan(self._state[_B]):
+                self._state[_B] = h[good[0]] - self._r[k0]
+            k, z, why = _track_run(t[good], h[good], self._state, self._ring_t, self._ring_z, self._r, self._known,
+                                   self._learned_in, self._pred, self._elev, self._params)
             z_out[good] = z
+            why_out[good] = why
             if good.size == n:
                 k_out = k
             else:  # a sample with a bad height keeps the floor of the sample before it
@@ -289,28 +519,52 @@ class FloorTracker:
             self._last_h = float(h[good[-1]])
         prev = np.concatenate([[k0], k_out[:-1]])
         changes = [
-            FloorChange(float(t[i]), int(self._floors[prev[i]]), int(self._floors[k_out[i]]), float(z_out[i]))
+            FloorChange(float(t[i]), int(self._floors[prev[i]]), int(self._floors[k_out[i]]), float(z_out[i]),
+                        _REASONS[int(why_out[i])] or "height")
             for i in np.flatnonzero(k_out != prev)
         ]
         self._history.extend(changes)
         return FloorTrack(self._floors[k_out], z_out, changes)
 
-    def anchor(self, floor: int, height_m: float | None = None, t: float | None = None) -> FloorChange | None:
+    def anchor(self, floor: int, height_m: float | None = None, t: float | None = None,
+               shift: float = 0.0) -> FloorChange | None:
         """A fix says the responder is on ``floor`` now; ``height_m`` is the input height at
-        that moment (default: the last one seen; pass the new height if the altimeter was
-        re-anchored too). Returns the floor change this makes, if any."""
+        that moment (default: the last one seen). ``shift`` (m) is how far the input height
+        jumped at this moment without the responder moving (an altimeter re-referenced to the
+        configured elevation): the level frame is kept continuous across it. The current height
+        becomes that floor's level; a level the open dwell taught another floor is forgotten.
+        Returns the floor change this makes, if any."""
         k_new = self._index(floor)
-        k_old = int(self._state[0])
+        k_old = int(self._state[_K])
         h = self._last_h if height_m is None else float(height_m)
-        self._state[0] = k_new
-        self._state[2] = self._state[4] = math.nan
+        S = self._state
+        if math.isfinite(shift) and not math.isnan(S[_B]):
+            S[_B] += shift
+        S[_K] = k_new
+        S[_PEND] = math.nan
+        wrong = (self._known == 1) & (self._learned_in == S[_DWELL_ID]) & (np.arange(self._known.size) != k_new)
+        self._known[wrong] = 0
         if math.isfinite(h):
-            self._state[1] = h - self._elev[k_new]
+            if math.isnan(S[_B]) or self._known[k_new] > 0:
+                S[_B] = h - self._r[k_new]
+                S[_COUNT] = 0.0  # the window's heights were in the old frame: start it again
+                S[_IN_DWELL] = 0.0
+            else:
+                self._r[k_new] = h - S[_B]
+                # levels that cannot lie where they are with this floor here were assumptions or
+                # mislabels (a start floor that was not): forget them
+                lo = self.settings.scale_range[0]
+                sep = (self._r - self._r[k_new]) * np.sign(self._elev - self._elev[k_new])
+                self._known[(sep < lo * np.abs(self._elev - self._elev[k_new])) & (np.arange(self._known.size) != k_new)] = 0
             self._last_h = h
+        self._known[k_new] = 2
+        if S[_IN_DWELL] != 0.0:
+            S[_DFLOOR] = k_new
+        _predict(self._r, self._known, self._elev, self._pred)
         if k_new == k_old:
             return None
-        when = float(self._state[3]) if t is None else float(t)
-        change = FloorChange(when, int(self._floors[k_old]), int(self._floors[k_new]), float(self._elev[k_new]), "anchor")
+        when = float(S[_TPREV]) if t is None else float(t)
+        change = FloorChange(when, int(self._floors[k_old]), int(self._floors[k_new]), float(self._r[k_new]), "anchor")
         self._history.append(change)
         return change
 

@@ -96,15 +96,11 @@ from collections import deque
 import numpy as np
 
 from pdr.ahrs import make_filter
+from pdr.angles import wrap  # noqa: F401  (re-exported)
 from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass, still_bias
 from pdr.windows import norm3, unwrap_turns
 
 TWO_PI = 2.0 * math.pi
-
-
-def wrap(a):
-    """Angle(s) wrapped to (-π, π]."""
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), TWO_PI)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -22,7 +22,14 @@ Per frame:
 5. **Height change per step** ``dz = h(t_k) − h(t_{k−1})`` where ``h(t)`` is the height at
    the last pressure sample at or before ``t`` — never a later one, so the answer does not
    depend on whether the next pressure sample came in the same frame.
-6. **Motion state** on a grid of ``state_grid_s`` (data time), decided ``state_delay_s``
+6. **Floor events.** A floor change from the barometer (not from a fix) becomes a
+   :class:`pdr.events.FloorEvent` in the event stream, in time order with the steps: steps at
+   or before the change come before it, later ones after it. A change is released once the
+   newest sample is ``floor_event_hold_s`` past it (every step before it has been detected by
+   then: the norm detector releases a bout's first steps at most ≈3 s late); steps after a
+   change wait for it. So the stream is the same whatever the batching, and a responder in a
+   lift is moved to the new floor without a step.
+7. **Motion state** on a grid of ``state_grid_s`` (data time), decided ``state_delay_s``
    behind the newest sample so that every step up to the grid time is already known (the
    norm detector releases the first steps of a bout about 1.5-3 s late):
 
@@ -46,14 +53,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pdr.constants import GRAVITY
-from pdr.events import MotionEvent, MotionState, StepDetection, StepEvent
-from pdr.floors import FloorElevations, FloorSettings, FloorTracker, StairsDetector, StairsSettings
+from pdr.events import FloorEvent, MotionEvent, MotionState, StepDetection, StepEvent
+from pdr.floors import (
+    FloorElevations,
+    FloorSettings,
+    FloorTracker,
+    StairsDetector,
+    StairsSettings,
+)
 from pdr.frames import frame_bounds
 from pdr.heading import HeadingEstimator, HeadingSettings
 from pdr.height import AltimeterSettings, BarometricAltimeter
+from pdr.step_length import ResponderProfile, step_arrays, step_lengths
 from pdr.steps import SIGNAL, make_detector
 from pdr.steps.signals import vertical_linear_acceleration
-from pdr.step_length import ResponderProfile, step_arrays, step_lengths
 from pdr.windows import norm3, window_moments
 
 
@@ -92,6 +105,7 @@ class PipelineSettings:
     dz_sigma_m: float = 0.1  # m, per-step height change (barometer after the low-pass)
     min_step_length_m: float = 0.2  # m, a model answer below this is clipped (no negative steps)
     max_step_length_m: float = 1.4  # m, and above this (a running firefighter's long stride)
+    floor_event_hold_s: float = 4.0  # s, a floor change is released this long after it (steps before it are out)
     # motion state
     state_grid_s: float = 0.5  # s
     state_delay_s: float = 4.0  # s, decisions lag the newest sample by this much
@@ -126,6 +140,8 @@ class PdrPipeline:
         self._tracker = FloorTracker(self.floors, start_floor, s.floor)
         self._stairs = StairsDetector(s.stairs)
         self._pending: list[StepDetection] = []  # detected steps waiting for their heading
+        self._floor_queue: list = []  # floor changes (FloorChange) not yet released as FloorEvent
+        self._held: list[StepEvent] = []  # steps after an unreleased floor change
         self._pres_t = np.empty(0)  # pressure-sample times and heights kept for step dz
         self._pres_h = np.empty(0)
         self._last_step: tuple[float, float] | None = None  # (t, height) of the previous step
@@ -153,6 +169,10 @@ class PdrPipeline:
     def floor(self) -> int:
         return self._tracker.floor
 
+    def floor_at(self, t: float) -> int:
+        """The floor at time ``t`` as the barometer has it now (the last 256 changes are remembered)."""
+        return self._tracker.floor_at(t)
+
     @property
     def height(self) -> float:
         return self._altimeter.height
@@ -162,18 +182,33 @@ class PdrPipeline:
         """Device time of the newest sample seen (s); -inf before the first."""
         return self._t_last
 
-    def anchor_floor(self, floor: int) -> None:
-        """A fix says the responder is on ``floor`` now: re-reference height and floor."""
+    def anchor_floor(self, floor: int, t: float | None = None) -> None:
+        """A fix says the responder was on ``floor`` at time ``t`` (default: now): re-reference
+        height and floor. A fix is applied when the first step after it arrives; if the
+        barometer has changed floor since ``t`` (a lift between the fix and the next step), the
+        fix speaks of the floor left behind: when that was right nothing is re-referenced, when
+        it was wrong the current floor is shifted by the same number of floors."""
+        if t is not None and self._tracker.floor_at(t) != self._tracker.floor:
+            then = self._tracker.floor_at(t)
+            if then == floor:
+                return
+            floors = self.floors.floors.tolist()
+            k = floors.index(self._tracker.floor) + floors.index(int(floor)) - floors.index(then)
+            floor = floors[min(max(k, 0), len(floors) - 1)]
         h = self.floors.elevation(floor)
+        before = self._altimeter.height
         self._altimeter.anchor(h)
-        self._tracker.anchor(floor, h)
+        # the altimeter now reads the configured elevation; the floor tracker keeps its own level
+        # frame continuous across that jump and learns from the fix what it can
+        self._tracker.anchor(floor, h, shift=h - before if math.isfinite(before) else 0.0)
+        self._floor_queue = []  # changes the barometer made before the fix are superseded by it
         if self._pres_h.size:
             self._pres_h = self._pres_h + (h - self._pres_h[-1])
         if self._last_step is not None:
             self._last_step = (self._last_step[0], h)
 
     # ------------------------------------------------------------------ streaming
-    def update(self, frame: ImuFrame) -> list[StepEvent | MotionEvent]:
+    def update(self, frame: ImuFrame) -> list[StepEvent | FloorEvent | MotionEvent]:
         t = np.asarray(frame.t, float).reshape(-1)
         if t.size and t[0] <= self._t_last:
             raise ValueError(f"frame starts at {t[0]:.6f} s, not after the previous sample at {self._t_last:.6f} s")
@@ -197,21 +232,38 @@ class PdrPipeline:
         found = self._detector.update(t, a)
         headings = self._heading.steps([d.t for d in found])
         self._pending += found
-        steps = self._make_steps(headings)
+        steps = self._release(self._make_steps(headings), self._t_last - self.settings.floor_event_hold_s)
         motion = self._update_motion(t, acc_norm, gyr)
         return _merge(steps, motion)
 
-    def finish(self) -> list[StepEvent | MotionEvent]:
-        """The stream has ended: steps still inside the detector are released."""
+    def finish(self) -> list[StepEvent | MotionEvent | FloorEvent]:
+        """The stream has ended: steps still inside the detector, and floor changes, are released."""
         found = self._detector.finish()
         headings = self._heading.steps([d.t for d in found])
         self._pending += found
-        return list(self._make_steps(headings))
+        return self._release(self._make_steps(headings), math.inf)
+
+    def _release(self, steps: list[StepEvent], horizon: float) -> list[StepEvent | FloorEvent]:
+        """Steps and floor events in time order: changes up to ``horizon``, and the steps before
+        the first change still held (see the module docstring, 6)."""
+        self._held += steps
+        out: list[StepEvent | FloorEvent] = []
+        while self._floor_queue and self._floor_queue[0].t <= horizon:
+            c = self._floor_queue.pop(0)
+            n = sum(1 for e in self._held if e.t <= c.t)
+            out += self._held[:n]
+            self._held = self._held[n:]
+            out.append(FloorEvent(t=c.t, floor=c.floor_to, floor_from=c.floor_from, reason=c.reason))
+        bound = self._floor_queue[0].t if self._floor_queue else math.inf
+        n = sum(1 for e in self._held if e.t <= bound)
+        out += self._held[:n]
+        self._held = self._held[n:]
+        return out
 
     # ------------------------------------------------------------------ parts
     def _update_height(self, pt: np.ndarray, p: np.ndarray) -> None:
         h = self._altimeter.update(pt, p)
-        self._tracker.update(pt, h)
+        self._floor_queue += [c for c in self._tracker.update(pt, h).changes if c.reason != "anchor"]
         keep = self._pres_t > (pt[-1] - 60.0)
         self._pres_t = np.concatenate([self._pres_t[keep], pt])
         self._pres_h = np.concatenate([self._pres_h[keep], h])
@@ -304,9 +356,10 @@ class PdrPipeline:
         return events
 
 
-def _merge(steps: list[StepEvent], motion: list[MotionEvent]) -> list[StepEvent | MotionEvent]:
+def _merge(steps: list[StepEvent | FloorEvent], motion: list[MotionEvent]) -> list[StepEvent | FloorEvent | MotionEvent]:
     if not motion:
         return list(steps)
+    # stable: steps and floor events keep their order (a step at a change's time before it)
     return sorted([*steps, *motion], key=lambda e: (e.t, isinstance(e, MotionEvent)))
 
 
@@ -324,7 +377,7 @@ def frames_of(t, acc, gyr, mag=None, pressure_t=None, pressure=None, per_frame: 
         yield ImuFrame(t[a:b], acc[a:b], gyr[a:b], None if mag is None else mag[a:b], pt, pv)
 
 
-def run_pipeline(pipeline: PdrPipeline, frames) -> list[StepEvent | MotionEvent]:
+def run_pipeline(pipeline: PdrPipeline, frames) -> list[StepEvent | FloorEvent | MotionEvent]:
     """Every event of a finite stream of frames, the stream ended with :meth:`PdrPipeline.finish`."""
     events: list[StepEvent | MotionEvent] = []
     for f in frames:

@@ -80,7 +80,11 @@ class Page:
         self.context = browser.new_context(viewport=VIEWPORT)
         self.page = self.context.new_page()
         self.errors: list[str] = []
-        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        self.page.on("pageerror", lambda e: self.errors.append(str(e) + " @ " + str(getattr(e, "stack", ""))[:600]))
+        # offline at an incident: the page asks its own server for everything (no CDN, no fonts)
+        self.foreign: list[str] = []
+        self.page.on("request", lambda r: None if r.url.startswith((url, url.replace("http", "ws", 1), "data:"))
+                     else self.foreign.append(r.url))
         self.page.goto(url)
         self.page.wait_for_function("window.__firetrack && window.__firetrack.ready && window.__firetrack.connected",
                                     timeout=PAGE_TIMEOUT_MS)
@@ -96,17 +100,19 @@ class Page:
 
     def click_map_at(self, x: float, y: float) -> None:
         """Centre the view on ENU (x, y) (away from the overlays at the edges) and click there."""
-        X, Y = self.js("""([x, y]) => { const S = window.__firetrack;
-            const [X0, Y0] = S.enuToScreen(x, y);
-            S.view.cx += (X0 - S.view.w / 2) / S.view.scale; S.view.cy += (Y0 - S.view.h / 2) / S.view.scale;
-            S.dirtyBg = S.dirtyFg = true; return S.enuToScreen(x, y); }""", [x, y])
-        box = self.page.locator("#fg").bounding_box()
-        assert self.js("([X, Y]) => document.elementFromPoint(X, Y).id", [box["x"] + X, box["y"] + Y]) == "fg"
+        X, Y = self.js("([x, y]) => window.__firetrack.centreOn(x, y)", [x, y])
+        box = self.page.locator("#map").bounding_box()
+        # the click lands on the map itself: not on a control, a marker or a label
+        hit = self.js("""([X, Y]) => { const el = document.elementFromPoint(X, Y);
+            return !!el.closest('#map') && !el.closest('.leaflet-control-container, .leaflet-marker-pane, .leaflet-tooltip-pane'); }""",
+                      [box["x"] + X, box["y"] + Y])
+        assert hit, "something covers the map where the test clicks"
         self.page.mouse.click(box["x"] + X, box["y"] + Y)
 
     def close(self) -> None:
         self.context.close()
         assert self.errors == [], f"errors on the page: {self.errors}"
+        assert self.foreign == [], f"requests to other servers: {self.foreign}"
 
 
 class Collector:
@@ -122,6 +128,26 @@ class Collector:
     def all(self):
         with self._lock:
             return list(self.items)
+
+
+class FixCollector(Collector):
+    """The fixes a console publishes, as operator actions on its own key (``.../{actor}/op``)."""
+
+    def __init__(self, session, cfg, responder: str, actor: str = "console"):
+        self.responder = responder
+        super().__init__(session, wire.key(cfg.id, actor, "op"))
+
+    def _on(self, sample):
+        op = wire.decode(sample.payload.to_bytes(), expect=wire.OperatorAction)
+        if op.action == "fix" and op.responder == self.responder:
+            with self._lock:
+                self.items.append((op, wire.decode(op.fix, expect=wire.Fix)))
+
+    def all(self):  # the fixes
+        return [f for _, f in super().all()]
+
+    def actions(self):
+        return [op for op, _ in super().all()]
 
 
 def imu_frames(responder: str, t0: float, seconds: float, still: bool, seq0: int = 0, seed: int = 0,
@@ -175,7 +201,7 @@ def test_markers_move_a_map_click_places_a_fix_and_review_scrubs_the_track(stack
     # long enough to still be walking when the fix is sent (it applies at the next step); stopped after
     frames = {r: imu_frames(r, 1000.0, 150.0, still=False, seed=i) for i, r in enumerate(ids)}
     wearables = {r: Wearable(cl, cfg.id, r) for r in ids}
-    fixes = Collector(cl, wire.key(cfg.id, "alpha", "fix"))
+    fixes = FixCollector(cl, cfg, "alpha")
     stop = threading.Event()
     sender = threading.Thread(target=send_paced, args=(wearables, frames, 8.0, stop), daemon=True)
     page = Page(browser, console.url)
@@ -197,11 +223,21 @@ def test_markers_move_a_map_click_places_a_fix_and_review_scrubs_the_track(stack
                      for p in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)))
         jac = np.column_stack([ex - o, ny - o])  # screen px per metre East, per metre North
         cov = np.array([[4.0, 1.5], [1.5, 1.0]])
-        r1, r2, angle = page.js("(c) => window.__firetrack.covToEllipse(c)", [4.0, 1.5, 1.0])
-        lam, vec = np.linalg.eigh(jac @ cov @ jac.T)
-        assert (r1, r2) == pytest.approx(tuple(2.4477 * np.sqrt(lam[::-1])), rel=1e-9)
-        major = vec[:, 1]
-        assert abs(math.sin(angle - math.atan2(major[1], major[0]))) < 1e-9  # same axis (sign free)
+        r1, r2, angle = page.js("(c) => window.__firetrack.ellipseAxes(c)", [4.0, 1.5, 1.0])
+        lam, vec = np.linalg.eigh(cov)
+        assert (r1, r2) == pytest.approx(tuple(2.4477 * np.sqrt(lam[::-1])), rel=1e-9)  # 95 %: chi2_2 = 2.4477^2
+        assert abs(math.sin(angle - math.atan2(vec[1, 1], vec[0, 1]))) < 1e-9  # the major axis (sign free)
+        # the drawn outline, on screen, lies on the screen image of that ellipse and reaches its major axis
+        ring = page.js("(c) => { const S = window.__firetrack, e = S.ellipseOutline(3.0, -2.0, c), out = [];"
+                       "  for (let i = 0; i < e.length; i += 2) out.push(S.enuToScreen(e[i], e[i + 1])); return out; }",
+                       [4.0, 1.5, 1.0])
+        centre = np.array(page.js("() => window.__firetrack.enuToScreen(3.0, -2.0)"))
+        d = np.array(ring) - centre
+        cov_screen = jac @ cov @ jac.T
+        assert len(ring) >= 32
+        assert np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov_screen), d) == pytest.approx(2.4477 ** 2, rel=1e-6)
+        assert np.abs(d @ np.linalg.eigh(cov_screen)[1][:, 1]).max() == pytest.approx(
+            2.4477 * math.sqrt(np.linalg.eigvalsh(cov_screen)[1]), rel=3e-3)
         for bearing, enu in ((0.0, (0.0, 1.0)), (90.0, (1.0, 0.0)), (225.0, (-1.0, -1.0))):
             want = jac @ np.array(enu)
             got = page.js("(b) => window.__firetrack.bearingToScreen(b)", bearing)
@@ -220,7 +256,8 @@ def test_markers_move_a_map_click_places_a_fix_and_review_scrubs_the_track(stack
         page.page.locator("#modal-ok").click()
         assert wait_until(lambda: len(fixes.all()) == 1, 5), "the console published no fix"
         fix = fixes.all()[0]
-        assert fix.source == "checkpoint" and fix.operator == "console" and fix.floor == cfg.start_floor
+        assert fix.source == "checkpoint" and fix.operator == "local" and fix.floor == cfg.start_floor
+        assert fixes.actions()[0].operator == "local"  # the open demo console: whoever is at this machine
         assert math.dist((fix.x, fix.y), (cp.x, cp.y)) <= 1.5 * metres_per_px  # the click, within a pixel
         assert fix.t >= later["t"]  # stamped with alpha's latest device time
         assert wait_until(lambda: svc.responders["alpha"].tracker.fixes_applied > applied_before, 15), \
@@ -260,7 +297,7 @@ def test_a_motionless_responder_raises_man_down_which_is_acknowledged_and_raised
     svc, console, cl, cfg, endpoint = stack
     w = Wearable(cl, cfg.id, "echo")
     page = Page(browser, console.url)
-    alarm = '#alarms .alarm[data-key="echo|man_down"]'
+    alarm = '#alarms .alarm[data-responder="echo"]'
     try:
         still = imu_frames("echo", 2000.0, 40.0, still=True, rate=25.0)
         for b in still:  # device time is what counts: 40 s of stillness sent at once
@@ -354,7 +391,7 @@ def test_silence_raises_lost_contact_in_the_page_itself(browser):
     console = start_console(session, cfg, port=free_port(), lost_contact_s=1.0)
     cl = client(endpoint)
     page = None
-    alarm = '#alarms .alarm[data-key="ghost|lost_contact"]'
+    alarm = '#alarms .alarm[data-responder="ghost"]'
 
     def heard():
         now = time.time()
@@ -378,7 +415,7 @@ def test_silence_raises_lost_contact_in_the_page_itself(browser):
         heard()
         talker.start()
         try:
-            page.wait("(s) => document.querySelector(s)?.querySelector('.state').textContent === 'CLEARED'",
+            page.wait("(s) => document.querySelector(s)?.querySelector('.kinds').textContent.includes('(cleared)')",
                       alarm, timeout_ms=5000)
             assert "flashing" in page.page.locator(alarm).get_attribute("class")  # not acknowledged yet
             page.page.locator(alarm + " button.ack").click()
@@ -446,6 +483,8 @@ def test_an_ipin_recording_replayed_at_10x_moves_its_marker(stack, browser):
 def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
     svc, console, cl, cfg, endpoint = stack
     url = console.url
+    # declared first: a subscriber takes a moment to reach the router, and the fix below must not pass it by
+    fixes = FixCollector(cl, cfg, "foxtrot")
     status, inc = http(url + "api/incident")
     assert status == 200 and inc["id"] == cfg.id and [f["number"] for f in inc["floors"]] == [-2, -1, 0]
     plan = inc["plans"]["0"]
@@ -459,6 +498,16 @@ def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
         for u, v in ((0, 0), (plan["width"], plan["height"]), (123.5, 456.25)):
             f = plan["factor"]
             assert np.allclose(m @ [u, v, 1.0], plan_pixel_to_enu(full, f * u, f * v), atol=1e-9)
+    # the page's modules, style and vendored Leaflet, each with a type the browser accepts
+    static = Path(__file__).resolve().parents[1] / "client" / "console" / "static"
+    types = {".js": {"text/javascript", "application/javascript"}, ".css": {"text/css"}, ".png": {"image/png"}}
+    files = [f for f in static.rglob("*") if f.suffix in types]
+    assert any(f.name == "leaflet.js" for f in files) and len([f for f in files if f.suffix == ".js"]) >= 10
+    for f in files:
+        req = urllib.request.Request(url + "static/" + f.relative_to(static).as_posix())
+        with urllib.request.urlopen(req, timeout=10.0) as res:
+            assert res.headers.get_content_type() in types[f.suffix], f
+            assert res.read() == f.read_bytes()
     status, body = http(url + "plan/7.png")
     assert status == 404 and "floor 7" in body["error"]
 
@@ -483,11 +532,10 @@ def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
     assert status == 400 and "floor 7" in body["error"] and "[-2, -1, 0]" in body["error"]
     status, body = post("api/fix", {"responder": "foxtrot", "name": "no-such-door"})
     assert status == 404 and "no-such-door" in body["error"] and "t01-lm1" in body["error"]
-    fixes = Collector(cl, wire.key(cfg.id, "foxtrot", "fix"))
     status, body = post("api/fix", {"responder": "foxtrot", "name": "t01-lm2"})
     assert status == 200 and body["sent"]["name"] == "t01-lm2" and body["sent"]["t"] == 77.5
     assert wait_until(lambda: len(fixes.all()) == 1, 5)
-    assert fixes.all()[0] == wire.Fix.checkpoint("foxtrot", 77.5, name="t01-lm2", operator="console")
+    assert fixes.all()[0] == wire.Fix.checkpoint("foxtrot", 77.5, name="t01-lm2", operator="local")
 
     # checkpoints: added, visible to the page's next load, duplicates and bad floors refused
     status, body = post("api/checkpoint", {"name": "door-7", "x": 3.5, "y": -4.0, "floor": -1, "note": "side door"})
@@ -525,3 +573,118 @@ def test_a_taken_port_is_a_clear_error_and_close_does_not_hang(stack, browser):
     page.wait("() => !window.__firetrack.connected", timeout_ms=5000)
     assert "NO CONNECTION" in page.page.locator("#conn").inner_text()
     page.close()
+
+
+# ------------------------------------------------------------------ issue 18: honest silence, accountability
+def test_heard_grows_while_a_wearable_is_silent(browser, stack):
+    """HEARD counts from the wearable's last frame (Status.last_heard), not from the service's
+    status message, so it keeps growing while the service goes on reporting a silent wearable."""
+    svc, console, cl, cfg, _ = stack
+    w = Wearable(cl, cfg.id, "quiet1")
+    imu = static_imu(seconds=3.0, rate_hz=50.0)
+    for b in wire.imu_batches_from_arrays("quiet1", "dev-q", imu.t + 500.0, imu.acc, imu.gyr, imu.mag, per_batch=5):
+        w.send("imu", b)
+    page = Page(browser, console.url)
+    try:
+        cell = "#roster tr[data-id='quiet1'] td.heard"
+        page.wait(f"() => document.querySelector(\"{cell}\")")
+        time.sleep(2.0)  # the wearable is silent now; the service still publishes its Status each second
+        first = page.js(f"() => window.__firetrack.snapshot().quiet1.status.received_at")
+        a = page.js("() => { const r = window.__firetrack.responders.get('quiet1'); "
+                    "return Date.now() / 1000 + window.__firetrack.clockOffset - r.status.last_heard; }")
+        time.sleep(2.5)
+        second = page.js(f"() => window.__firetrack.snapshot().quiet1.status.received_at")
+        b = page.js("() => { const r = window.__firetrack.responders.get('quiet1'); "
+                    "return Date.now() / 1000 + window.__firetrack.clockOffset - r.status.last_heard; }")
+        assert second > first  # statuses kept coming ...
+        assert b > a + 2.0 and b > 4.0  # ... and HEARD still grew
+        page.wait(f"() => parseFloat(document.querySelector(\"{cell}\").textContent) >= 4")
+    finally:
+        w.close()
+        page.close()
+
+
+def test_twenty_responders_in_alarm_leave_the_map_usable(browser, tmp_path):
+    """One compact alarm row per person: twenty people in alarm must not cover the map."""
+    session, endpoint = router()
+    cfg = default_incident().model_copy(update={"id": "many-alarms"})
+    console = start_console(session, cfg, port=free_port())
+    cl = client(endpoint)
+    page = None
+    try:
+        page = Page(browser, console.url)
+        now = time.time()
+        cp = cfg.checkpoints[0]
+        for i in range(20):
+            rid = f"ff{i:02d}"
+            cl.put(wire.key(cfg.id, rid, "pose"), wire.encode(wire.Pose(
+                responder=rid, t=100.0, x=cp.x + (i % 5) * 2.0, y=cp.y + (i // 5) * 2.0, floor=cp.floor, lat=49.46,
+                lon=11.11, heading_deg=0.0, cov=np.eye(2), steps=10, source="fused", seq=1, published_at=now)))
+            alarms = ["man_down", "lost_contact"] if i % 2 else ["lost_contact", "disconnected", "par_unanswered"]
+            cl.put(wire.key(cfg.id, rid, "status"), wire.encode(wire.Status(
+                responder=rid, t=100.0, motion="no_motion", motion_since=0.0, alarms=alarms,
+                alarms_since={a: now - 40.0 for a in alarms}, last_heard=now - 40.0)))
+        page.wait("() => document.querySelectorAll('#alarms .alarm').length === 20")
+        rows = page.js("() => [...document.querySelectorAll('#alarms .alarm')].map(e => [e.dataset.responder, e.dataset.kinds])")
+        assert rows[0][1].startswith("man_down")  # the most severe first, one row per person
+        assert len({r for r, _ in rows}) == 20
+        bar = page.page.locator("#alarms").bounding_box()
+        mapbox = page.page.locator("#map").bounding_box()
+        assert bar["height"] <= 0.25 * VIEWPORT["height"], bar  # the bar scrolls instead of growing
+        assert mapbox["height"] >= 0.6 * VIEWPORT["height"], mapbox  # the map keeps most of the screen
+        assert "for 40 s" in page.page.locator("#alarms .alarm").first.inner_text() or \
+            "for 41 s" in page.page.locator("#alarms .alarm").first.inner_text()  # the service's clock, not the page's
+        shot = Path(os.environ.get("FIRETRACK_SCREENSHOTS", tmp_path)) / "console-20-alarms.png"
+        page.page.screenshot(path=str(shot))
+        assert Image.open(shot).size == (VIEWPORT["width"], VIEWPORT["height"])
+    finally:
+        if page is not None:
+            page.close()
+        console.close()
+        cl.close()
+        session.close()
+
+
+def test_a_roll_call_flags_the_one_who_does_not_answer(browser):
+    """PAR: the commander starts a roll call; every wearable acknowledges except one, who is
+    flagged once the answer time (30 s by default, 3 s here) has passed."""
+    from service.core.incident_core import CoreSettings
+
+    session, endpoint = router()
+    cfg = default_incident().model_copy(update={"id": "par-drill"})
+    svc = IncidentService(session, cfg, ServiceSettings(core=CoreSettings(command_answer_s=3.0))).start()
+    console = start_console(session, cfg, port=free_port())
+    cl = client(endpoint)
+    names = ["p1", "p2", "p3"]
+    wearables = {r: Wearable(cl, cfg.id, r, auto_ack=(r != "p3")) for r in names}
+    page = None
+    try:
+        imu = static_imu(seconds=2.0, rate_hz=50.0)
+        for r, w in wearables.items():
+            for b in wire.imu_batches_from_arrays(r, f"dev-{r}", imu.t + 10.0, imu.acc, imu.gyr, imu.mag, per_batch=5):
+                w.send("imu", b)
+        page = Page(browser, console.url)
+        page.wait("() => ['p1', 'p2', 'p3'].every(r => window.__firetrack.responders.get(r)?.status)")
+        page.page.locator("#btn-par").click()
+        page.wait("() => [...document.querySelectorAll('.toast.ok')].some(e => e.textContent.includes('Roll call'))")
+        assert all(len(w.commands) == 1 and w.commands[0].action == "par" for w in wearables.values())
+        par = lambda r: f"document.querySelector(\"#roster tr[data-id='{r}'] td.par\")?.textContent"  # noqa: E731
+        page.wait(f"() => {par('p1')} === '✓' && {par('p2')} === '✓'")
+        assert page.js(f"() => {par('p3')}") in ("waiting", "MISSING")  # not answered (MISSING once 3 s passed)
+        page.wait(f"() => {par('p3')} === 'MISSING'", timeout_ms=10_000)  # after the answer time
+        page.page.locator('#alarms .alarm[data-responder="p3"]').wait_for(timeout=5000)
+        assert "NO PAR" in page.page.locator('#alarms .alarm[data-responder="p3"]').inner_text()
+        st = svc.core.status_of(svc.responders["p3"], time.time())
+        assert "par_unanswered" in st.alarms and st.commands["par"]["acked_at"] is None
+        assert svc.core.status_of(svc.responders["p1"], time.time()).commands["par"]["acked_at"] is not None
+        wearables["p3"].acknowledge(wearables["p3"].commands[0])  # p3 answers late: the flag goes
+        page.wait(f"() => {par('p3')} === '✓'", timeout_ms=10_000)
+    finally:
+        if page is not None:
+            page.close()
+        for w in wearables.values():
+            w.close()
+        console.close()
+        cl.close()
+        svc.close()
+        session.close()

@@ -43,7 +43,7 @@ class MetronomeModel:
     def finish(self):
         return []
 
-    def anchor_floor(self, floor):
+    def anchor_floor(self, floor, t=None):
         self.floor = floor
         self.anchored.append(floor)
 

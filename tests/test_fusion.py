@@ -239,17 +239,17 @@ def test_checkpoint_between_steps_inflates_by_the_distance_walked():
     assert ev.values["slip_m"] == pytest.approx(0.25 * 0.8)
 
 
-def test_checkpoint_floor_relabels_from_its_pose_on():
+def test_the_graph_never_relabels_floors_the_motion_model_owns_them():
+    """One owner of the floor: a checkpoint's floor anchors the motion model (the tracker's
+    business); the graph keeps each step's floor, so a floor is never corrected twice."""
     events, _ = walk(np.zeros(30), floors=np.full(30, 1))
     f = TrackFusion(no_mag())
     f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05, floor=1)
     for ev in events[:20]:
         f.add_step(ev)
     pose = f.add_fix(CheckpointFix(t=events[9].t, x=8.0, y=0.0, floor=3))
-    assert pose.floor == 3  # the PDR said 1: the offset (+2) carries to the live pose
-    assert f.add_step(events[20]).floor == 3
-    floors = f.smoothed_track()["floor"]
-    assert np.all(floors[:10] == 1) and np.all(floors[10:] == 3)
+    assert pose is not None and pose.floor == 1
+    assert np.all(f.smoothed_track()["floor"] == 1)
 
 
 # ------------------------------------------------------------------ UWB
@@ -294,7 +294,7 @@ def test_uwb_gate_is_optional():
 
 def test_gnss_outlier_rejected_consistent_fix_accepted():
     events, truth = walk(np.zeros(60))
-    f = TrackFusion(no_mag())
+    f = TrackFusion(no_mag(display_gain=1.0))  # the graph's own estimate is published
     f.start(0.0, 0.0, 0.0, heading=5 * DEG, heading_sigma=10 * DEG, position_sigma=1.0)
     for ev in events:
         live = f.add_step(ev)
@@ -493,3 +493,116 @@ def test_a_3d_uwb_range_becomes_the_horizontal_distance_for_the_tags_height():
     assert short.range == 0.0 and short.sigma >= 0.1
     flat = UwbRange(t=1.0, anchor_x=0.0, anchor_y=0.0, range=5.0, sigma=0.1)
     assert flat.at_height(1.2) is flat  # no anchor height configured: taken as horizontal
+
+
+# ------------------------------------------------------------------ issue 12: indoor GNSS, display, floors, stairs
+
+
+def test_gnss_below_ground_is_not_evidence_and_fixes_come_at_most_every_interval():
+    events, truth = walk(np.zeros(40), floors=np.full(40, -2))
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, heading=5 * DEG, heading_sigma=10 * DEG, position_sigma=1.0, floor=-2)
+    for ev in events:
+        live = f.add_step(ev)
+    t = events[-1].t
+    good = GnssFix(t=t, x=truth[-1, 0], y=truth[-1, 1], accuracy=3.0)
+    assert f.add_fix(good) is None and f.rejected["gnss_below_ground"] == 1
+    assert f.live is live
+    above = TrackFusion(no_mag(gnss_min_interval_s=5.0))
+    above.start(0.0, 0.0, 0.0, heading=5 * DEG, heading_sigma=10 * DEG, position_sigma=1.0)
+    for ev in walk(np.zeros(40))[0]:
+        above.add_step(ev)
+    assert above.add_fix(good) is not None
+    assert above.add_fix(dataclasses.replace(good, t=t - 1.0)) is None and above.rejected["gnss_interval"] == 1
+    # what the settings say a basement is: floors below gnss_lowest_floor; None turns the rule off
+    anywhere = TrackFusion(no_mag(gnss_lowest_floor=None))
+    anywhere.start(0.0, 0.0, 0.0, heading=5 * DEG, heading_sigma=10 * DEG, position_sigma=1.0, floor=-2)
+    for ev in events:
+        anywhere.add_step(ev)
+    assert anywhere.add_fix(good) is not None
+
+
+def test_published_pose_does_not_jump_at_gnss_and_converges_within_steps():
+    """A GNSS fix moves the graph's estimate at once; the published pose follows over the next
+    steps instead of jumping (no step-by-step zig-zag); a checkpoint moves it at once."""
+    events, truth = walk(np.zeros(80))
+    f = TrackFusion(no_mag(display_gain=0.5))
+    g = TrackFusion(no_mag(display_gain=1.0))
+    for x in (f, g):
+        x.start(0.0, 0.0, 0.0, heading=6 * DEG, heading_sigma=10 * DEG, position_sigma=0.3)
+    for ev in events[:40]:
+        shown, raw = f.add_step(ev), g.add_step(ev)
+    assert (shown.x, shown.y) == pytest.approx((raw.x, raw.y), abs=1e-9)  # nothing to smooth yet
+    fix = GnssFix(t=events[39].t, x=truth[40, 0], y=truth[40, 1], accuracy=2.0)
+    after_f, after_g = f.add_fix(fix), g.add_fix(fix)
+    assert (after_f.x, after_f.y) == (shown.x, shown.y)  # held
+    assert err(after_g, truth[40]) < 0.6 * err(raw, truth[40])  # the graph moved
+    gaps = []
+    for ev in events[40:50]:
+        a, b = f.add_step(ev), g.add_step(ev)
+        gaps.append(math.hypot(a.x - b.x, a.y - b.y))
+    assert gaps[0] < 0.6 * err(raw, truth[40]) and gaps[-1] < 0.01 * gaps[0] + 0.01  # halved per step
+    assert all(b < a for a, b in zip(gaps, gaps[1:]))
+    snap = f.add_fix(CheckpointFix(t=events[49].t, x=truth[50, 0] + 1.0, y=truth[50, 1], sigma=0.05))
+    est = f.smoothed_track()
+    assert (snap.x, snap.y) == pytest.approx((est["x"][-1], est["y"][-1]), abs=1e-9)
+
+
+def test_floor_change_without_a_step_is_published_and_kept_in_the_smoothed_track():
+    events, _ = walk(np.zeros(20))
+    f = TrackFusion(no_mag())
+    f.start(0.0, 0.0, 0.0, heading=0.0, heading_sigma=0.05, position_sigma=0.3)
+    for ev in events[:10]:
+        last = f.add_step(ev)
+    lift = f.set_floor(events[9].t + 20.0, -2)  # a lift ride
+    assert lift.floor == -2 and (lift.x, lift.y) == (last.x, last.y)
+    assert f.add_fix(GnssFix(t=events[9].t + 21.0, x=last.x, y=last.y, accuracy=5.0)) is None
+    assert f.rejected["gnss_below_ground"] == 1  # in the basement now, though no step has said so
+    nxt = f.add_step(dataclasses.replace(events[10], t=events[9].t + 25.0, floor=-2))
+    assert nxt.floor == -2
+    sm = f.smoothed_track()
+    i = int(np.searchsorted(sm["t"], events[9].t + 20.0))
+    assert sm["floor"][i] == -2 and sm["t"][i] == events[9].t + 20.0 and sm["floor"][i - 1] == 0
+    assert np.all(np.diff(sm["t"]) >= 0) and len(sm["t"]) == 12 + 1
+
+
+def test_turns_on_stairs_give_way_to_the_compass():
+    """A spiral staircase: the phone pitches and the forward axis's yaw jumps; a spurious 60° turn
+    on a stair step is undone by the compass when stair turns are loose, not when they are tight."""
+    h = np.zeros(80)
+    mag = h + np.random.default_rng(5).normal(0.0, 3 * DEG, 80)
+    events, truth = walk(h, mag=mag, mag_sigma=20 * DEG)
+    bad = [dataclasses.replace(ev, on_stairs=20 <= k < 30,
+                               heading_change=ev.heading_change + (60 * DEG if k == 25 else 0.0)) for k, ev in enumerate(events)]
+    errs = {}
+    for stairs_sigma in (0.0, 10 * DEG):
+        f = TrackFusion(FusionSettings(stairs_turn_sigma_rad=stairs_sigma, display_gain=1.0))
+        f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+        for ev in bad:
+            last = f.add_step(ev)
+        errs[stairs_sigma] = err(last, truth[-1])
+    assert errs[10 * DEG] < 0.5 * errs[0.0]
+
+
+def test_compass_that_does_not_turn_with_the_gyro_is_left_out():
+    """Walking past a steel column: over 10 steps the compass swings 40° and back while the gyro
+    says straight on (the field bends from metre to metre, unseen in 0.5 s epochs). The window
+    gate drops those compass steps; a uniform field, however biased, passes."""
+    h = np.zeros(90)
+    mag = h + np.random.default_rng(4).normal(0.0, 2 * DEG, 90)
+    mag[40:50] += np.radians(40.0) * np.sin(np.linspace(0, np.pi, 10))
+    events, truth = walk(h, mag=mag, mag_sigma=10 * DEG)
+    gated = TrackFusion(FusionSettings(display_gain=1.0))
+    plain = TrackFusion(FusionSettings(display_gain=1.0, mag_window_gate_rad=math.inf))
+    for f in (gated, plain):
+        f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+        for ev in events:
+            last = f.add_step(ev)
+    assert gated.rejected["compass_window"] >= 5 and plain.rejected["compass_window"] == 0
+    worst = {n: np.max(track_err(f.smoothed_track(), truth, np.arange(91))) for n, f in (("gated", gated), ("plain", plain))}
+    assert worst["gated"] < 0.7 * worst["plain"]
+    biased = TrackFusion(FusionSettings())
+    biased.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.05)
+    for ev in walk(square(), mag=square() + 20 * DEG)[0]:
+        biased.add_step(ev)
+    assert biased.rejected["compass_window"] == 0

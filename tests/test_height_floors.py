@@ -320,17 +320,24 @@ def test_settle_path_catches_a_floor_the_barometer_reads_short():
 
 
 def test_anchor_sets_floor_and_offset():
+    """A checkpoint says floor 3 while the barometer has not moved from the start: the start
+    floor was wrong. The current level becomes floor 3's, the assumed start level is dropped."""
     t, h = profile([(0, 0.0), (30, 0.0)])
     z = BarometricAltimeter.run(t, barometer(t, h))
     tracker = FloorTracker(BUILDING, 0)
     tracker.update(t, z)
-    change = tracker.anchor(3)  # a checkpoint says floor 3: the barometer start was wrong
-    assert change == FloorChange(float(t[-1]), 0, 3, 9.0, "anchor")
-    assert tracker.floor == 3 and tracker.offset == pytest.approx(z[-1] - 9.0)
+    b = tracker.offset
+    change = tracker.anchor(3)
+    assert change == FloorChange(float(t[-1]), 0, 3, pytest.approx(z[-1] - b), "anchor")
+    assert tracker.floor == 3 and tracker.offset == b
+    assert set(tracker.levels) == {3}
     t2, h2 = profile([(30, 0.0), (60, 0.0)])
     later = tracker.update(t2, BarometricAltimeter.run(t2, barometer(t2, h2, seed=4)))
     assert later.changes == [] and (later.floor == 3).all()
     assert tracker.anchor(3) is None
+    # a floor already seen: the anchor re-references the offset instead (a barometer re-referenced to 9 m)
+    assert tracker.anchor(3, height_m=9.0) is None
+    assert tracker.offset == pytest.approx(9.0 - tracker.levels[3])
 
 
 # ------------------------------------------------------------------------------------------

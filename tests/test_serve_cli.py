@@ -86,11 +86,14 @@ def test_schema_command_writes_json_schema(tmp_path):
         assert kind in text
 
 
-def test_load_bench_reports_every_figure_and_loses_nothing():
-    """``firetrack bench`` end to end at a toy size: a real router, two workers, a publisher process."""
+@pytest.mark.parametrize("tls", [False, True])
+def test_load_bench_reports_every_figure_and_loses_nothing(tls):
+    """``firetrack bench`` end to end at a toy size: a real router, two workers, a publisher process;
+    with ``--tls`` every link is mutual TLS and the router enforces the roster's access control."""
     from client.load_bench import bench_service
 
-    r = bench_service(responders=6, seconds=6.0, workers=2, log=lambda m: None)
+    r = bench_service(responders=6, seconds=6.0, workers=2, log=lambda m: None, tls=tls)
+    assert r["tls"] is tls
     for key in ("responders", "rate_hz", "samples_per_s", "realtime_factor", "latency_p50_ms", "latency_p99_ms",
                 "frames_sent", "frames_processed", "frames_lost", "rss_mb"):
         assert key in r, key
@@ -98,3 +101,16 @@ def test_load_bench_reports_every_figure_and_loses_nothing():
     assert r["frames_lost"] == 0 and r["frames_not_processed"] == {}
     assert r["realtime_factor"] > 1
     assert 0 < r["latency_p50_ms"] <= r["latency_p99_ms"]
+
+
+@pytest.mark.parametrize("delay", [0.3, 1.0])
+def test_ctrl_c_while_starting_ends_without_a_traceback(delay):
+    """A fire officer who presses Ctrl-C while the command is still loading gets a clean exit."""
+    proc = subprocess.Popen([sys.executable, "-c", "from client.entry import main; main()", "serve", "--no-console",
+                             "--listen", f"tcp/127.0.0.1:{free_port()}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode in (0, 130), out
+    assert "Traceback" not in out, out

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 # -- settings vector (SI units: s, rad/s, m/s², rad; ratios dimensionless) --------------------

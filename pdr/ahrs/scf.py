@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 
-
 from pdr.ahrs import _kernels
 from pdr.ahrs.base import FilterSettings, OrientationFilter
 

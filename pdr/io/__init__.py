@@ -7,6 +7,7 @@ out-of-order timestamps) are kept in ``Recording.warnings`` and raised as
 :class:`RecordingWarning`.
 
 * :func:`load_ipin` - GetSensorData ``.txt`` / ``.txt.gz`` (IPIN 2023 Track 3, smartphone);
+* :func:`load_ipin_mat` - the organisers' ``.mat`` parse of such a log (``Acce``, ``Gyro``, ``Posi``, ...);
 * :func:`load_oxford` - walk directory or ``.csv.gz`` (Oxford step counter, smartphone);
 * :func:`load_pyshoe` - ``.mat`` with ``imu_data`` (PyShoe / LLIO, foot IMU with Vicon);
 * :func:`load_vicon_ahrs` - ``.mat`` with ``qViconReference`` (Justa AHRS set with Vicon);
@@ -23,6 +24,8 @@ from pdr.io._text import GZIP_MAGIC, inflate_member
 from pdr.io.broad import is_broad, load_broad, load_broad_groups
 from pdr.io.errors import RecordingFormatError, RecordingWarning
 from pdr.io.ipin import load_ipin
+from pdr.io.ipin_mat import SIGNATURE as _IPIN_MAT_FIELDS
+from pdr.io.ipin_mat import load_ipin_mat
 from pdr.io.oxford import load_oxford
 from pdr.io.pyshoe import load_pyshoe
 from pdr.io.vicon_ahrs import load_vicon_ahrs
@@ -33,6 +36,7 @@ __all__ = [
     "load_broad",
     "load_broad_groups",
     "load_ipin",
+    "load_ipin_mat",
     "load_oxford",
     "load_pyshoe",
     "load_vicon_ahrs",
@@ -50,7 +54,8 @@ def load(path: str | Path) -> Recording:
 
     * a directory holding ``accelerometer.csv(.gz)`` -> Oxford (optimisation layout);
     * ``.mat`` with ``imu_data`` -> PyShoe; with ``qViconReference`` -> Vicon AHRS;
-      with ``imu_gyr``, ``imu_acc`` and ``opt_quat`` -> BROAD;
+      with ``imu_gyr``, ``imu_acc`` and ``opt_quat`` -> BROAD; with ``Acce``, ``Gyro`` and
+      ``Posi`` -> IPIN (the organisers' parse of a GetSensorData log);
     * text (plain or gzip) with the GetSensorData header or its line types -> IPIN;
     * text whose rows are 5 or 7 comma-separated numbers -> Oxford.
     """
@@ -69,9 +74,11 @@ def load(path: str | Path) -> Recording:
             return load_vicon_ahrs(p)
         if is_broad(fields):
             return load_broad(p)
+        if _IPIN_MAT_FIELDS <= set(fields):
+            return load_ipin_mat(p)
         raise RecordingFormatError(
-            p, "a .mat file with none of 'imu_data' (PyShoe), 'qViconReference' (Vicon AHRS) or "
-               f"'imu_gyr' + 'imu_acc' + 'opt_quat' (BROAD); fields: {fields}"
+            p, "a .mat file with none of 'imu_data' (PyShoe), 'qViconReference' (Vicon AHRS), "
+               f"'imu_gyr' + 'imu_acc' + 'opt_quat' (BROAD) or 'Acce'/'Gyro'/'Posi' (IPIN); fields: {fields}"
         )
     head = _head(p)
     if "GetSensorData" in head or _IPIN_LINE.search(head):

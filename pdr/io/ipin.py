@@ -147,7 +147,7 @@ def load_ipin(path: str | Path) -> Recording:
     magn_cols = _MAGN_DOUBLE_SEP_COLS if _magn_double_separator(groups.get(_MAGN + ";")) else None
     gyro, magn, pres, ahrs = rows(_GYRO), rows(_MAGN, magn_cols), rows(_PRES), rows(_AHRS)
     acc = series(_ACCE, acce, acce[:, 2:5])
-    _check_pressure(pres, notes)
+    check_pressure(pres, notes)
     meta = {
         "format": "GetSensorData logfile (IPIN 2023 Track 3)",
         **header,
@@ -156,8 +156,8 @@ def load_ipin(path: str | Path) -> Recording:
         "app_to_sensor_offset_mad_s": offset_mad,
         "device_orientation_source": "Android rotation vector: body -> ENU (x east, y magnetic north, z up)",
     }
-    gnss = _gnss(rows(_GNSS), offset, meta, notes)
-    landmarks = _landmarks(rows(_POSI), offset, path, lines, meta, notes)
+    gnss = gnss_fixes(rows(_GNSS), offset, meta, notes)
+    landmarks = landmark_table(rows(_POSI), offset, path, lambda k: _line_number(lines, "POSI;", k), meta, notes)
     if landmarks is not None and len(landmarks):
         outside = (landmarks.t < acc.t[0]) | (landmarks.t > acc.t[-1])
         if outside.any():
@@ -172,7 +172,7 @@ def load_ipin(path: str | Path) -> Recording:
         pressure=series(_PRES, pres, pres[:, 2:3]),
         gnss=gnss,
         landmarks=landmarks,
-        device_orientation=series(_AHRS, ahrs, _quaternion_from_rotation_vector(ahrs[:, 2:5])),
+        device_orientation=series(_AHRS, ahrs, quaternion_from_rotation_vector(ahrs[:, 2:5])),
         frame="ENU",
         meta=meta,
         warnings=notes.messages,
@@ -249,18 +249,22 @@ def _magn_double_separator(group: list[str] | None) -> bool:
     return len(parts) == 8 and parts[4] == ""
 
 
-def _check_pressure(pres: np.ndarray, notes: Notes) -> None:
+def check_pressure(pres: np.ndarray, notes: Notes) -> None:
+    """Warn when the pressure column (index 2: AppTs, SensorTs, hPa) is not plausibly in hPa."""
     if pres.shape[0] and not 300.0 < float(np.median(pres[:, 2])) < 1100.0:
         notes.warn(f"pressure median {np.median(pres[:, 2]):.1f} is not a plausible value in hPa")
 
 
-def _quaternion_from_rotation_vector(v: np.ndarray) -> np.ndarray:
+def quaternion_from_rotation_vector(v: np.ndarray) -> np.ndarray:
+    """Android rotation vector (x, y, z) = sin(θ/2)·axis -> unit quaternion (w, x, y, z), w >= 0."""
     w = np.sqrt(np.clip(1.0 - np.sum(v * v, axis=1), 0.0, None))
     q = np.column_stack([w, v])
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
-def _gnss(g: np.ndarray, offset: float, meta: dict, notes: Notes) -> GnssFixes | None:
+def gnss_fixes(g: np.ndarray, offset: float, meta: dict, notes: Notes) -> GnssFixes | None:
+    """GNSS rows (AppTs, UnixTs, lat, lon, alt, accuracy) -> fixes on the sensor clock
+    (``offset``: app -> sensor), repeats dropped, stale fixes placed at their fix time."""
     if g.shape[0] == 0:
         return None
     # The logger reports each fix twice (same Unix time and values, later AppTs).
@@ -291,12 +295,13 @@ def _gnss(g: np.ndarray, offset: float, meta: dict, notes: Notes) -> GnssFixes |
     return GnssFixes(t=t, lat=g[:, 2], lon=g[:, 3], alt=g[:, 4], accuracy_m=g[:, 5])
 
 
-def _landmarks(p: np.ndarray, offset: float, path, lines: list[str], meta: dict, notes: Notes) -> Landmarks | None:
+def landmark_table(p: np.ndarray, offset: float, path, line_of, meta: dict, notes: Notes) -> Landmarks | None:
+    """POSI rows (AppTs, counter, lat, lon, floor, building) -> landmarks on the sensor clock.
+    ``line_of(k)`` names where row ``k`` came from in error messages (a line, or None)."""
     if p.shape[0] == 0:
         return None
-    line_of = lambda k: _line_number(lines, "POSI;", k)  # noqa: E731
     for col, name in ((1, "counter"), (4, "floor"), (5, "building")):
-        frac = p[:, col] != np.round(p[:, col])
+        frac = (p[:, col] != np.round(p[:, col])) & ~((col == 5) & np.isnan(p[:, col]))  # building may be unknown
         if frac.any():
             k = int(np.argmax(frac))
             raise RecordingFormatError(
@@ -319,7 +324,7 @@ def _landmarks(p: np.ndarray, offset: float, path, lines: list[str], meta: dict,
     order = time_order(t, "POSI timestamps", notes)
     if order is not None:
         p, t = p[order], t[order]
-    meta["building_ids"] = sorted({int(b) for b in p[:, 5]})
+    meta["building_ids"] = sorted({int(b) for b in p[:, 5] if np.isfinite(b)})
     return Landmarks(
         t=t,
         lat=p[:, 2],

@@ -27,7 +27,12 @@ from pdr.simulation.fleet import (
     walker_seed,
 )
 from pdr.simulation.plan import WalkerTraits
-from pdr.simulation.settings import Route, WalkerSettings, random_route, random_waypoints
+from pdr.simulation.settings import (
+    Route,
+    WalkerSettings,
+    random_route,
+    random_waypoints,
+)
 
 __all__ = [
     "WalkerSettings", "Route", "random_route", "random_waypoints", "SimulatedWalker", "WalkerFleet",

@@ -18,7 +18,16 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from pdr.simulation.motion import NOISE_CHANNELS, NPC, NSEG, PC_PHI0, SEG_HI, SEG_LO, SEG_T0, evaluate
+from pdr.simulation.motion import (
+    NOISE_CHANNELS,
+    NPC,
+    NSEG,
+    PC_PHI0,
+    SEG_HI,
+    SEG_LO,
+    SEG_T0,
+    evaluate,
+)
 from pdr.simulation.plan import WalkerPlan, WalkerTraits
 from pdr.simulation.settings import Bounds, FloorRange, Route, WalkerSettings
 

@@ -14,7 +14,11 @@ import numpy as np
 from pdr.events import StepDetection
 from pdr.recording import Recording
 from pdr.steps import SIGNAL, make_detector
-from pdr.steps.signals import norm_minus_gravity, vertical_from_gravity_estimate, vertical_linear_acceleration
+from pdr.steps.signals import (
+    norm_minus_gravity,
+    vertical_from_gravity_estimate,
+    vertical_linear_acceleration,
+)
 
 
 @dataclass(frozen=True)

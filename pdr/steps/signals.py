@@ -24,8 +24,6 @@ from pdr import quaternion as quat
 from pdr.constants import GRAVITY
 from pdr.windows import norm3
 
-
-
 GAP_FACTOR = 2.5  # an interval longer than this many median intervals is a gap, not jitter
 
 

@@ -35,7 +35,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pdr.windows import norm3
 from pdr.zupt import _detector_kernel as _k
 from pdr.zupt.settings import DetectorSettings
 

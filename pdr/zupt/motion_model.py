@@ -112,8 +112,9 @@ class ZuptMotionModel:
         """Device time of the newest sample seen (s); -inf before the first."""
         return self._t_last
 
-    def anchor_floor(self, floor: int) -> None:
-        """A fix says the responder is on ``floor`` now: re-reference height and floor."""
+    def anchor_floor(self, floor: int, t: float | None = None) -> None:
+        """A fix says the responder is on ``floor`` (at ``t``; a boot's floor is re-referenced
+        now: strides between ``t`` and now are already on their floor)."""
         h = self.floors.elevation(floor)
         self._altimeter.anchor(h)
         if math.isfinite(self._last_z):

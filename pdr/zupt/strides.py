@@ -28,14 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pdr.angles import wrap
 from pdr.events import MotionState
 from pdr.zupt.ins import Stances
 from pdr.zupt.settings import GaitSettings, StrideSettings
-
-
-def wrap(a: float) -> float:
-    """Angle wrapped to (−π, π]."""
-    return math.atan2(math.sin(a), math.cos(a))
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,8 @@
-"""``firetrack eval ipin``: track IPIN 2023 logs from their first landmark and score the others."""
+"""``firetrack eval ipin``: track IPIN 2023 walks from their first landmark and score the others.
+
+With ``--cv`` the figures are leave-one-route-out cross-validated (:mod:`service.review.ipin_cv`): the
+headline ``p75_m`` is then the pooled held-out live p75, with the in-sample figure beside it.
+"""
 from __future__ import annotations
 
 import time
@@ -9,23 +13,35 @@ from rich.table import Table
 
 from pdr.evaluation.ipin import summary
 from service.cli.recordings import load_all
-from service.core.tracker import tracker_settings_for
 from service.protocol.terminal import err, fail, out, print_json, progress
-from service.review.ipin_run import IpinRun, run_ipin
+from service.review.ipin_run import IpinRun, PdrCache, run_ipin
 
 KINDS = ("live", "smoothed", "pdr")
+WALK_SUFFIXES = (".txt", ".txt.gz", ".mat")  # GetSensorData logs and the organisers' .mat parse of them
+
+
+def walk_files(files: list[Path]) -> tuple[list[Path], list[Path]]:
+    """(walks, skipped): the recordings among ``files``; a folder's plans and calibration files
+    (``Map_Floor_-01.png``, ``*.cal``, ``*.csv``) are skipped, so ``ipin2023/*`` works."""
+    walks, skipped = [], []
+    for f in files:
+        name = f.name.lower()
+        (walks if f.is_dir() or name.endswith(WALK_SUFFIXES) else skipped).append(f)
+    return walks, skipped
 
 
 def eval_ipin(
-    files: list[Path] = typer.Argument(..., help="IPIN 2023 GetSensorData logs (.txt or .txt.gz)"),
+    files: list[Path] = typer.Argument(..., help="IPIN 2023 walks: GetSensorData logs (.txt, .txt.gz) or the organisers' .mat"),
     fix_every: int = typer.Option(0, "--fix-every", "-k", help="hand landmarks 0, K, 2K, ... to the tracker as checkpoint fixes (0: only the first)"),
     no_gnss: bool = typer.Option(False, "--no-gnss", help="leave the logs' GNSS fixes out"),
     engine: str = typer.Option("fusion", "--engine", help="fusion (gtsam factor graph) or dr (dead reckoning alone)"),
     incident: Path = typer.Option(None, "--incident", help="incident config (origin, floors, floor plans); default: the IPIN museum demo"),
+    cv: bool = typer.Option(False, "--cv", help="leave-one-route-out cross-validation of the tuned settings (routes: trial numbers)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
-    plot: Path = typer.Option(None, "--plot", help="write a PNG per file (track over the landmarks, on the floor plan) into this folder"),
+    plot: Path = typer.Option(None, "--plot", help="write a PNG per file (track, heading evidence, floors over time) into this folder"),
 ):
     """Error at each scored landmark = horizontal distance + 15 m x |floor error|; p75 and median pooled over all files."""
+    from service.core.tracker import tracker_settings_for
     from service.protocol.incident import (
         IncidentConfigError,
         default_incident,
@@ -35,24 +51,42 @@ def eval_ipin(
     if engine not in ("fusion", "dr"):
         fail(f"--engine must be fusion or dr, got {engine!r}")
         raise typer.Exit(2)
+    if cv and engine != "fusion":
+        fail("--cv tunes the fusion: use it with --engine fusion")
+        raise typer.Exit(2)
     try:
         cfg = load_incident(incident) if incident else default_incident()
     except IncidentConfigError as e:
         fail(str(e))
         raise typer.Exit(2)
     started = time.process_time()
-    recordings, bad = load_all(files)
+    walks, skipped = walk_files(files)
+    if skipped:
+        err.print(f"skipped {len(skipped)} file(s) that are not walks: {', '.join(p.name for p in skipped)}")
+    recordings, bad = load_all(walks)
+    recordings = [r for r in recordings if _has_landmarks(r)]
     settings = tracker_settings_for(cfg, engine)
-    runs: list[IpinRun] = []
-    for rec in progress(recordings, "tracking"):
-        try:
-            runs.append(run_ipin(rec, cfg, fix_every, not no_gnss, settings))
-        except ValueError as e:
-            fail(str(e))
-            bad += 1
-    if not runs:
+    if not recordings:
+        fail("no walk with landmarks to score")
         raise typer.Exit(2)
-    report = _report(runs, fix_every, not no_gnss, engine)
+    cache = PdrCache()
+    if cv:
+        from service.review.ipin_cv import cross_validate, default_candidate
+        from service.review.ipin_cv import report as cv_report
+
+        res = cross_validate(recordings, cfg, fix_every, not no_gnss, settings, cache=cache, progress=progress)
+        default = default_candidate(settings)
+        report = {**_report(res.runs[default or res.in_sample], fix_every, not no_gnss, engine), "cv": cv_report(res, default)}
+        pooled = report["cv"]["pooled"]["live"]
+        report["in_sample_p75_m"] = report["p75_m"]
+        report.update(p75_m=pooled["p75_m"], median_m=pooled["median_m"], floor_accuracy=pooled["floor_accuracy"],
+                      n_eval=pooled["n_eval"], headline="cross-validated (leave one route out)")
+        runs = [res.runs[res.chosen[r]][i] for i, r in enumerate(res.routes)]
+    else:
+        runs: list[IpinRun] = []
+        for rec in progress(recordings, "tracking"):
+            runs.append(run_ipin(rec, cfg, fix_every, not no_gnss, settings, pdr_cache=cache))
+        report = _report(runs, fix_every, not no_gnss, engine)
     report["cpu_s"] = time.process_time() - started
     if plot is not None:
         from service.review.ipin_plot import plot_run
@@ -64,8 +98,18 @@ def eval_ipin(
         print_json(report)
     else:
         out.print(_table(report))
+        if cv:
+            for t in _cv_tables(report):
+                out.print(t)
     if bad:
         raise typer.Exit(1)
+
+
+def _has_landmarks(rec) -> bool:
+    if rec.landmarks is None or len(rec.landmarks) == 0:
+        fail(f"{rec.source}: no landmarks (POSI lines) to start from and score against")
+        return False
+    return True
 
 
 def _report(runs: list[IpinRun], fix_every: int, gnss: bool, engine: str) -> dict:
@@ -98,10 +142,17 @@ def _fmt(x, spec=".2f") -> str:
     return "—" if x is None else format(x, spec)
 
 
+def _short(name: str) -> str:
+    return Path(name).name.replace("IPIN2023_T3_Training", "").split(".")[0]
+
+
 def _table(report: dict) -> Table:
     kinds = [k for k in KINDS if report.get(k)]
-    table = Table(title=f"IPIN landmarks, fix every {report['fix_every'] or '— (initial only)'}, "
-                        f"GNSS {'on' if report['gnss'] else 'off'}, engine {report['engine']} (error m)")
+    title = (f"IPIN landmarks, fix every {report['fix_every'] or '— (initial only)'}, "
+             f"GNSS {'on' if report['gnss'] else 'off'}, engine {report['engine']} (error m)")
+    if "cv" in report:
+        title += "; per file: the shipped defaults, in sample"
+    table = Table(title=title)
     table.add_column("file")
     for k in kinds:
         table.add_column(f"{k} p75", justify="right")
@@ -109,7 +160,7 @@ def _table(report: dict) -> Table:
     table.add_column("floor ok", justify="right")
     table.add_column("n", justify="right")
     for i, f in enumerate(report["files"]):
-        row = [Path(f["file"]).name.replace("IPIN2023_T3_Training", "").split(".")[0]]
+        row = [_short(f["file"])]
         for k in kinds:
             fk = report[k]["files"][i]
             row += [_fmt(fk["p75_m"]), _fmt(fk["median_m"])]
@@ -117,9 +168,33 @@ def _table(report: dict) -> Table:
     row = ["all (pooled)"]
     for k in kinds:
         row += [f"[bold]{_fmt(report[k]['p75_m'])}[/]", _fmt(report[k]["median_m"])]
-    table.add_row(*row, _fmt(report["floor_accuracy"], ".0%"), str(report["n_eval"]), end_section=True)
+    table.add_row(*row, _fmt(report[kinds[0]]["floor_accuracy"], ".0%"), str(report[kinds[0]]["n_eval"]), end_section=True)
     table.caption = f"{report['cpu_s']:.1f} s CPU"
     return table
 
 
-
+def _cv_tables(report: dict) -> list[Table]:
+    cv = report["cv"]
+    routes = Table(title="leave-one-route-out cross-validation: p75 (m) of each route with the setting chosen on the others")
+    for col, just in (("route", "left"), ("walks", "right"), ("setting chosen on the other routes", "left"),
+                      ("live", "right"), ("smoothed", "right"), ("dead reckoning", "right"), ("live in sample", "right"),
+                      ("floor ok", "right")):
+        routes.add_column(col, justify=just)
+    for r in cv["routes"]:
+        routes.add_row(r["route"], str(r["walks"]), r["setting"], _fmt(r["live"]["p75_m"]), _fmt(r["smoothed"]["p75_m"]),
+                       _fmt(r["pdr"]["p75_m"]), _fmt(r["live_in_sample"]["p75_m"]), _fmt(r["live"]["floor_accuracy"], ".0%"))
+    p, ins = cv["pooled"], cv["in_sample"]
+    routes.add_row("[bold]pooled, held out[/]", str(sum(r["walks"] for r in cv["routes"])), "",
+                   f"[bold]{_fmt(p['live']['p75_m'])}[/]", _fmt(p["smoothed"]["p75_m"]), _fmt(p["pdr"]["p75_m"]), "",
+                   _fmt(p["live"]["floor_accuracy"], ".0%"), end_section=True)
+    routes.add_row("in sample", "", ins["setting"], _fmt(ins["live"]["p75_m"]), _fmt(ins["smoothed"]["p75_m"]),
+                   _fmt(ins["pdr"]["p75_m"]), "", _fmt(ins["live"]["floor_accuracy"], ".0%"))
+    walks = Table(title="per walk, held out: live against dead reckoning, p75 (m)")
+    for col in ("walk", "live", "smoothed", "dead reckoning", "live − DR"):
+        walks.add_column(col, justify="left" if col == "walk" else "right")
+    for w in cv["walks"]:
+        d = w["live_minus_pdr_m"]
+        flag = "" if d is None or d <= 0.5 else " [red]> 0.5[/]"
+        walks.add_row(_short(w["file"]), _fmt(w["live_p75_m"]), _fmt(w["smoothed_p75_m"]), _fmt(w["pdr_p75_m"]),
+                      _fmt(d, "+.2f") + flag)
+    return [routes, walks]

@@ -21,7 +21,7 @@ from rich.table import Table
 
 from pdr.evaluation.zupt import FileScore, cross_validate, score_recording, summary
 from pdr.settings import settings_with
-from pdr.zupt.settings import DETECTORS, DetectorSettings, InsSettings, ZuptSettings
+from pdr.zupt.settings import DETECTORS, ZuptSettings
 from service.cli.recordings import load_all
 from service.protocol.terminal import err, fail, out, parse_params, print_json, progress
 

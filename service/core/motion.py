@@ -44,8 +44,8 @@ class MotionModel(Protocol):
         """The events still held back for samples that will not come."""
         ...
 
-    def anchor_floor(self, floor: int) -> None:
-        """The responder is on ``floor`` now (a checkpoint said so)."""
+    def anchor_floor(self, floor: int, t: float | None = None) -> None:
+        """The responder was on ``floor`` at device time ``t`` (default: now); a checkpoint said so."""
         ...
 
 

@@ -9,8 +9,10 @@ service, replays, ``firetrack reprocess`` and ``firetrack eval ipin`` all reach 
 through the incident core, so they give the same poses.
 
 Floors. The motion model owns the floor (its floor tracker); a checkpoint with a floor
-anchors it there, and the estimators receive checkpoints without a floor, so a floor is
-never corrected twice.
+anchors it there as of the checkpoint's own time (a lift ridden between the checkpoint and the
+next step is not undone), and the estimators receive checkpoints without a floor, so a floor
+is never corrected twice. A floor change without a step (a lift) comes as a
+:class:`pdr.events.FloorEvent` and republishes the latest pose on the new floor at its time.
 
 Placement. A responder has no position until the first checkpoint fix (an operator at the
 door, a tag reader, the IPIN initial landmark) or, when the incident configures an entry
@@ -31,11 +33,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pdr.events import MotionEvent, MotionState, PoseEstimate, StepEvent
+from pdr.events import FloorEvent, MotionEvent, MotionState, PoseEstimate, StepEvent
 from pdr.floors import FloorElevations
 from pdr.pipeline import ImuFrame, PipelineSettings
 from service.core.motion import DEFAULT_CARRY, MotionModel, motion_model_for
-from service.fusion.estimators import DeadReckoningEstimator, TrackEstimator, make_estimator
+from service.fusion.estimators import (
+    DeadReckoningEstimator,
+    TrackEstimator,
+    make_estimator,
+)
 from service.fusion.fixes import CheckpointFix  # noqa: F401  (re-exported: the tracker's fix type)
 
 __all__ = ["CheckpointFix", "PoseEstimate", "ResponderTracker", "TrackerSettings", "tracker_settings_for"]
@@ -46,6 +52,7 @@ class TrackerSettings:
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)
     engine: str = "fusion"  # the track estimator (service.fusion.estimators): "fusion" (gtsam) or "dr"
     fusion: object | None = None  # service.fusion.FusionSettings, None = defaults
+    motion: object | None = None  # a motion-model factory that overrides the registry (the evaluation's replay)
 
 
 def tracker_settings_for(incident, engine: str = "fusion") -> TrackerSettings:
@@ -72,8 +79,8 @@ class ResponderTracker:
         self.floors = floors
         self._start_floor = start_floor
         self._carry = carry
-        self.model: MotionModel = motion_model_for(carry)(self.settings, floors, start_floor)
-        self._anchored: int | None = None  # the floor the latest checkpoint anchored
+        self.model: MotionModel = self._motion_factory(carry)(self.settings, floors, start_floor)
+        self._anchored: tuple | None = None  # (floor, t) the latest checkpoint anchored
         self._frames = 0
         self._entry = entry
         self._placed_at: CheckpointFix | None = None
@@ -89,7 +96,11 @@ class ResponderTracker:
         self.fixes_rejected = 0  # refused by the estimator's gates ...
         self.fix_rejects: dict[str, int] = {}  # ... by the estimator's reason (gnss_gate, too_old, ...)
         self.fixes_unused = 0  # nothing to apply them to (see _apply_fix)
+        self.last_fix: dict | None = None  # the last fix applied: source and device time
         self._first_step_after_placement = True
+
+    def _motion_factory(self, carry: str):
+        return self.settings.motion or motion_model_for(carry)
 
     # ------------------------------------------------------------------ what Status reads
     @property
@@ -116,11 +127,11 @@ class ResponderTracker:
     # ------------------------------------------------------------------ inputs
     def on_frame(self, frame: ImuFrame, carry: str | None = None) -> list[PoseEstimate | MotionEvent]:
         """Consecutive samples; ``carry`` (the wire frame's) picks the motion model at the first frame."""
-        if self._frames == 0 and carry is not None and carry != self._carry:
+        if self._frames == 0 and carry is not None and carry != self._carry and self.settings.motion is None:
             self._carry = carry
-            self.model = motion_model_for(carry)(self.settings, self.floors, self._start_floor)
+            self.model = self._motion_factory(carry)(self.settings, self.floors, self._start_floor)
             if self._anchored is not None:
-                self.model.anchor_floor(self._anchored)
+                self.model.anchor_floor(*self._anchored)
         self._frames += 1
         return self._consume(self.model.update(frame))
 
@@ -154,7 +165,10 @@ class ResponderTracker:
         motion model's floor (and may place the track) between two frames, so until then frames
         must come one at a time for the result not to depend on how they were batched. GNSS
         and UWB fixes only touch the estimator, which sees the same sequence of steps and
-        fixes however the frames were batched."""
+        fixes however the frames were batched. Placement at an incident's entry point waits the
+        same way for the first step (it anchors the floor too)."""
+        if self._placed_at is None and self._entry is not None and self._entry.floor is not None:
+            return True
         return any(isinstance(f, CheckpointFix) for _, _, f in self._pending_fixes)
 
     def on_fix(self, fix) -> PoseEstimate | None:
@@ -173,6 +187,11 @@ class ResponderTracker:
             if isinstance(ev, MotionEvent):
                 out.append(ev)
                 continue
+            if isinstance(ev, FloorEvent):
+                p = self._floor_changed(ev)
+                if p is not None:
+                    out.append(p)
+                continue
             while self._pending_fixes and self._pending_fixes[0][0] < ev.t:
                 _, _, fix = self._pending_fixes.pop(0)
                 p = self._apply_fix(fix)
@@ -183,14 +202,14 @@ class ResponderTracker:
                 out.append(p)
         return out
 
-    def _anchor_floor(self, floor: int) -> None:
-        self._anchored = floor
-        self.model.anchor_floor(floor)
+    def _anchor_floor(self, floor: int, t: float | None = None) -> None:
+        self._anchored = (floor, t)
+        self.model.anchor_floor(floor, t)
 
     def _place(self, fix: CheckpointFix) -> None:
         self._placed_at = fix
         if fix.floor is not None:
-            self._anchor_floor(fix.floor)
+            self._anchor_floor(fix.floor, fix.t)
         floor = fix.floor if fix.floor is not None else self.model.floor
         self.baseline.start(fix.t, fix.x, fix.y, math.nan, math.nan, fix.sigma, floor)
         self.pdr_track.append((fix.t, fix.x, fix.y, floor))
@@ -216,6 +235,18 @@ class ResponderTracker:
         self.live = self._published(self.estimator.add_step(ev), ev.index)
         return self.live
 
+    def _floor_changed(self, ev: FloorEvent) -> PoseEstimate | None:
+        """The motion model moved the responder to another floor without a step (a lift): the
+        latest pose again, on the new floor, at the time of the change."""
+        if self.live is None or self.estimator is None:
+            return None  # not placed, or no step yet: the next step carries the floor
+        t = max(self.live.t, ev.t)
+        p = self.baseline.set_floor(ev.t, ev.floor)
+        self.pdr_track.append((max(p.t, ev.t), p.x, p.y, ev.floor))
+        self.estimator.set_floor(ev.t, ev.floor)
+        self.live = dataclasses.replace(self.live, t=t, floor=ev.floor)
+        return self.live
+
     def _published(self, p: PoseEstimate, steps: int) -> PoseEstimate:
         """The estimator's pose with the step count and the source the service reports."""
         return dataclasses.replace(p, steps=steps, source="fused" if self.fixes_applied > 1 else "pdr")
@@ -224,10 +255,11 @@ class ResponderTracker:
         if isinstance(fix, CheckpointFix) and (self._placed_at is None or self._first_step_after_placement):
             self._place(fix)  # not walked from the last placement yet: this one is where the track starts
             self.fixes_applied += 1
+            self.last_fix = {"source": fix.source, "t": float(fix.t)}
             return None
         if isinstance(fix, CheckpointFix):
             if fix.floor is not None:
-                self._anchor_floor(fix.floor)
+                self._anchor_floor(fix.floor, fix.t)
             # the floor is the motion model's (anchored above): estimators get x, y only
             fix = dataclasses.replace(fix, floor=None)
             if self.baseline is not None:
@@ -245,6 +277,7 @@ class ResponderTracker:
             self.fix_rejects[reason] = self.fix_rejects.get(reason, 0) + 1
             return None
         self.fixes_applied += 1
+        self.last_fix = {"source": getattr(fix, "source", type(fix).__name__), "t": float(fix.t)}
         self.live = self._published(outcome.pose, self.live.steps if self.live else 0)
         return self.live
 

@@ -41,7 +41,7 @@ def warm_up(incident, settings=None, seconds: float = WARMUP_SECONDS) -> WarmUp:
 
 def _walk(incident, settings, seconds: float, started: float) -> WarmUp:
     from pdr.simulation import SimulatedWalker
-    from service.core.incident_core import IncidentCore, Inbound
+    from service.core.incident_core import Inbound, IncidentCore
     from service.protocol import wire
 
     core = IncidentCore(incident, settings)

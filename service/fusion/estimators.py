@@ -13,6 +13,7 @@ one :func:`register_estimator` call; the tracker picks it by ``TrackerSettings.e
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter
 from collections.abc import Callable
@@ -45,6 +46,11 @@ class TrackEstimator(Protocol):
 
     def add_fix(self, fix) -> FixOutcome: ...
 
+    def set_floor(self, t: float, floor: int) -> PoseEstimate:
+        """The responder changed floor at ``t`` without a step (a lift): the newest pose again,
+        on ``floor``."""
+        ...
+
     def smoothed_track(self) -> dict[str, np.ndarray] | None:
         """The best estimate in hindsight of every pose so far (columns ``t, x, y, heading,
         floor``), or None when the estimator keeps no history."""
@@ -68,6 +74,11 @@ class DeadReckoningEstimator:
             return FixOutcome("applied", self._dr.move_to(fix.x, fix.y, fix.sigma))
         return FixOutcome("unused", reason=f"{type(fix).__name__} is not used by dead reckoning")
 
+    def set_floor(self, t: float, floor: int) -> PoseEstimate:
+        p = self._dr.point
+        self._dr.point = dataclasses.replace(p, t=max(p.t, t), floor=floor)
+        return self._dr.point
+
     def smoothed_track(self) -> None:
         return None
 
@@ -76,7 +87,9 @@ class FusionEstimator:
     """The gtsam factor graph (:class:`service.fusion.graph.TrackFusion`) behind the protocol."""
 
     def __init__(self, settings=None):
-        from service.fusion.graph import TrackFusion  # gtsam: loaded when a track starts
+        from service.fusion.graph import (
+            TrackFusion,  # gtsam: loaded when a track starts
+        )
 
         self.fusion = TrackFusion(settings)
         self._steps = 0
@@ -95,6 +108,9 @@ class FusionEstimator:
             reason = next(iter(Counter(self.fusion.rejected) - before), "rejected")
             return FixOutcome("rejected", reason=reason)
         return FixOutcome("applied", self._pose(fp))
+
+    def set_floor(self, t: float, floor: int) -> PoseEstimate:
+        return self._pose(self.fusion.set_floor(t, floor))
 
     def smoothed_track(self) -> dict[str, np.ndarray]:
         return self.fusion.smoothed_track()

@@ -22,15 +22,10 @@ The graph (Dellaert & Kaess, "Factor Graphs for Robot Perception", 2017, ch. 2-3
   after a long compass gap with a large gyro drift Cauchy pulls the heading back more slowly
   (a redescending kernel doubts a compass that disagrees by many sigmas); Tukey, which ignores
   such a compass entirely, never recovers and is not used.
-* **Checkpoint**: a ``PoseTranslationPrior2D`` — a prior on the pose's translation in the world
-  frame and nothing on its heading. (A ``PriorFactorPose2`` with a huge θ sigma would do nearly
-  the same, but leaks a tiny fake heading prior and needs a made-up number; the translation
-  prior is exact and in the wheel.) Gaussian: a checkpoint is confirmed by a person.
-* **GNSS**: the same translation prior with σ = accuracy, behind two gates (accuracy and a χ²
-  test of the innovation against the pose's marginal) and a robust kernel for what passes.
-* **UWB**: gtsam's ``RangeFactor2D`` (Pose2 ↔ Point2; the wrapper has no unary range-to-a-known-
-  point factor) to an anchor variable held by a tight ``PriorFactorPoint2``; one variable per
-  anchor is reused while it stays in the window. Robust kernel (NLOS ranges are long).
+* **Fixes** bring their own factors, one module per type in :mod:`service.fusion.fixes`:
+  a checkpoint is a Gaussian ``PoseTranslationPrior2D``, GNSS the same behind four gates and a
+  robust kernel, UWB a ``RangeFactor2D`` to an anchor variable; a registered type of one's own
+  the same way (``fix.factors(ctx)``, see :class:`service.fusion.fixes.FixContext`).
 
 **Time.** A fix attaches to the step pose nearest in time; the distance walked between the
 fix time and that pose (its share of the step's length) is added in quadrature to the fix's
@@ -48,10 +43,16 @@ tree), cheap enough per step (≈0.1 ms, see ``firetrack bench fusion``) that no
 steps is needed; a fix is followed by up to ``fix_extra_updates`` more iSAM2 iterations
 (until the newest pose settles) so a large correction of the past converges.
 
-**Floors.** Each pose carries ``ev.floor`` plus an offset; a checkpoint with a floor sets the
-offset so that its pose reads the checkpoint's floor, and the offset holds for later steps
-(a barometric floor reference that was off stays off by the same number of floors). A late
-floor checkpoint relabels poses up to the next floor checkpoint.
+**Floors.** Each pose carries its step's floor: the motion model owns the floor (a checkpoint's
+floor anchors the model, not the graph); :meth:`TrackFusion.set_floor` records a floor change
+without a step (a lift).
+
+**Published pose.** The live pose moves by each step and closes a share ``display_gain`` of
+the gap to the graph's estimate per step (a complementary filter: the step's motion now, the
+graph's correction over the next few steps), so a GNSS factor or a compass correction does not
+make the marker jump step by step (the zig-zag of indoor GNSS); a checkpoint, which an
+operator confirmed, and a UWB range (decimetres) move it at once. ``display_gain = 1`` shows the graph's estimate itself.
+The smoothed track is the graph's own.
 
 **Covariance.** gtsam's Pose2 marginal is in the pose's body frame (tangent space, retract
 ``T·Exp(ξ)``); the published 2x2 is rotated into ENU: ``Σ_w = R(θ) Σ_b[:2, :2] R(θ)ᵀ``.
@@ -64,18 +65,14 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
+from pdr.angles import wrap
 from pdr.events import StepEvent, bearing_deg
-from service.fusion.fixes import CheckpointFix, GnssFix, UwbRange
+from service.fusion.fixes import FixContext
 from service.fusion.history import PoseHistory
 from service.fusion.noise import robust, step_covariance
 from service.fusion.scaled_step import scaled_step_factor
 from service.fusion.settings import FusionSettings
-
-
-def _wrap(a: float) -> float:
-    return math.atan2(math.sin(a), math.cos(a))
 
 
 def X(row: int) -> int:
@@ -130,26 +127,6 @@ class FusionEvent:
     values: dict = field(default_factory=dict)
 
 
-@dataclass
-class FixContext:
-    """What a fix type's ``factors(ctx)`` may use: the key of the pose at the fix's time, the
-    distance walked between that pose and the fix (add it to the sigma), the fusion settings,
-    the pose's current position estimate and ENU covariance (for a gate), and a way to say
-    why a fix is refused."""
-
-    key: int
-    slip: float  # m
-    settings: FusionSettings
-    position_marginal: object  # () -> (position (2,), covariance (2, 2)) in ENU
-    rejected: tuple[str, str] | None = None
-
-    def reject(self, reason: str, detail: str = "") -> None:
-        self.rejected = (reason, detail)
-
-
-_FIX_NAMES = {CheckpointFix: "checkpoint", GnssFix: "gnss", UwbRange: "uwb"}
-
-
 class TrackFusion:
     """Fixed-lag factor-graph smoother of one responder's track (see the module docstring)."""
 
@@ -158,8 +135,7 @@ class TrackFusion:
         s = self.settings
         self.rejected: Counter[str] = Counter()  # rejection reason -> count
         self.events: deque[FusionEvent] = deque(maxlen=s.max_events)
-        self._gnss_gate = float(chi2.ppf(s.gnss_gate_probability, 2))
-        self._uwb_gate = float(chi2.ppf(s.uwb_gate_probability, 1)) if s.uwb_gate_probability else math.inf
+        self._fix_state: dict[str, dict] = {}  # per fix source: what its factors keep between fixes
         self._smoother: gtsam.IncrementalFixedLagSmoother | None = None
         self._hist = PoseHistory()
         self._window_start = 0  # first history row still held by the smoother
@@ -167,12 +143,15 @@ class TrackFusion:
         self._n_anchors = 0
         self._live: FusedPose | None = None
         self._live_pose = gtsam.Pose2()
+        self._shown: np.ndarray | None = None  # position shown in the live pose (display filter)
         self._fused = False
         self._steps = 0
         self._last_index = 0
-        self._floor_offset = 0
-        self._floor_fix_row = -1  # row of the latest checkpoint that set the floor
+        self._live_floor: int | None = None  # floor set by set_floor() since the newest pose
+        self._floor_marks: list[tuple[float, int, int]] = []  # (t, row, floor) of set_floor() calls
         self._last_mag_t = -math.inf
+        self._chain = 0.0  # rad, the gyro's heading chain: the sum of the steps' turns
+        self._mag_window: deque[tuple[float, float, float]] = deque()  # (t, cos, sin) of compass - chain offsets
         self._scale_n = -1  # index of the current step-length scale variable (-1: not estimated)
         self._scale_t0 = -math.inf  # s, when the current scale variable was opened
         self._scale = 1.0  # its latest estimate
@@ -214,7 +193,7 @@ class TrackFusion:
         self._smoother.update(graph, values, stamps)
         self._hist.append(t=t, index=0, x=math.nan, y=math.nan, heading=math.nan, floor=floor, pdr_floor=floor,
                           length=0.0, duration=0.0)
-        return self._publish()
+        return self._publish("snap")
 
     def add_step(self, ev: StepEvent) -> FusedPose:
         """Add one step; returns the live estimate of the new pose (what the service publishes).
@@ -239,8 +218,11 @@ class TrackFusion:
         turn, turn_sigma = ev.heading_change, ev.heading_change_sigma
         if not (math.isfinite(turn) and math.isfinite(turn_sigma)):
             # no relative turn from the gyro: take it from the absolute heading, loosely
-            turn = _wrap(ev.heading - self._live_pose.theta()) if math.isfinite(ev.heading) else 0.0
+            turn = wrap(ev.heading - self._live_pose.theta()) if math.isfinite(ev.heading) else 0.0
             turn_sigma = s.unknown_turn_sigma_rad
+        turn_sigma = math.hypot(turn_sigma, s.turn_walk * math.sqrt(max(ev.t - t_prev, 0.0)))
+        if ev.on_stairs:
+            turn_sigma = math.hypot(turn_sigma, s.stairs_turn_sigma_rad)
         turn_sigma = max(turn_sigma, s.turn_sigma_floor_rad)
         length = ev.length
         cov = step_covariance(length, max(ev.length_sigma, s.length_sigma_floor_m), turn_sigma, s.lateral_sigma_m)
@@ -258,8 +240,10 @@ class TrackFusion:
             graph.add(gtsam.BetweenFactorPose2(X(prev), X(row), gtsam.Pose2(length * math.cos(turn), length * math.sin(turn), turn), step_noise))
             walked = length
         values.insert(X(row), self._live_pose.compose(gtsam.Pose2(walked * math.cos(turn), walked * math.sin(turn), turn)))
+        self._chain += turn
         if (s.use_mag_heading and math.isfinite(ev.mag_heading) and math.isfinite(ev.mag_heading_sigma)
-                and ev.mag_heading_sigma > 0 and ev.t - self._last_mag_t >= s.mag_min_interval_s):
+                and ev.mag_heading_sigma > 0 and ev.t - self._last_mag_t >= s.mag_min_interval_s
+                and self._compass_agrees(ev)):
             sigma = max(ev.mag_heading_sigma, s.mag_sigma_floor_rad)
             noise = robust(s.mag_kernel, s.mag_kernel_width, gtsam.noiseModel.Isotropic.Sigma(1, sigma))
             graph.add(gtsam.PoseRotationPrior2D(X(row), gtsam.Rot2(ev.mag_heading), noise))
@@ -267,24 +251,58 @@ class TrackFusion:
         self._freeze_before(ev.t - s.lag_s)
         self._smoother.update(graph, values, stamps)
         self._hist.append(t=ev.t, index=ev.index, x=math.nan, y=math.nan, heading=math.nan,
-                          floor=ev.floor + self._floor_offset, pdr_floor=ev.floor, length=length,
+                          floor=ev.floor, pdr_floor=ev.floor, length=length,
                           duration=ev.t - t_prev)
         self._steps += 1
         self._last_index = ev.index
-        return self._publish()
+        self._live_floor = None
+        return self._publish("step")
 
-    def add_fix(self, fix: CheckpointFix | GnssFix | UwbRange) -> FusedPose | None:
+    def _compass_agrees(self, ev: StepEvent) -> bool:
+        """Does the compass turn with the gyro over the last ``mag_window_s``? The offset between
+        the compass heading and the gyro chain is constant in a uniform field, whatever the
+        walker does; walking through a disturbance bends the field from metre to metre, which the
+        0.5 s epochs of the PDR cannot see. A step whose window's offsets spread more than
+        ``mag_window_gate_rad`` (circular standard deviation) gives no compass factor; each such
+        step is a ``compass_window`` event."""
+        s = self.settings
+        offset = wrap(ev.mag_heading - self._chain)
+        w = self._mag_window
+        w.append((ev.t, math.cos(offset), math.sin(offset)))
+        while w and w[0][0] < ev.t - s.mag_window_s:
+            w.popleft()
+        if not math.isfinite(s.mag_window_gate_rad) or len(w) < s.mag_window_min_steps:
+            return True
+        c = sum(x[1] for x in w) / len(w)
+        sn = sum(x[2] for x in w) / len(w)
+        spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
+        if spread <= s.mag_window_gate_rad:
+            return True
+        self.rejected["compass_window"] += 1
+        self.events.append(FusionEvent(ev.t, "rejected", "compass", f"compass_window: spread {math.degrees(spread):.1f}°",
+                                       {"spread_rad": spread}))
+        return False
+
+    def set_floor(self, t: float, floor: int) -> FusedPose:
+        """The responder changed floor at ``t`` without a step (a lift): the newest pose is
+        published again on ``floor``, and the smoothed track gets a point there at ``t``."""
+        self._require_started()
+        self._live_floor = int(floor)
+        self._floor_marks.append((float(t), len(self._hist) - 1, int(floor)))
+        return self._publish("hold")
+
+    def add_fix(self, fix) -> FusedPose | None:
         """Attach ``fix`` to the pose of its time; returns the updated live pose, or None if rejected.
 
-        A rejection is counted in :attr:`rejected` by reason (``before_start``, ``too_old``,
-        ``gnss_accuracy``, ``gnss_gate``, ``uwb_gate``) and described in :attr:`events`.
+        The fix gives its own factors (``fix.factors(ctx)``, :mod:`service.fusion.fixes`): a
+        checkpoint, a GNSS position, a UWB range or a registered type of one's own. A rejection
+        is counted in :attr:`rejected` by reason (``before_start``, ``too_old``, and the fix's
+        own: ``gnss_accuracy``, ``gnss_gate``, ``uwb_gate``, ...) and described in :attr:`events`.
         """
         self._require_started()
-        if hasattr(fix, "factors"):  # a registered fix type that brings its own factors
-            return self._add_own_factors(fix)
-        what = _FIX_NAMES.get(type(fix))
-        if what is None:
-            raise TypeError(f"add_fix expects CheckpointFix, GnssFix or UwbRange, got {type(fix).__name__}")
+        if not callable(getattr(fix, "factors", None)):
+            raise TypeError(f"add_fix expects a fix with factors(ctx), got {type(fix).__name__}")
+        what = getattr(fix, "source", type(fix).__name__)
         s = self.settings
         ts = self._hist.col("t")
         if fix.t < ts[0] - s.fix_before_start_tolerance_s:
@@ -293,71 +311,26 @@ class TrackFusion:
         if row < self._window_start:
             return self._reject(fix, what, "too_old", f"{ts[-1] - fix.t:.1f} s old, window {s.lag_s:.0f} s")
         key = X(row)
-        slip = self._slip(row, fix.t)
         graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
-        info: dict = {"row": row, "slip_m": slip}
-        if isinstance(fix, CheckpointFix):
-            sigma = math.hypot(max(fix.sigma, s.checkpoint_sigma_floor_m), slip)
-            graph.add(gtsam.PoseTranslationPrior2D(key, np.array([fix.x, fix.y]), gtsam.noiseModel.Isotropic.Sigma(2, sigma)))
-        elif isinstance(fix, GnssFix):
-            if not fix.accuracy <= s.gnss_max_accuracy_m:
-                return self._reject(fix, what, "gnss_accuracy", f"accuracy {fix.accuracy:.1f} m > {s.gnss_max_accuracy_m} m")
-            sigma = math.hypot(fix.accuracy, slip)
-            p, cov = self._position_marginal(key)
-            nu = np.array([fix.x, fix.y]) - p
-            d2 = float(nu @ np.linalg.solve(cov + sigma * sigma * np.eye(2), nu))
-            info["mahalanobis2"] = d2
-            if d2 > self._gnss_gate:
-                return self._reject(fix, what, "gnss_gate", f"Mahalanobis² {d2:.1f} > {self._gnss_gate:.1f}", info)
-            base = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
-            graph.add(gtsam.PoseTranslationPrior2D(key, np.array([fix.x, fix.y]),
-                                                   robust(s.gnss_kernel, s.gnss_kernel_width, base)))
-        else:
-            sigma = math.hypot(max(fix.sigma, s.uwb_sigma_floor_m), slip)
-            if math.isfinite(self._uwb_gate):
-                p, cov = self._position_marginal(key)
-                d = p - np.array([fix.anchor_x, fix.anchor_y])
-                r_hat = float(np.hypot(*d))
-                u = d / r_hat if r_hat > 1e-9 else np.zeros(2)
-                var = float(u @ cov @ u) + sigma * sigma + s.uwb_anchor_sigma_m ** 2
-                d2 = (fix.range - r_hat) ** 2 / var
-                info["mahalanobis2"] = d2
-                if d2 > self._uwb_gate:
-                    return self._reject(fix, what, "uwb_gate", f"Mahalanobis² {d2:.1f} > {self._uwb_gate:.1f}", info)
-            anchor = self._anchor(fix, float(ts[row]), graph, values, stamps)
-            base = gtsam.noiseModel.Isotropic.Sigma(1, sigma)
-            graph.add(gtsam.RangeFactor2D(key, anchor, fix.range, robust(s.uwb_kernel, s.uwb_kernel_width, base)))
+        floor = int(self._hist.col("floor")[row])
+        if self._live_floor is not None and row == len(self._hist) - 1:
+            floor = self._live_floor  # moved floor since the newest step (a lift)
+        ctx = FixContext(key=key, floor=floor, slip=self._slip(row, fix.t), settings=s,
+                         position_marginal=lambda: self._position_marginal(key),
+                         anchor=lambda name, x, y: self._anchor(name, x, y, float(ts[row]), graph, values, stamps),
+                         state=self._fix_state.setdefault(what, {}), info={"row": row})
+        ctx.info["slip_m"] = ctx.slip
+        factors = fix.factors(ctx)
+        if not factors:
+            reason, detail = ctx.rejected or ("rejected", "the fix gave no factor")
+            return self._reject(fix, what, reason, detail, ctx.info)
+        for f in factors:
+            graph.add(f)
         self._smoother.update(graph, values, stamps)
         self._converge()
         self._fused = True
-        if isinstance(fix, CheckpointFix) and fix.floor is not None:
-            self._relabel_floor(row, int(fix.floor))
-        self.events.append(FusionEvent(fix.t, "accepted", what, "", info))
-        return self._publish()
-
-    def _add_own_factors(self, fix) -> FusedPose | None:
-        """A fix of a registered type: ``fix.factors(ctx)`` gives its factors on the pose of its
-        time (``ctx.key``), or ``None`` to reject it (``ctx.reject(reason, detail)`` says why)."""
-        what = getattr(fix, "source", type(fix).__name__)
-        ts = self._hist.col("t")
-        if fix.t < ts[0] - self.settings.fix_before_start_tolerance_s:
-            return self._reject(fix, what, "before_start", f"{ts[0] - fix.t:.1f} s before the track started")
-        row = self._hist.nearest(fix.t)
-        if row < self._window_start:
-            return self._reject(fix, what, "too_old", f"{ts[-1] - fix.t:.1f} s old, window {self.settings.lag_s:.0f} s")
-        ctx = FixContext(X(row), self._slip(row, fix.t), self.settings, lambda: self._position_marginal(X(row)))
-        factors = fix.factors(ctx)
-        if not factors:
-            return self._reject(fix, what, ctx.rejected[0] if ctx.rejected else "rejected",
-                                ctx.rejected[1] if ctx.rejected else "", {"row": row})
-        graph = gtsam.NonlinearFactorGraph()
-        for f in factors:
-            graph.add(f)
-        self._smoother.update(graph, gtsam.Values(), {})
-        self._converge()
-        self._fused = True
-        self.events.append(FusionEvent(fix.t, "accepted", what, "", {"row": row, "slip_m": ctx.slip}))
-        return self._publish()
+        self.events.append(FusionEvent(fix.t, "accepted", what, "", ctx.info))
+        return self._publish(getattr(fix, "display", "hold"))
 
     # ---------------------------------------------------------------- outputs
 
@@ -378,6 +351,13 @@ class TrackFusion:
         for row in range(self._window_start, len(self._hist)):
             p = est.atPose2(X(row))
             out["x"][row], out["y"][row], out["heading"][row] = p.x(), p.y(), p.theta()
+        if self._floor_marks:  # a floor change without a step: the pose before it again, on the new floor
+            rows = np.array([m[1] for m in self._floor_marks])
+            at = np.searchsorted(np.arange(len(self._hist)), rows, side="right")
+            for k in ("x", "y", "heading", "index"):
+                out[k] = np.insert(out[k], at, out[k][rows])
+            out["t"] = np.insert(out["t"], at, [max(m[0], out["t"][r]) for m, r in zip(self._floor_marks, rows)])
+            out["floor"] = np.insert(out["floor"], at, [m[2] for m in self._floor_marks])
         return out
 
     @property
@@ -392,10 +372,25 @@ class TrackFusion:
         if self._smoother is None:
             raise RuntimeError("TrackFusion: call start() before adding steps or fixes")
 
-    def _publish(self) -> FusedPose:
+    def _publish(self, how: str) -> FusedPose:
+        """The live pose of the newest pose. Its position is the graph's estimate passed through
+        the display filter (module docstring, *Published pose*): ``how`` is "snap" (start, a
+        checkpoint, UWB: show the estimate), "step" (move by the step, close a share of the gap) or
+        "hold" (GNSS, a floor change: the position shown does not jump)."""
         row = len(self._hist) - 1
         key = X(row)
         pose = self._smoother.calculateEstimatePose2(key)
+        est = np.array([pose.x(), pose.y()])
+        if how == "snap" or self._shown is None or self.settings.display_gain >= 1.0:
+            self._shown = est
+        elif how == "step":
+            if row - 1 >= self._window_start:
+                prev = self._smoother.calculateEstimatePose2(X(row - 1))
+                prev_xy = np.array([prev.x(), prev.y()])
+            else:  # a long stop: the previous pose has left the window, its last estimate is frozen
+                prev_xy = np.array([self._hist.col("x")[row - 1], self._hist.col("y")[row - 1]])
+            moved = self._shown + (est - prev_xy)
+            self._shown = moved + self.settings.display_gain * (est - moved)
         marginal = self._smoother.marginalCovariance(key)
         rot = pose.rotation().matrix()
         cov = rot @ marginal[:2, :2] @ rot.T
@@ -405,8 +400,10 @@ class TrackFusion:
         if self._scale_n >= 0:
             self._scale = float(self._smoother.calculateEstimateDouble(S(self._scale_n)))
         self._live = FusedPose(
-            t=float(self._hist.col("t")[row]), index=int(self._hist.col("index")[row]), x=pose.x(), y=pose.y(),
-            heading=_wrap(pose.theta()), cov=cov, floor=int(self._hist.col("floor")[row]), steps=self._steps,
+            t=float(self._hist.col("t")[row]), index=int(self._hist.col("index")[row]),
+            x=float(self._shown[0]), y=float(self._shown[1]),
+            heading=wrap(pose.theta()), cov=cov,
+            floor=int(self._hist.col("floor")[row]) if self._live_floor is None else self._live_floor, steps=self._steps,
             source="fused" if self._fused else "pdr", heading_sigma=float(math.sqrt(max(marginal[2, 2], 0.0))),
             length_scale=self._scale if self._scale_n >= 0 else math.nan,
         )
@@ -451,7 +448,7 @@ class TrackFusion:
         xs, ys, hs = self._hist.col("x"), self._hist.col("y"), self._hist.col("heading")
         while self._window_start < n and ts[self._window_start] < cutoff:
             p = self._smoother.calculateEstimatePose2(X(self._window_start))
-            xs[self._window_start], ys[self._window_start], hs[self._window_start] = p.x(), p.y(), _wrap(p.theta())
+            xs[self._window_start], ys[self._window_start], hs[self._window_start] = p.x(), p.y(), wrap(p.theta())
             self._window_start += 1
         for anchor_id in [a for a, (_, stamp) in self._anchors.items() if stamp < cutoff]:
             del self._anchors[anchor_id]
@@ -468,29 +465,20 @@ class TrackFusion:
         length, duration = self._hist.col("length")[step], self._hist.col("duration")[step]
         return float(length * min(abs(t - ts[row]) / duration, 1.0))
 
-    def _anchor(self, fix: UwbRange, stamp: float, graph, values, stamps) -> int:
-        """Key of the anchor variable (reused while in the window; new ones get a tight prior)."""
-        anchor_id = (fix.anchor, float(fix.anchor_x), float(fix.anchor_y))
+    def _anchor(self, name: str, x: float, y: float, stamp: float, graph, values, stamps) -> int:
+        """Key of a surveyed point's variable (reused while in the window; new ones get a tight prior)."""
+        anchor_id = (name, float(x), float(y))
         entry = self._anchors.get(anchor_id)
         if entry is None:
             key = A(self._n_anchors)
             self._n_anchors += 1
-            point = np.array([fix.anchor_x, fix.anchor_y])
+            point = np.array([x, y])
             values.insert(key, point)
             graph.add(gtsam.PriorFactorPoint2(key, point, gtsam.noiseModel.Isotropic.Sigma(2, self.settings.uwb_anchor_sigma_m)))
             entry = self._anchors[anchor_id] = [key, stamp]
         entry[1] = max(entry[1], stamp)
         stamps[entry[0]] = entry[1]  # refresh: the anchor leaves the window with its newest range
         return entry[0]
-
-    def _relabel_floor(self, row: int, floor: int) -> None:
-        floors, pdr = self._hist.col("floor"), self._hist.col("pdr_floor")
-        offset = floor - int(pdr[row])
-        end = len(self._hist) if row >= self._floor_fix_row else self._floor_fix_row
-        floors[row:end] = pdr[row:end] + offset
-        if row >= self._floor_fix_row:
-            self._floor_offset = offset
-            self._floor_fix_row = row
 
     def _reject(self, fix, what: str, reason: str, detail: str, info: dict | None = None) -> None:
         self.rejected[reason] += 1

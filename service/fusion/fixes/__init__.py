@@ -1,0 +1,11 @@
+"""Absolute position information that corrects a responder's dead-reckoned track: one module
+per fix type (see :mod:`.base`). Domain objects in the incident's local ENU frame, not wire
+messages."""
+from service.fusion.fixes.base import FixContext, FixRejected
+from service.fusion.fixes.checkpoint import CheckpointFix
+from service.fusion.fixes.gnss import GnssFix
+from service.fusion.fixes.uwb import UwbRange
+
+Fix = CheckpointFix | GnssFix | UwbRange
+
+__all__ = ["CheckpointFix", "Fix", "FixContext", "FixRejected", "GnssFix", "UwbRange"]
