@@ -66,9 +66,13 @@ def test_an_operator_fix_further_than_walkable_is_taken_flagged_and_audited():
     status = core.tick(1.0)
     st = next(o.message for o in status if isinstance(o.message, wire.Status))
     assert st.fixes["flagged"] == 1
-    # a fix beside the responder a moment later: plausible, not flagged
-    now = r.tracker.live
-    near = core.feed_round([_fix_op("console-1", "ff1", now.t, now.x + 1.0, now.y)])
+    # a fix beside the responder: plausible, not flagged. On a walker without the forged fix: after
+    # it, the graph holds a compromise between the door, the steps and the forged fix (it does not
+    # stretch the steps to follow an 86 m jump), so no point is beside both the estimate and that fix
+    plain = IncidentCore(default_incident())
+    _placed_walker(plain)
+    now = plain.responders["ff1"].tracker.live
+    near = plain.feed_round([_fix_op("console-1", "ff1", now.t, now.x + 1.0, now.y)])
     (b,) = _audits(near)
     assert b.outcome == "accepted" and b.flags == [] and b.jump_m < b.walkable_m
 
