@@ -561,6 +561,22 @@ def test_json_schema_describes_every_kind():
     assert "little-endian" in doc["x-array-encoding"]["dtype"]
 
 
+def _described(prop: dict) -> bool:
+    """A property carries a description itself or in every non-null branch of its anyOf."""
+    if "description" in prop or "const" in prop or "$ref" in prop:
+        return True
+    branches = [b for b in prop.get("anyOf", []) if b.get("type") != "null"]
+    return bool(branches) and all(_described(b) for b in branches)
+
+
+def test_every_field_of_every_message_says_what_it_is():
+    """The integrator's contract (issue 18): each field's unit, frame or meaning is in the schema."""
+    doc = json.loads(json.dumps(json_schema()))
+    bare = [f"{name}.{field}" for name, d in doc["$defs"].items()
+            for field, prop in d.get("properties", {}).items() if field not in ("v", "kind") and not _described(prop)]
+    assert bare == []
+
+
 def test_schema_command_writes_stdout_and_file(tmp_path):
     import typer
 
