@@ -232,7 +232,7 @@ class PdrFleet:
         self._bind(slot, pipe)
         for lst, cols in ((self._bias_tails, 5), (self._hbufs, 5), (self._mot_tails, 3), (self._lms, 2),
                           (self._raws, 2), (self._det_tails, 2), (self._pres, 2)):
-            lst.append(np.empty((0, cols)))
+            K.append_rows(lst, np.empty((0, cols)))
         self._step_times.append(np.empty(0))
         self._t_first[slot] = np.nan
         m = FleetMember(self, slot, pipe)
@@ -351,7 +351,7 @@ class PdrFleet:
         ready = K.detector_buffer(slots, off, T, A, self._det, self._raws, self._rate_window)
         for j in np.flatnonzero(ready):
             self._design(imu[j][1])
-        det_out = np.empty((T.size + J * (self._bout_n + 1) + sum(self._raws[r].shape[0] for r in slots[ready > 0]), 6))
+        det_out = np.empty((T.size + J * (self._bout_n + 1) + sum(K.get_rows(self._raws, r).shape[0] for r in slots[ready > 0]), 6))
         det_slot = np.empty(det_out.shape[0], np.int64)
         n_det = K.detector_stage(slots, off, T, A, ready, self._det, self._sos, self._zi, self._zi_unit, self._raws,
                                  self._det_tails, self._swings, self._bouts, self._det_cfg, det_out, det_slot)
@@ -398,12 +398,12 @@ class PdrFleet:
         them, in the member's pipeline (``PdrPipeline.update`` after the detector)."""
         pipe = m.pipe
         heading = pipe._heading
-        buf = self._hbufs[m.slot]
+        buf = K.get_rows(self._hbufs, m.slot)
         heading._buf = {"t": buf[:, 0], "psi": buf[:, 1], "d": buf[:, 2], "norm": buf[:, 3], "inc": buf[:, 4]}
         self._prune_history(heading, self._t_first[m.slot])
         hd = heading.steps([d.t for d in found])
         pipe._pending += found
-        pr = self._pres[m.slot]
+        pr = K.get_rows(self._pres, m.slot)
         pipe._pres_t, pipe._pres_h = pr[:, 0], pr[:, 1]
         return self._release(m, pipe._make_steps(hd), horizon)
 
@@ -421,7 +421,7 @@ class PdrFleet:
         """``PdrPipeline.finish``: steps still inside the detector, and floor changes, are released."""
         r = m.slot
         found: list[StepDetection] = []
-        raw = self._raws[r]
+        raw = K.get_rows(self._raws, r)
         if math.isnan(self._det[r, K.D_RATE]) and raw.shape[0] >= 2 and np.ptp(raw[:, 0]) > 0:
             self._det[r, K.D_RATE] = K.estimate_rate(raw[:, 0].copy())
             self._design(m)
@@ -440,11 +440,11 @@ class PdrFleet:
         pipe, r = m.pipe, m.slot
         alt = pipe._altimeter
         alt._h0, alt._height = float(self._h0[r]), float(self._height[r])
-        pr = self._pres[r]
+        pr = K.get_rows(self._pres, r)
         pipe._pres_t, pipe._pres_h = pr[:, 0].copy(), pr[:, 1].copy()
         pipe.anchor_floor(floor, t)
         self._h0[r], self._height[r] = alt._h0, alt._height
-        self._pres[r] = np.ascontiguousarray(np.column_stack((pipe._pres_t, pipe._pres_h)), float).reshape(-1, 2)
+        K.set_rows(self._pres, r, np.ascontiguousarray(np.column_stack((pipe._pres_t, pipe._pres_h)), float).reshape(-1, 2))
         if not (pipe._floor_queue or pipe._held):
             self._floor_work.discard(r)
 

@@ -629,3 +629,19 @@ def floor_stage(slots, poff, PT, H, good, h0, height, S, ring_t, ring_z, rr, kno
             npr[k + i, 0], npr[k + i, 1] = t[i], h[i]
         pres[r] = npr
     return n_ch
+
+
+# ------------------------------------------------------------------ typed-list access from Python (1 µs, not 7)
+@njit(cache=True)
+def get_rows(lst, r):  # pragma: no cover - compiled
+    return lst[r]
+
+
+@njit(cache=True)
+def set_rows(lst, r, a):  # pragma: no cover - compiled
+    lst[r] = a
+
+
+@njit(cache=True)
+def append_rows(lst, a):  # pragma: no cover - compiled
+    lst.append(a)

@@ -39,6 +39,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pdr.events import MotionEvent, bearing_deg
+from pdr.fleet import FleetMember, PdrFleet
 from pdr.floors import FloorElevations
 from service.core import alarms
 from service.core.fix_types import FixRejected, fix_type_of
@@ -87,6 +88,7 @@ class CoreSettings:
     log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
     max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
     fix_future_s: float = 2.0  # s: a fix this far ahead of the newest sample is from the future (a wrong clock)
+    columnar: bool = True  # handheld pipelines run in columnar rounds (pdr.fleet); False: one responder at a time
 
 
 @dataclass
@@ -115,6 +117,10 @@ class IncidentCore:
         self._out: list[Outbound] = []
         self._now = 0.0
         self._presence: dict[str, bool] = {}  # liveliness seen before a responder's first frame
+        pipeline = settings.tracker.pipeline
+        # the handheld pipelines of all responders, run a stage at a time over the round (pdr.fleet)
+        self.fleet = (PdrFleet(pipeline, FloorElevations(incident.elevations()))
+                      if settings.columnar and PdrFleet.supports(pipeline) and settings.tracker.motion is None else None)
 
     # ------------------------------------------------------------------ inputs
     def feed_round(self, items: Iterable[Inbound]) -> list[Outbound]:
@@ -235,7 +241,8 @@ class IncidentCore:
         cfg, s = self.incident, self.settings
         entry = (None if s.entry_sigma_m is None
                  else CheckpointFix(0.0, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)"))
-        return ResponderTracker(rid, FloorElevations(cfg.elevations()), cfg.start_floor, s.tracker, entry=entry)
+        return ResponderTracker(rid, FloorElevations(cfg.elevations()), cfg.start_floor, s.tracker, entry=entry,
+                                fleet=self.fleet)
 
     def _on_presence(self, key: str, payload: bytes) -> None:
         try:
@@ -300,10 +307,41 @@ class IncidentCore:
             self._dirty[r.id] = r
 
     def _run_dirty(self) -> None:
+        """The round's end: every responder's waiting frames through its tracker; those on the
+        handheld pipeline together, a stage at a time (:meth:`_run_columnar`)."""
         dirty, self._dirty = self._dirty, {}
+        columns: list[Responder] = []
         for r in dirty.values():
+            if r.backlog and isinstance(r.tracker.choose_model(r.backlog[0].carry), FleetMember):
+                columns.append(r)
+                continue
             try:
                 self._run_backlog(r)
+            except Exception:
+                self.counters.errors += 1
+                log.exception("error while running the frames of %s", r.id)
+        if columns:
+            self._run_columnar(columns)
+
+    def _run_columnar(self, responders: list[Responder]) -> None:
+        """Responders on the fleet's pipeline: their frames in one columnar round, then each
+        one's events through its tracker. The events are those of one responder at a time, bit
+        for bit (:mod:`pdr.fleet`). A frame the pipeline refuses takes the one-at-a-time path,
+        which finds the culprit."""
+        items = [(r, r.backlog, frame_of(r.backlog)) for r in responders]
+        try:
+            results = self.fleet.run([(r.tracker.model, frame) for r, _, frame in items])
+        except Exception:  # a bug in the round: each responder alone, so that one cannot stop the others
+            self.counters.errors += 1
+            log.exception("error in a columnar round of %d responders", len(items))
+            results = [None] * len(items)
+        for (r, batches, _), events in zip(items, results):
+            try:
+                if events is None or isinstance(events, Exception):
+                    self._run_backlog(r)
+                    continue
+                r.backlog = []
+                self._after_batches(r, batches, r.tracker.on_events(events))
             except Exception:
                 self.counters.errors += 1
                 log.exception("error while running the frames of %s", r.id)
@@ -323,6 +361,9 @@ class IncidentCore:
                 return
             self._reject(r, "pipeline", f"frame {batches[0].seq}: {e}", self._now)
             return
+        self._after_batches(r, batches, outputs)
+
+    def _after_batches(self, r: Responder, batches: list, outputs: list) -> None:
         r.seq, r.seq_oldest = batches[-1].seq, batches[0].seq
         self.counters.frames_processed += len(batches)
         self.counters.tracker_batches += 1
