@@ -301,10 +301,7 @@ class IncidentCore:
         if r.backlog and (not continues(r.backlog[-1], b) or len(r.backlog) >= self.settings.max_coalesce):
             self._run_backlog(r)
         r.backlog.append(b)
-        if r.tracker.fix_waiting:  # frame by frame until the fix is applied (see fix_waiting)
-            self._run_backlog(r)
-        else:
-            self._dirty[r.id] = r
+        self._dirty[r.id] = r  # run at the round's end (frame by frame while a fix waits: see _run_backlog)
 
     def _run_dirty(self) -> None:
         """The round's end: every responder's waiting frames through its tracker; those on the
@@ -326,38 +323,52 @@ class IncidentCore:
     def _run_columnar(self, responders: list[Responder]) -> None:
         """Responders on the fleet's pipeline: their frames in one columnar round, then each
         one's events through its tracker. The events are those of one responder at a time, bit
-        for bit (:mod:`pdr.fleet`). A frame the pipeline refuses takes the one-at-a-time path,
-        which finds the culprit."""
-        items = [(r, r.backlog, frame_of(r.backlog)) for r in responders]
-        try:
-            results = self.fleet.run([(r.tracker.model, frame) for r, _, frame in items])
-        except Exception:  # a bug in the round: each responder alone, so that one cannot stop the others
-            self.counters.errors += 1
-            log.exception("error in a columnar round of %d responders", len(items))
-            results = [None] * len(items)
-        for (r, batches, _), events in zip(items, results):
+        for bit (:mod:`pdr.fleet`). While a fix waits for its step a responder gives one frame
+        per round (:meth:`_next_batches`), so its frames run one at a time as alone. A frame the
+        pipeline refuses takes the one-at-a-time path, which finds the culprit."""
+        while responders:
+            items = [(r, self._next_batches(r)) for r in responders]
             try:
-                if events is None or isinstance(events, Exception):
-                    self._run_backlog(r)
-                    continue
-                r.backlog = []
-                self._after_batches(r, batches, r.tracker.on_events(events))
-            except Exception:
+                results = self.fleet.run([(r.tracker.model, frame_of(batches)) for r, batches in items])
+            except Exception:  # a bug in the round: each responder alone, so that one cannot stop the others
                 self.counters.errors += 1
-                log.exception("error while running the frames of %s", r.id)
+                log.exception("error in a columnar round of %d responders", len(items))
+                results = [None] * len(items)
+            for (r, batches), events in zip(items, results):
+                try:
+                    if events is None or isinstance(events, Exception):
+                        r.backlog = batches + r.backlog
+                        self._run_backlog(r)
+                        continue
+                    self._after_batches(r, batches, r.tracker.on_events(events))
+                except Exception:
+                    self.counters.errors += 1
+                    log.exception("error while running the frames of %s", r.id)
+            responders = [r for r, _ in items if r.backlog]
+
+    @staticmethod
+    def _next_batches(r: Responder) -> list:
+        """The frames a responder's tracker takes next as one batch: all it has, or one while a
+        checkpoint fix waits for its step (``ResponderTracker.fix_waiting``)."""
+        if r.tracker.fix_waiting and len(r.backlog) > 1:
+            batches, r.backlog = r.backlog[:1], r.backlog[1:]
+        else:
+            batches, r.backlog = r.backlog, []
+        return batches
 
     def _run_backlog(self, r: Responder) -> None:
-        """The responder's waiting frames through its tracker as one batch; poses out."""
-        batches, r.backlog = r.backlog, []
-        if not batches:
-            return
+        """The responder's waiting frames through its tracker, as one batch (one at a time while
+        a fix waits); poses out."""
+        while r.backlog:
+            self._run_batches(r, self._next_batches(r))
+
+    def _run_batches(self, r: Responder, batches: list) -> None:
         try:
             outputs = r.tracker.on_frame(frame_of(batches), batches[0].carry)
         except ValueError as e:  # e.g. a frame the gate let through that the pipeline cannot take
             if len(batches) > 1:  # the check comes before any state changes: find the culprit alone
                 for b in batches:
-                    r.backlog = [b]
-                    self._run_backlog(r)
+                    self._run_batches(r, [b])
                 return
             self._reject(r, "pipeline", f"frame {batches[0].seq}: {e}", self._now)
             return
