@@ -115,6 +115,7 @@ class IncidentCore:
         self.recording_failed = False  # set by the shell: every Status then carries the alarm
         self._dirty: dict[str, Responder] = {}  # responders with frames waiting for the round's end
         self._out: list[Outbound] = []
+        self._pose_queue: list[tuple] = []  # poses of this round waiting for their wire form
         self._now = 0.0
         self._presence: dict[str, bool] = {}  # liveliness seen before a responder's first frame
         pipeline = settings.tracker.pipeline
@@ -134,6 +135,7 @@ class IncidentCore:
                 self.counters.errors += 1
                 log.exception("error while processing %s", item.key)
         self._run_dirty()
+        self._emit_poses()
         out, self._out = self._out, []
         return out
 
@@ -159,6 +161,7 @@ class IncidentCore:
             except Exception:
                 self.counters.errors += 1
                 log.exception("status of %s", r.id)
+        self._emit_poses()
         out, self._out = self._out, []
         return out
 
@@ -447,19 +450,51 @@ class IncidentCore:
 
     # ------------------------------------------------------------------ outputs
     def _answer_pose(self, r: Responder, p: PoseEstimate) -> None:
-        self._out.append(Outbound(wire.key(self.id, r.id, "pose"), self.pose_message(r, p)))
+        """A pose to answer: its place in the output is kept, its wire form is made for all the
+        round's poses at once (one geodetic conversion, :meth:`_emit_poses`)."""
+        self._pose_queue.append((len(self._out), r, p, max(r.seq, 0), self._now, r.utc_offset))
+        self._out.append(None)
         r.poses += 1
+
+    def _emit_poses(self) -> None:
+        q, self._pose_queue = self._pose_queue, []
+        if not q:
+            return
+        try:
+            lat, lon = self._geodetic(np.array([e[2].x for e in q], float), np.array([e[2].y for e in q], float))
+            lat, lon = lat.tolist(), lon.tolist()
+        except Exception:
+            self.counters.errors += 1
+            log.exception("geodetic position of %d poses", len(q))
+            lat = lon = [math.nan] * len(q)
+        for (i, r, p, seq, now, utc_offset), la, lo in zip(q, lat, lon):
+            try:
+                self._out[i] = Outbound(wire.key(self.id, r.id, "pose"), self._pose(r, p, la, lo, seq, now, utc_offset))
+            except Exception:  # a pose that is not a valid message is dropped, counted and logged
+                self.counters.errors += 1
+                log.exception("pose of %s", r.id)
+        if any(o is None for o in self._out):
+            self._out = [o for o in self._out if o is not None]
+
+    def _geodetic(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """ENU -> (lat, lon) for arrays: every pose the same bits whether converted alone or among many."""
+        lat, lon, _ = self.incident.to_geodetic(x, y, np.zeros_like(x))
+        return np.atleast_1d(lat), np.atleast_1d(lon)
 
     def pose_message(self, r: Responder, p: PoseEstimate) -> wire.Pose:
         """The wire form of a pose: geodetic position, compass bearing, symmetric covariance;
         ``published_at`` is the core's time, which the shell restamps when it publishes."""
-        lat, lon, _ = self.incident.to_geodetic(p.x, p.y)
+        lat, lon = self._geodetic(np.array([p.x], float), np.array([p.y], float))
+        return self._pose(r, p, float(lat[0]), float(lon[0]), max(r.seq, 0), self._now, r.utc_offset)
+
+    @staticmethod
+    def _pose(r: Responder, p: PoseEstimate, lat: float, lon: float, seq: int, now: float, utc_offset) -> wire.Pose:
         cov = np.asarray(p.cov, float)
         cov = 0.5 * (cov + cov.T)
         return wire.Pose(
-            responder=r.id, t=p.t, x=p.x, y=p.y, floor=int(p.floor), lat=float(lat), lon=float(lon),
+            responder=r.id, t=p.t, x=p.x, y=p.y, floor=int(p.floor), lat=lat, lon=lon,
             heading_deg=bearing_deg(p.heading) if math.isfinite(p.heading) else 0.0, cov=cov, steps=p.steps,
-            source=p.source, seq=max(r.seq, 0), published_at=self._now,
-            utc=None if r.utc_offset is None else p.t + r.utc_offset,
+            source=p.source, seq=seq, published_at=now,
+            utc=None if utc_offset is None else p.t + utc_offset,
         )
 

@@ -160,6 +160,11 @@ class ResponderTracker:
             p = self._apply_fix(fix)
             if p is not None:
                 out.append(p)
+        flush = getattr(self.estimator, "flush", None)  # steps batched for the graph's next update go in now
+        p = flush() if flush is not None else None
+        if p is not None:
+            self.live = self._published(p, self.live.steps if self.live else p.steps)
+            out.append(self.live)
         return out
 
     @property
