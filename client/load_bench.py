@@ -145,14 +145,18 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
                 for s in shards if s["busy_s"] > 0 and s["responders"]]
     for s in others:
         poses += [tuple(p) for p in s["poses"]]
-    lat, warm = [], []
+    lat, warm, when = [], [], []
     index = {f"sim-{i:03d}": i for i in range(responders)}
     for rid, seq, pub in poses:
         i = index.get(rid)
         if i is not None and seq < send_t.shape[1] and np.isfinite(send_t[i, seq]):
             (warm if seq < WARMUP_FRAMES else lat).append(pub - send_t[i, seq])
+            if seq >= WARMUP_FRAMES:
+                when.append(seq)
     lat = np.array(lat) * 1e3
     warm = np.array(warm) * 1e3
+    when = np.array(when) // 50  # 5 s windows of the run (frames at 10 per second)
+    by_window = [round(float(np.percentile(lat[when == w], 99)), 1) for w in np.unique(when)] if lat.size else []
     result = {
         "responders": responders,
         "rate_hz": rate,
@@ -163,6 +167,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "latency_p50_ms": float(np.percentile(lat, 50)) if lat.size else None,
         "latency_p99_ms": float(np.percentile(lat, 99)) if lat.size else None,
         "latency_warmup_max_ms": float(warm.max()) if warm.size else None,
+        "latency_p99_ms_per_5s": by_window,
         "frames_sent": frames_sent,
         "frames_processed": processed,
         "frames_lost": frames_sent - processed,

@@ -128,6 +128,40 @@ def _norm3(x, y, z):
     return math.sqrt(x * x + y * y + z * z)
 
 
+@njit(cache=True)
+def keep_after(buf, lim, extra):  # pragma: no cover - compiled
+    """The rows of ``buf`` whose first column is above ``lim`` (``buf[buf[:, 0] > lim]``), in a
+    new array with ``extra`` rows left free at the end; one block copy when they are a suffix
+    (times in order, the usual case)."""
+    n = buf.shape[0]
+    k0 = n
+    for i in range(n - 1, -1, -1):  # the kept suffix
+        if buf[i, 0] > lim:
+            k0 = i
+        else:
+            break
+    suffix = True
+    for i in range(k0):
+        if buf[i, 0] > lim:
+            suffix = False
+            break
+    if suffix:
+        out = np.empty((n - k0 + extra, buf.shape[1]))
+        out[:n - k0] = buf[k0:]
+        return out
+    k = 0
+    for i in range(n):
+        if buf[i, 0] > lim:
+            k += 1
+    out = np.empty((k + extra, buf.shape[1]))
+    k = 0
+    for i in range(n):
+        if buf[i, 0] > lim:
+            out[k] = buf[i]
+            k += 1
+    return out
+
+
 # ------------------------------------------------------------------ heading, detector buffer, motion windows
 @njit(cache=True)
 def heading_stage(slots, off, T, ACC, GYR, MAG, has_mag, AN,
@@ -215,17 +249,8 @@ def heading_stage(slots, off, T, ACC, GYR, MAG, has_mag, AN,
             n_ep += 1
         # 5. samples kept for the steps' headings: t, ψ, δ, |b|, I
         buf = hbufs[r]
-        lim = t[0] - hbuf_keep
-        k = 0
-        for i in range(buf.shape[0]):
-            if buf[i, 0] > lim:
-                k += 1
-        nb = np.empty((k + n, 5))
-        k = 0
-        for i in range(buf.shape[0]):
-            if buf[i, 0] > lim:
-                nb[k] = buf[i]
-                k += 1
+        nb = keep_after(buf, t[0] - hbuf_keep, n)
+        k = nb.shape[0] - n
         for i in range(n):
             nb[k + i, 0], nb[k + i, 1], nb[k + i, 2], nb[k + i, 3], nb[k + i, 4] = t[i], psi[i], d[i], nrm[i], inc[i]
         hbufs[r] = nb
@@ -612,18 +637,8 @@ def floor_stage(slots, poff, PT, H, good, h0, height, S, ring_t, ring_z, rr, kno
                 ch_slot[n_ch] = j
                 n_ch += 1
             prev = kout[i]
-        old = pres[r]
-        lim = t[n - 1] - 60.0
-        k = 0
-        for i in range(old.shape[0]):
-            if old[i, 0] > lim:
-                k += 1
-        npr = np.empty((k + n, 2))
-        k = 0
-        for i in range(old.shape[0]):
-            if old[i, 0] > lim:
-                npr[k] = old[i]
-                k += 1
+        npr = keep_after(pres[r], t[n - 1] - 60.0, n)
+        k = npr.shape[0] - n
         for i in range(n):
             npr[k + i, 0], npr[k + i, 1] = t[i], h[i]
         pres[r] = npr
@@ -666,6 +681,40 @@ def _push(dq, head, tail, X, c, i, sign):
 
 
 @njit(cache=True)
+def _first_in_window(T, i, window):  # pragma: no cover - compiled
+    lim = T[i] - window
+    j = 0
+    while j < i and T[j] <= lim:
+        j += 1
+    return j
+
+
+@njit(cache=True)
+def _all_moving(T, X, start, window, gyr_std, acc_std):  # pragma: no cover - compiled
+    """True when no window ending at samples ``start..n-1`` can be still: the samples every one
+    of them holds, ``[j0(n−1), start]``, already spread too far in some column for any window of
+    at most ``n − j0(start)`` samples (σ ≥ range/√(2n))."""
+    n = T.shape[0]
+    a = _first_in_window(T, n - 1, window)
+    if a > start:
+        return False
+    cnt = n - _first_in_window(T, start, window)
+    bound = _RANGE_MARGIN * math.sqrt(2.0 * cnt)
+    for c in range(X.shape[1]):
+        lo = X[a, c]
+        hi = X[a, c]
+        for j in range(a + 1, start + 1):
+            v = X[j, c]
+            if v < lo:
+                lo = v
+            if v > hi:
+                hi = v
+        if hi - lo >= bound * (gyr_std if c < 3 else acc_std):
+            return True
+    return False
+
+
+@njit(cache=True)
 def still_bias_fast(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma: no cover - compiled
     """:func:`pdr.heading_kernels.still_bias`, the same outputs (module note above)."""
     n = T.shape[0]
@@ -673,6 +722,10 @@ def still_bias_fast(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # p
     out = np.empty((m, 3))
     still = np.zeros(m, np.bool_)
     cur = bias0.copy()
+    if m > 0 and _all_moving(T, X, start, window, gyr_std, acc_std):
+        for r in range(m):
+            out[r, 0], out[r, 1], out[r, 2] = cur[0], cur[1], cur[2]
+        return out, still, cur
     dqmax = np.empty((4, n), np.int64)
     dqmin = np.empty((4, n), np.int64)
     hmax = np.zeros(4, np.int64)
@@ -734,6 +787,14 @@ def motionless_fast(T, X, start, window, full_s, acc_std, gyr_max):  # pragma: n
     on :func:`pdr.windows.trailing_moments`, the same decisions)."""
     n = T.shape[0]
     still = np.zeros(n - start, np.bool_)
+    if n > start:  # the samples every window holds: a gyro peak there rules them all out
+        a = _first_in_window(T, n - 1, window)
+        top = -np.inf
+        for j in range(a, start + 1):
+            if X[j, 1] > top:
+                top = X[j, 1]
+        if a <= start and not top < gyr_max:
+            return still
     dqmax0 = np.empty(n, np.int64)
     dqmin0 = np.empty(n, np.int64)
     dqmax1 = np.empty(n, np.int64)
