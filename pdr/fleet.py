@@ -39,6 +39,7 @@ then ``fleet.run([(m1, frame1), (m2, frame2), ...])`` per round -> one list of e
 """
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 
@@ -50,7 +51,9 @@ from scipy import signal
 from pdr import fleet_kernels as K
 from pdr.constants import GRAVITY
 from pdr.events import FloorEvent, MotionEvent, MotionState, StepDetection, StepEvent
+from pdr.angles import wrap
 from pdr.floors import _REASONS, FloorChange, FloorElevations
+from pdr.heading import StepHeadings
 from pdr.height import relative_height
 from pdr.pipeline import ImuFrame, PdrPipeline, PipelineSettings, _merge
 from pdr.steps.base import _TAIL_MARGIN_S
@@ -338,12 +341,7 @@ class PdrFleet:
                                self._raw_last, self._turns, self._t0h, self._ep, hs.epoch, self._hbufs, self._hbuf_keep,
                                ep_rows, ep_slot)
         if n_ep:
-            bounds = np.flatnonzero(np.diff(ep_slot[:n_ep])) + 1
-            for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, n_ep]):
-                j = int(ep_slot[lo])
-                heading = imu[j][1].pipe._heading
-                self._prune_history(heading, first[j])
-                heading._take_epochs(ep_rows[lo:hi].copy())
+            self._epochs(imu, first, ep_rows[:n_ep], ep_slot[:n_ep])
         K.motion_windows(slots, off, T, GYR, AN, self._mot, self._mot_tails, self._lms, s.motionless_window_s,
                          0.9 * s.motionless_window_s, s.motionless_acc_std, s.motionless_gyr)
         # step detection
@@ -377,6 +375,35 @@ class PdrFleet:
                                                         since=float(mo[i, 2])))
         return steps, motion
 
+    def _epochs(self, imu, first, rows: np.ndarray, which: np.ndarray) -> None:
+        """Closed compass epochs of the round (``HeadingEstimator._take_epochs``, columnar): the
+        spread and the measurement sigma for all at once, then each responder's filter."""
+        hs = self.settings.heading
+        t_end, psi_end, cs, sn, nrm, inc_m, rate = rows.T
+        dm = np.arctan2(sn, cs)
+        rho = np.clip(np.hypot(cs, sn), 1e-12, 1.0)
+        spread = np.sqrt(-2.0 * np.log(rho))
+        bounds = np.flatnonzero(np.diff(which)) + 1
+        groups = list(zip(np.r_[0, bounds].tolist(), np.r_[bounds, which.size].tolist()))
+        ref_n = np.empty(which.size)
+        ref_i = np.empty(which.size)
+        learned_by = np.empty(which.size)
+        for lo, hi in groups:
+            heading = imu[int(which[lo])][1].pipe._heading
+            if not (np.isfinite(heading._ref_norm) and np.isfinite(heading._ref_inc)):
+                heading._learn_reference(t_end[lo:hi], nrm[lo:hi], inc_m[lo:hi],
+                                         np.where(rate[lo:hi] > hs.max_rate, np.inf, spread[lo:hi]))
+            ref_n[lo:hi], ref_i[lo:hi] = heading._ref_norm, heading._ref_inc
+            learned_by[lo:hi] = -math.inf if heading._t0 is None else heading._t0 + hs.reference_seconds
+        sig = _measurement_sigma(hs, spread, nrm, inc_m, t_end, ref_n, ref_i, learned_by)
+        sig = np.where(rate > hs.max_rate, np.inf, sig)
+        for lo, hi in groups:
+            j = int(which[lo])
+            heading = imu[j][1].pipe._heading
+            self._prune_history(heading, first[j])
+            for i in range(lo, hi):
+                heading._kf_step(t_end[i], psi_end[i], dm[i], sig[i])
+
     def _design(self, m: FleetMember) -> None:
         r = m.slot
         fs = float(self._det[r, K.D_RATE])
@@ -398,10 +425,8 @@ class PdrFleet:
         them, in the member's pipeline (``PdrPipeline.update`` after the detector)."""
         pipe = m.pipe
         heading = pipe._heading
-        buf = K.get_rows(self._hbufs, m.slot)
-        heading._buf = {"t": buf[:, 0], "psi": buf[:, 1], "d": buf[:, 2], "norm": buf[:, 3], "inc": buf[:, 4]}
         self._prune_history(heading, self._t_first[m.slot])
-        hd = heading.steps([d.t for d in found])
+        hd = _step_headings(heading, K.get_rows(self._hbufs, m.slot), [d.t for d in found])
         pipe._pending += found
         pr = K.get_rows(self._pres, m.slot)
         pipe._pres_t, pipe._pres_h = pr[:, 0], pr[:, 1]
@@ -447,6 +472,87 @@ class PdrFleet:
         K.set_rows(self._pres, r, np.ascontiguousarray(np.column_stack((pipe._pres_t, pipe._pres_h)), float).reshape(-1, 2))
         if not (pipe._floor_queue or pipe._held):
             self._floor_work.discard(r)
+
+
+def _step_headings(h, buf: np.ndarray, times: list[float]) -> StepHeadings:
+    """``HeadingEstimator.steps(times)`` on the samples ``buf`` (rows t, ψ, δ, |b|, I, in time
+    order) kept by the fleet: the same arithmetic, step by step; the samples of a step are an
+    index range (the times are sorted) instead of a mask over the buffer."""
+    s = h.settings
+    if not len(buf) or not times:
+        return StepHeadings.concatenate([])
+    bt = buf[:, 0]
+    t_last = bt[-1]
+    order = np.argsort(h._pending + list(times), kind="stable")
+    pend = np.asarray(h._pending + list(times))[order]
+    ready = pend <= t_last
+    h._pending = list(pend[~ready])
+    h._pending_off = [0.0] * len(h._pending)
+    hist = h._hist
+    hist_t = [e[0] for e in hist]
+    rows = []
+    for tk in pend[ready].tolist():
+        t_prev = h._prev_step[0] if h._prev_step else -math.inf
+        lo = max(t_prev, tk - s.max_step_duration)
+        i0 = int(np.searchsorted(bt, lo, side="right"))
+        i1 = int(np.searchsorted(bt, tk, side="right"))
+        if i1 <= i0:  # no sample in the step: the last one at or before it
+            i0 = i1 - 1
+        psi_g = float(np.mean(buf[i0:i1, 1]))
+        k = bisect.bisect_right(hist_t, tk) - 1
+        _, delta, P = hist[max(k, 0)]
+        if not np.isfinite(delta):  # before the first compass epoch
+            delta = float(buf[i1 - 1, 2]) if np.isfinite(buf[i1 - 1, 2]) else 0.0
+            P = math.pi**2
+        elapsed = tk - hist[max(k, 0)][0]
+        P = P + s.sigma_rw**2 * elapsed if np.isfinite(P) and np.isfinite(elapsed) else P
+        dev = float(wrap(psi_g + delta))
+        dd = buf[i0:i1, 2]
+        okd = np.isfinite(dd)
+        if okd.sum() >= 2:
+            ddo = dd[okd]
+            c, sn = np.cos(ddo).mean(), np.sin(ddo).mean()
+            spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
+            sig_m = float(h._measurement_sigma(
+                np.array([spread]), np.array([buf[i0:i1, 3][okd].mean()]), np.array([buf[i0:i1, 4][okd].mean()]),
+                np.array([tk]),
+            )[0])
+            magh = float(wrap(psi_g + math.atan2(sn, c) + 0.0)) if np.isfinite(sig_m) else math.nan
+        else:
+            sig_m, magh = math.inf, math.nan
+        if h._prev_step is None:
+            dch, dsig = 0.0, math.inf
+        else:
+            dt = tk - h._prev_step[0]
+            dch = psi_g - h._prev_step[1]
+            dsig = math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
+        h._prev_step = (tk, psi_g)
+        rows.append((tk, float(wrap(dev + 0.0)), math.sqrt(P), float(wrap(dch)), dsig, magh, sig_m, dev, 0.0))
+    if not rows:
+        return StepHeadings.concatenate([])
+    a = np.array(rows, float)
+    return StepHeadings(*[a[:, i] for i in range(a.shape[1])])
+
+
+def _measurement_sigma(s, spread, nrm, inc_m, t, ref_norm, ref_inc, learned_by) -> np.ndarray:
+    """``HeadingEstimator._measurement_sigma`` for epochs of many responders (each with its own
+    field reference and learning window): the same elementwise operations, so the same bits."""
+    var = s.sigma_mag**2 + spread**2
+    bad = ~np.isfinite(spread) | (spread > s.spread_gate) | ~np.isfinite(nrm)
+    known = t > learned_by
+    has_n = np.isfinite(ref_norm)
+    if has_n.any():
+        dn = np.where(has_n & (np.isfinite(s.field_norm) | known), np.abs(nrm - np.where(has_n, ref_norm, 0.0)), 0.0)
+        var = np.where(has_n, var + (s.norm_weight * dn) ** 2, var)
+        if np.isfinite(s.field_norm):
+            bad |= has_n & (dn > s.norm_gate)
+    has_i = np.isfinite(ref_inc)
+    if has_i.any():
+        di = np.where(has_i & (np.isfinite(s.field_inclination) | known), np.abs(inc_m - np.where(has_i, ref_inc, 0.0)), 0.0)
+        var = np.where(has_i, var + (s.inclination_weight * di) ** 2, var)
+        if np.isfinite(s.field_inclination):
+            bad |= has_i & (di > s.inclination_gate)
+    return np.where(bad, np.inf, np.sqrt(var))
 
 
 def K_N_STATE() -> int:
