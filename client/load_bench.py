@@ -80,6 +80,46 @@ def _summed(dicts) -> dict[str, int]:
 
 WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers and graphs are built
 
+# Where the worker's time goes, by stage: (file, function) pairs whose cumulative time the
+# profile sums, for the columnar rounds (pdr/fleet*) and for one-responder-at-a-time
+# pipelines (pdr/pipeline.py and its stage classes) alike, so one table compares both.
+STAGES: dict[str, tuple[tuple[str, str], ...]] = {
+    "zenoh take": (("service/shell/service.py", "_take_frames"), ("service/shell/service.py", "_take_queued")),
+    "decode": (("service/protocol/codec.py", "decode"),),
+    "frame gate": (("service/core/gate.py", "offer"), ("service/core/gate.py", "expire")),
+    "heading (AHRS, bias, compass, per step)": (
+        ("pdr/fleet_kernels.py", "heading_stage"), ("pdr/fleet.py", "_epochs"), ("pdr/fleet.py", "_step_headings"),
+        ("pdr/heading.py", "update"), ("pdr/heading.py", "steps")),
+    "height and floors": (("pdr/fleet.py", "_height_round"), ("pdr/pipeline.py", "_update_height")),
+    "step detection": (("pdr/fleet_kernels.py", "detector_buffer"), ("pdr/fleet_kernels.py", "detector_stage"),
+                       ("pdr/fleet.py", "_design"), ("pdr/steps/base.py", "update"), ("pdr/steps/base.py", "finish")),
+    "step length, stairs, floor events": (("pdr/pipeline.py", "_make_steps"), ("pdr/pipeline.py", "_release")),
+    "motion state": (("pdr/fleet_kernels.py", "motion_windows"), ("pdr/fleet_kernels.py", "motion_grid"),
+                     ("pdr/pipeline.py", "_update_motion")),
+    "pipeline (all stages)": (("pdr/fleet.py", "run"), ("pdr/fleet.py", "finish"), ("pdr/pipeline.py", "update"),
+                              ("pdr/pipeline.py", "finish")),
+    "fusion (graph, dead reckoning)": (("service/fusion/estimators.py", "add_step"), ("service/fusion/estimators.py", "add_fix"),
+                                       ("service/fusion/estimators.py", "set_floor"), ("service/fusion/estimators.py", "flush")),
+    "pose message": (("service/core/incident_core.py", "_emit_poses"), ("service/core/incident_core.py", "pose_message")),
+    "status": (("service/core/incident_core.py", "status_of"),),
+    "publish (encode, put)": (("service/shell/service.py", "_publish"),),
+    "worker total": (("service/shell/service.py", "_run_round"), ("service/shell/service.py", "_take_frames"),
+                     ("service/shell/service.py", "_take_queued")),
+}
+
+
+def stage_table(stats: pstats.Stats, frames: int, steps: int) -> dict[str, dict[str, float]]:
+    """µs per frame and per step of each stage in :data:`STAGES` (cumulative profile times, which
+    cProfile inflates for Python-heavy code more than for compiled kernels)."""
+    totals = {k: 0.0 for k in STAGES}
+    for (path, _, func), (_, _, _, cum, _) in stats.stats.items():
+        path = path.replace("\\", "/")
+        for stage, entries in STAGES.items():
+            if any(path.endswith(f) and func == fn for f, fn in entries):
+                totals[stage] += cum
+    return {k: {"us_per_frame": round(1e6 * v / max(frames, 1), 1), "us_per_step": round(1e6 * v / max(steps, 1), 1)}
+            for k, v in totals.items()}
+
 
 def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
                   profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2,
@@ -130,6 +170,8 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         while svc.frames_processed < per_walker * share0 and time.monotonic() < deadline:
             time.sleep(0.05)
         svc.wait_idle(5.0)
+        svc_frames = svc.frames_processed
+        svc_steps = sum(r.tracker.steps for r in list(svc.responders.values()))
         others = pool.close()
         wall = time.monotonic() - t0
         accounting = [svc.frame_accounting()] + [s.get("frames_not_processed", {}) for s in others]
@@ -183,9 +225,18 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
     }
     if prof is not None:
         buf = io.StringIO()
-        pstats.Stats(prof, stream=buf).sort_stats("cumulative").print_stats(30)
+        stats = pstats.Stats(prof, stream=buf)
+        table = stage_table(stats, svc_frames, svc_steps)
+        buf.write(f"per stage, worker 0 ({svc_frames} frames, {svc_steps} steps; cProfile times)\n")
+        buf.write(f"{'stage':40s} {'us/frame':>10s} {'us/step':>10s}\n")
+        for k, v in table.items():
+            buf.write(f"{k:40s} {v['us_per_frame']:10.1f} {v['us_per_step']:10.1f}\n")
+        buf.write("\n")
+        stats.sort_stats("cumulative").print_stats(30)
         Path(profile).write_text(buf.getvalue())
+        prof.dump_stats(str(profile) + ".pstats")
         result["profile"] = str(profile)
+        result["stages"] = table
     return result
 
 
