@@ -108,15 +108,27 @@ STAGES: dict[str, tuple[tuple[str, str], ...]] = {
 }
 
 
+IDLE_STAGES = ("zenoh take", "worker total")  # they contain the worker's wait for input, taken out
+
+
 def stage_table(stats: pstats.Stats, frames: int, steps: int) -> dict[str, dict[str, float]]:
     """µs per frame and per step of each stage in :data:`STAGES` (cumulative profile times, which
-    cProfile inflates for Python-heavy code more than for compiled kernels)."""
+    cProfile inflates for Python-heavy code more than for compiled kernels). The time the worker
+    spent blocked in ``queue.get`` waiting for input (idle, not work) is taken out of
+    :data:`IDLE_STAGES` and shown as its own row."""
     totals = {k: 0.0 for k in STAGES}
-    for (path, _, func), (_, _, _, cum, _) in stats.stats.items():
+    idle = 0.0
+    for (path, _, func), (_, _, _, cum, callers) in stats.stats.items():
         path = path.replace("\\", "/")
         for stage, entries in STAGES.items():
             if any(path.endswith(f) and func == fn for f, fn in entries):
                 totals[stage] += cum
+        if path.endswith("queue.py") and func == "get":
+            idle += sum(c[3] for (cpath, _, cfunc), c in callers.items()
+                        if cpath.replace("\\", "/").endswith("service/shell/service.py") and cfunc == "_take_queued")
+    for k in IDLE_STAGES:
+        totals[k] -= idle
+    totals["idle (waiting for input)"] = idle
     return {k: {"us_per_frame": round(1e6 * v / max(frames, 1), 1), "us_per_step": round(1e6 * v / max(steps, 1), 1)}
             for k, v in totals.items()}
 
