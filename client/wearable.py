@@ -33,7 +33,8 @@ class Wearable:
     listened are counted in ``unheard`` (they went nowhere).
     """
 
-    def __init__(self, session: zenoh.Session, incident_id: str, responder: str, on_matching=None):
+    def __init__(self, session: zenoh.Session, incident_id: str, responder: str, on_matching=None,
+                 on_command=None, auto_ack: bool = True):
         self.session = session
         self.responder = responder
         qos = dict(congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE)
@@ -43,6 +44,26 @@ class Wearable:
         self.unheard = {"imu": 0, "fix": 0}
         self._on_matching = on_matching
         self._listener = self._pub["imu"].declare_matching_listener(self._matching_changed) if on_matching else None
+        self._ack = session.declare_publisher(wire.key(incident_id, responder, "ack"), **qos)
+        self._on_command, self._auto_ack = on_command, auto_ack
+        self.commands: list[wire.Command] = []  # orders received (roll calls, evacuation)
+        self._orders = session.declare_subscriber(wire.key(incident_id, responder, "command"), self._command)
+
+    def _command(self, sample) -> None:
+        """A roll call or an evacuation order: this wearable acknowledges it (a replay or a
+        simulator on its own; a real device when its wearer presses the button)."""
+        try:
+            cmd = wire.decode(sample.payload.to_bytes(), expect=wire.Command)
+        except wire.WireError:
+            return
+        self.commands.append(cmd)
+        if self._on_command is not None:
+            self._on_command(cmd)
+        if self._auto_ack:
+            self.acknowledge(cmd)
+
+    def acknowledge(self, cmd: wire.Command) -> None:
+        self._ack.put(wire.encode(wire.Ack(responder=self.responder, id=cmd.id, action=cmd.action, at=time.time())))
 
     @property
     def heard(self) -> bool:
@@ -66,6 +87,8 @@ class Wearable:
         self.sent[kind] += 1
 
     def close(self) -> None:
+        self._orders.undeclare()
+        self._ack.undeclare()
         if self._listener is not None:
             self._listener.undeclare()
         self._token.undeclare()

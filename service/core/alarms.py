@@ -6,6 +6,8 @@
 ``rejected_frames`` ``rejected_burst`` rejects within ``rejected_window_s``
 ``disconnected``    the wearable's liveliness token is gone
 ``recording_failed`` the incident is no longer being recorded (disk full, ...)
+``par_unanswered``  a roll call (PAR) unanswered after ``command_answer_s``
+``evacuation_unacknowledged`` an evacuation order unacknowledged after ``command_answer_s``
 ==================  ==========================================================================
 """
 from __future__ import annotations
@@ -17,6 +19,7 @@ LOST_CONTACT = "lost_contact"
 REJECTED = "rejected_frames"
 DISCONNECTED = "disconnected"
 RECORDING = "recording_failed"
+UNANSWERED = {"par": "par_unanswered", "evacuate": "evacuation_unacknowledged"}
 
 
 def of_responder(r, now: float, settings, recording_failed: bool = False) -> list[str]:
@@ -34,4 +37,7 @@ def of_responder(r, now: float, settings, recording_failed: bool = False) -> lis
         out.append(DISCONNECTED)
     if recording_failed:
         out.append(RECORDING)
+    for action, order in r.commands.items():
+        if order["acked_at"] is None and now - order["issued_at"] > settings.command_answer_s:
+            out.append(UNANSWERED[action])
     return out

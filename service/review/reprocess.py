@@ -99,6 +99,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
                              "recorded_poses": r.recorded_poses, "max_deviation_m": r.max_deviation_m}
                        for rid, r in sorted(out.items())},
         "max_deviation_m": worst,
+        "audits": [o.message.model_dump() for o in published if isinstance(o.message, wire.Audit)],  # who did what
         "inputs": n_inputs,
         "errors": core.counters.errors,
         "cpu_s": cpu,

@@ -5,7 +5,9 @@ this shell only moves messages between zenoh and the core, and stamps the time::
 
     firetrack/{incident}/*/imu       FIFO channel ─┐
     firetrack/{incident}/*/fix       callback ─────┤  worker thread: rounds ─► IncidentCore ─► .../pose
-    firetrack/{incident}/*/presence  liveliness ───┤                                        └► .../status
+    firetrack/{incident}/*/presence  liveliness ───┤                                        ├► .../status
+    firetrack/{incident}/*/op        callback ─────┤                                        └► .../audit
+    access policy (roster) ── inject ──────────────┤
     status timer (1 Hz) ── tick ───────────────────┘
     firetrack/{incident}/*/track     queryable: the core's track of the responder
 
@@ -26,6 +28,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+import msgpack
 import zenoh
 
 from service.core.incident_core import CoreSettings, Inbound, IncidentCore, Outbound
@@ -51,7 +54,8 @@ class IncidentService:
     """The service of one incident on an open zenoh session: ``start()``, ``close()``."""
 
     def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
-                 recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1)):
+                 recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1), access: wire.Access | None = None,
+                 actor: str = "service"):
         if session is None:
             raise ValueError("IncidentService needs an open zenoh session; offline, use service.core.IncidentCore")
         self.session = session
@@ -60,6 +64,7 @@ class IncidentService:
         self.incident = incident
         self.id = incident.id
         self.shard = shard  # (k, K): this worker serves the responders with in_shard(id, k, K)
+        self.actor = actor  # this service's identity (its certificate's name with --tls): the key of its access record
         self.recorder = recorder
         self.recorder_error: str | None = None
         self.clock = clock
@@ -74,6 +79,7 @@ class IncidentService:
         self._decl: list = []
         self._publishers: dict[str, object] = {}
         self._imu = None  # the frames' subscriber (a zenoh FIFO channel), once started
+        self.access = access  # the policy fed to the core before any input (None: the open demo)
         self._looks = 0  # times the worker looked for input ...
         self._last_busy_look = 0  # ... and the last time it found some (wait_idle)
 
@@ -110,11 +116,16 @@ class IncidentService:
             w = warm_up(self.incident, self.settings.core)
             log.info("warmed up in %.2f s (a simulated responder: %d poses, %d fixes applied)",
                      w.seconds, w.poses, w.fixes_applied)
+        if self.access is not None:  # the policy is the core's (and the recording's) first input
+            self._run_round([Inbound("access", self._access_key(), wire.encode(self.access), self.clock())], 0)
         s = self.session
         self._imu = s.declare_subscriber(wire.key_all(self.id, "imu"),
                                          zenoh.handlers.FifoChannel(self.settings.imu_channel))
         self._decl += [
             s.declare_subscriber(wire.key_all(self.id, "fix"), self._enqueue),
+            s.declare_subscriber(wire.key_all(self.id, "command"), self._enqueue),
+            s.declare_subscriber(wire.key_all(self.id, "ack"), self._enqueue),
+            s.declare_subscriber(wire.key_all(self.id, "op"), self._enqueue_op),
             s.declare_queryable(wire.key_all(self.id, "track"), self._on_track_query),
             s.liveliness().declare_subscriber(wire.key_all(self.id, "presence"), self._on_presence, history=True),
         ]
@@ -166,9 +177,32 @@ class IncidentService:
         return self.shard[1] == 1 or in_shard(key, *self.shard)
 
     def _enqueue(self, sample: zenoh.Sample) -> None:
+        """Fixes, orders and acknowledgements: few, so they come by callback (kind from the key)."""
         key = str(sample.key_expr)
         if self._mine(key):
-            self._queue.put(("fix", key, sample.payload.to_bytes()))
+            self._queue.put((key.rsplit("/", 1)[-1], key, sample.payload.to_bytes()))
+
+    def _enqueue_op(self, sample: zenoh.Sample) -> None:
+        """An operator action: the worker of the responder it is about takes it (an action
+        about no responder, worker 0). Its key names the actor, so the payload says whom."""
+        key, payload = str(sample.key_expr), sample.payload.to_bytes()
+        if self.shard[1] > 1:
+            try:
+                about = msgpack.unpackb(payload, raw=False).get("responder")
+            except Exception:  # not a map: the core refuses it; worker 0 records it
+                about = None
+            mine = in_shard(about, *self.shard) if isinstance(about, str) else self.shard[0] == 0
+            if not mine:
+                return
+        self._queue.put(("op", key, payload))
+
+    def update_access(self, access: wire.Access) -> None:
+        """A new access policy (the roster changed): the core enforces it from the next round on."""
+        self.access = access
+        self._queue.put(("access", self._access_key(), wire.encode(access)))
+
+    def _access_key(self) -> str:
+        return wire.key(self.id, self.actor, "access")
 
     def _on_presence(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
