@@ -68,10 +68,11 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
             send_t[i, seq] = t
 
     pub.step(1)  # the first (door) fixes and one frame: declarations settle before timing starts
+    payloads = pub.precompute(seconds)  # simulated and encoded before the clock starts: a put per frame
     ready.set()
     go.wait(60)
     cpu0 = time.process_time()
-    sent = 1 + pub.run(seconds, on_frame=lambda i, s, t: on_frame(i, s, t)) // max(n, 1)
+    sent = 1 + pub.run_precomputed(payloads, on_frame=on_frame) // max(n, 1)
     np.savez(out, send_t=send_t, frames_per_walker=sent, cpu=time.process_time() - cpu0)
     pub.close()
     session.close()
@@ -86,6 +87,58 @@ def _summed(dicts) -> dict[str, int]:
 
 
 WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers and graphs are built
+
+# Where the worker's time goes, by stage: (file, function) pairs whose cumulative time the
+# profile sums, for the columnar rounds (pdr/fleet*) and for one-responder-at-a-time
+# pipelines (pdr/pipeline.py and its stage classes) alike, so one table compares both.
+STAGES: dict[str, tuple[tuple[str, str], ...]] = {
+    "zenoh take": (("service/shell/service.py", "_take_frames"), ("service/shell/service.py", "_take_queued")),
+    "decode": (("service/protocol/codec.py", "decode"),),
+    "frame gate": (("service/core/gate.py", "offer"), ("service/core/gate.py", "expire")),
+    "heading (AHRS, bias, compass, per step)": (
+        ("pdr/fleet_kernels.py", "heading_stage"), ("pdr/fleet.py", "_epochs"), ("pdr/fleet.py", "_step_headings"),
+        ("pdr/heading.py", "update"), ("pdr/heading.py", "steps")),
+    "height and floors": (("pdr/fleet.py", "_height_round"), ("pdr/pipeline.py", "_update_height")),
+    "step detection": (("pdr/fleet_kernels.py", "detector_buffer"), ("pdr/fleet_kernels.py", "detector_stage"),
+                       ("pdr/fleet.py", "_design"), ("pdr/steps/base.py", "update"), ("pdr/steps/base.py", "finish")),
+    "step length, stairs, floor events": (("pdr/pipeline.py", "_make_steps"), ("pdr/pipeline.py", "_release")),
+    "motion state": (("pdr/fleet_kernels.py", "motion_windows"), ("pdr/fleet_kernels.py", "motion_grid"),
+                     ("pdr/pipeline.py", "_update_motion")),
+    "pipeline (all stages)": (("pdr/fleet.py", "run"), ("pdr/fleet.py", "finish"), ("pdr/pipeline.py", "update"),
+                              ("pdr/pipeline.py", "finish")),
+    "fusion (graph, dead reckoning)": (("service/fusion/estimators.py", "add_step"), ("service/fusion/estimators.py", "add_fix"),
+                                       ("service/fusion/estimators.py", "set_floor"), ("service/fusion/estimators.py", "flush")),
+    "pose message": (("service/core/incident_core.py", "_emit_poses"), ("service/core/incident_core.py", "pose_message")),
+    "status": (("service/core/incident_core.py", "status_of"),),
+    "publish (encode, put)": (("service/shell/service.py", "_publish"),),
+    "worker total": (("service/shell/service.py", "_run_round"), ("service/shell/service.py", "_take_frames"),
+                     ("service/shell/service.py", "_take_queued")),
+}
+
+
+IDLE_STAGES = ("zenoh take", "worker total")  # they contain the worker's wait for input, taken out
+
+
+def stage_table(stats: pstats.Stats, frames: int, steps: int) -> dict[str, dict[str, float]]:
+    """µs per frame and per step of each stage in :data:`STAGES` (cumulative profile times, which
+    cProfile inflates for Python-heavy code more than for compiled kernels). The time the worker
+    spent blocked in ``queue.get`` waiting for input (idle, not work) is taken out of
+    :data:`IDLE_STAGES` and shown as its own row."""
+    totals = {k: 0.0 for k in STAGES}
+    idle = 0.0
+    for (path, _, func), (_, _, _, cum, callers) in stats.stats.items():
+        path = path.replace("\\", "/")
+        for stage, entries in STAGES.items():
+            if any(path.endswith(f) and func == fn for f, fn in entries):
+                totals[stage] += cum
+        if path.endswith("queue.py") and func == "get":
+            idle += sum(c[3] for (cpath, _, cfunc), c in callers.items()
+                        if cpath.replace("\\", "/").endswith("service/shell/service.py") and cfunc == "_take_queued")
+    for k in IDLE_STAGES:
+        totals[k] -= idle
+    totals["idle (waiting for input)"] = idle
+    return {k: {"us_per_frame": round(1e6 * v / max(frames, 1), 1), "us_per_step": round(1e6 * v / max(steps, 1), 1)}
+            for k, v in totals.items()}
 
 
 def _bench_pki(directory: Path, incident: str):
@@ -158,6 +211,8 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         while svc.frames_processed < per_walker * share0 and time.monotonic() < deadline:
             time.sleep(0.05)
         svc.wait_idle(5.0)
+        svc_frames = svc.frames_processed
+        svc_steps = sum(r.tracker.steps for r in list(svc.responders.values()))
         others = pool.close()
         wall = time.monotonic() - t0
         accounting = [svc.frame_accounting()] + [s.get("frames_not_processed", {}) for s in others]
@@ -173,14 +228,18 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
                 for s in shards if s["busy_s"] > 0 and s["responders"]]
     for s in others:
         poses += [tuple(p) for p in s["poses"]]
-    lat, warm = [], []
+    lat, warm, when = [], [], []
     index = {f"sim-{i:03d}": i for i in range(responders)}
     for rid, seq, pub in poses:
         i = index.get(rid)
         if i is not None and seq < send_t.shape[1] and np.isfinite(send_t[i, seq]):
             (warm if seq < WARMUP_FRAMES else lat).append(pub - send_t[i, seq])
+            if seq >= WARMUP_FRAMES:
+                when.append(seq)
     lat = np.array(lat) * 1e3
     warm = np.array(warm) * 1e3
+    when = np.array(when) // 50  # 5 s windows of the run (frames at 10 per second)
+    by_window = [round(float(np.percentile(lat[when == w], 99)), 1) for w in np.unique(when)] if lat.size else []
     result = {
         "responders": responders,
         "tls": tls,
@@ -192,6 +251,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "latency_p50_ms": float(np.percentile(lat, 50)) if lat.size else None,
         "latency_p99_ms": float(np.percentile(lat, 99)) if lat.size else None,
         "latency_warmup_max_ms": float(warm.max()) if warm.size else None,
+        "latency_p99_ms_per_5s": by_window,
         "frames_sent": frames_sent,
         "frames_processed": processed,
         "frames_lost": frames_sent - processed,
@@ -208,9 +268,18 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
     }
     if prof is not None:
         buf = io.StringIO()
-        pstats.Stats(prof, stream=buf).sort_stats("cumulative").print_stats(30)
+        stats = pstats.Stats(prof, stream=buf)
+        table = stage_table(stats, svc_frames, svc_steps)
+        buf.write(f"per stage, worker 0 ({svc_frames} frames, {svc_steps} steps; cProfile times)\n")
+        buf.write(f"{'stage':40s} {'us/frame':>10s} {'us/step':>10s}\n")
+        for k, v in table.items():
+            buf.write(f"{k:40s} {v['us_per_frame']:10.1f} {v['us_per_step']:10.1f}\n")
+        buf.write("\n")
+        stats.sort_stats("cumulative").print_stats(30)
         Path(profile).write_text(buf.getvalue())
+        prof.dump_stats(str(profile) + ".pstats")
         result["profile"] = str(profile)
+        result["stages"] = table
     return result
 
 

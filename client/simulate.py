@@ -119,6 +119,55 @@ class SimulationPublisher:
         self._wait(start + ticks * period, stop)
         return sent
 
+    def precompute(self, seconds: float, frames_per_s: float = FRAMES_PER_SECOND) -> list[list[bytes]]:
+        """Every walker's frames for the next ``seconds``, encoded now: ``frames[k][i]`` is walker
+        i's k-th frame (seq continuing from what was sent). A load generator that publishes them
+        with :meth:`run_precomputed` costs a ``put`` per frame, not a simulation and an encoding,
+        so at a thousand wearables it is not the bottleneck it measures. The clock offset each
+        frame carries is the one of this moment (device time advances with the wall clock)."""
+        per = max(1, int(round(self.rate_hz / frames_per_s)))
+        ticks = int(round(seconds * self.rate_hz / per))
+        offset: list[float | None] = [None] * len(self.wearables)
+        out: list[list[bytes]] = []
+        for k in range(ticks):
+            row = []
+            for i, b in enumerate(self.fleet.next_batches(per)):
+                if offset[i] is None:
+                    offset[i] = time.time() - float(b.t[0])
+                p_t = b.pressure_t if len(b.pressure_t) else None
+                p_v = b.pressure if len(b.pressure_t) else None
+                r = self.wearables[i].responder
+                row.append(wire.encode(wire.ImuBatch(
+                    responder=r, device=f"sim:{r}", seq=int(self.seq[i]) + k, t=b.t, acc=b.acc, gyr=b.gyr, mag=b.mag,
+                    pressure_t=p_t, pressure=p_v, carry="handheld", utc_offset=offset[i])))
+            out.append(row)
+        return out
+
+    def run_precomputed(self, frames: list[list[bytes]], stop: threading.Event | None = None,
+                        frames_per_s: float = FRAMES_PER_SECOND, on_frame=None, slices: int = 10) -> int:
+        """Publish :meth:`precompute`'s frames in real time, each walker at its own phase of the
+        frame period (as :meth:`run`); returns the frames sent."""
+        per = max(1, int(round(self.rate_hz / frames_per_s)))
+        period = per / self.rate_hz
+        n = len(self.wearables)
+        g = max(1, min(slices, n))
+        groups = [range(j * n // g, (j + 1) * n // g) for j in range(g)]
+        pubs = [w._pub["imu"] for w in self.wearables]
+        start = time.monotonic()
+        sent = 0
+        for k, row in enumerate(frames):
+            for j, group in enumerate(groups):
+                if not self._wait(start + (k + j / len(groups)) * period, stop):
+                    return sent
+                for i in group:
+                    pubs[i].put(row[i])
+                    if on_frame is not None:
+                        on_frame(i, int(self.seq[i]), time.time())
+                    self.seq[i] += 1
+                sent += len(group)
+        self._wait(start + len(frames) * period, stop)
+        return sent
+
     @staticmethod
     def _wait(until: float, stop: threading.Event | None) -> bool:
         """Sleep until ``until`` (monotonic); False when asked to stop."""
