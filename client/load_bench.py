@@ -23,6 +23,12 @@ updates; ``--start-spread 0`` measures that worst case). Figures:
   ``frames_not_processed`` says why (the gates' rejects by reason, frames declared lost, held);
 * ``rss_mb`` — peak resident memory of the service process (router included).
 
+``--foot F`` makes a share F of the wearers boot-mounted (``carry="foot"``: the ZUPT-aided INS
+instead of the handheld pipeline; :class:`client.simulate.BootStreams`);
+``latency_p99_ms_boot``/``latency_p99_ms_handheld`` split the latency by kind, and
+``worker_cpu_ms_per_responder_s`` (the workers' busy time per responder per second) compares
+what each kind costs between runs.
+
 ``--tls`` runs the same with security on: an incident CA made for the run, the service and
 its workers with a service certificate, the wearables' process with a simulator certificate
 (walkers ``sim-000``...), mutual TLS on every link and the router's access control generated
@@ -52,14 +58,14 @@ from service.shell.workers import WorkerPool
 
 
 def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float, seed: int, out: str,
-               ready, go, start_spread_s: float, tls_dir: str | None = None) -> None:  # pragma: no cover - child
+               ready, go, start_spread_s: float, tls_dir: str | None = None, foot: float = 0.0) -> None:  # pragma: no cover - child
 
     from client.simulate import SimulationPublisher
     from service.protocol.session import open_client
     from service.protocol.tls import TlsIdentity
 
     session = open_client(endpoint, tls=TlsIdentity.load(tls_dir) if tls_dir else None)
-    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s)
+    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s, foot=foot)
     frames = int(seconds * 10) + 20
     send_t = np.full((n, frames), np.nan)
 
@@ -76,6 +82,10 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
     np.savez(out, send_t=send_t, frames_per_walker=sent, cpu=time.process_time() - cpu0)
     pub.close()
     session.close()
+
+
+def _p99(ms: np.ndarray) -> float | None:
+    return float(np.percentile(ms, 99)) if ms.size else None
 
 
 def _summed(dicts) -> dict[str, int]:
@@ -155,7 +165,7 @@ def _bench_pki(directory: Path, incident: str):
 
 def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
                   profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2,
-                  start_spread_s: float = 5.0, tls: bool = False) -> dict:
+                  start_spread_s: float = 5.0, tls: bool = False, foot: float = 0.0) -> dict:
 
     from service.protocol.incident import default_incident
     from service.protocol.session import open_session
@@ -192,7 +202,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         ready, go = ctx.Event(), ctx.Event()
         out = str(Path(stats_dir) / "sent.npz")
         child = ctx.Process(target=_publisher, args=(endpoint, cfg.id, responders, seconds, rate, seed, out, ready, go,
-                                                     start_spread_s, str(sim_id.dir) if tls else None))
+                                                     start_spread_s, str(sim_id.dir) if tls else None, foot))
         child.start()
         done.callback(lambda: child.kill() if child.is_alive() else None)
         if not ready.wait(120):
@@ -228,15 +238,18 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
                 for s in shards if s["busy_s"] > 0 and s["responders"]]
     for s in others:
         poses += [tuple(p) for p in s["poses"]]
-    lat, warm, when = [], [], []
+    lat, warm, when, boot = [], [], [], []
     index = {f"sim-{i:03d}": i for i in range(responders)}
+    boots = int(round(foot * responders))  # the first ones wear the IMU on the boot (client.simulate.BootStreams)
     for rid, seq, pub in poses:
         i = index.get(rid)
         if i is not None and seq < send_t.shape[1] and np.isfinite(send_t[i, seq]):
             (warm if seq < WARMUP_FRAMES else lat).append(pub - send_t[i, seq])
             if seq >= WARMUP_FRAMES:
                 when.append(seq)
+                boot.append(i < boots)
     lat = np.array(lat) * 1e3
+    boot = np.array(boot, dtype=bool)
     warm = np.array(warm) * 1e3
     when = np.array(when) // 50  # 5 s windows of the run (frames at 10 per second)
     by_window = [round(float(np.percentile(lat[when == w], 99)), 1) for w in np.unique(when)] if lat.size else []
@@ -252,6 +265,10 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "latency_p99_ms": float(np.percentile(lat, 99)) if lat.size else None,
         "latency_warmup_max_ms": float(warm.max()) if warm.size else None,
         "latency_p99_ms_per_5s": by_window,
+        "boot_wearers": boots,
+        "latency_p99_ms_boot": _p99(lat[boot]) if boots else None,
+        "latency_p99_ms_handheld": _p99(lat[~boot]) if boots < responders else None,
+        "worker_cpu_ms_per_responder_s": round(1e3 * sum(s["busy_s"] for s in shards) / (responders * wall), 3),
         "frames_sent": frames_sent,
         "frames_processed": processed,
         "frames_lost": frames_sent - processed,
@@ -295,10 +312,12 @@ def bench_service_command(
                                        help="s over which the wearers start walking (0: all in the same instant)"),
     tls: bool = typer.Option(False, "--tls", help="mutual TLS on every link and the roster's access control on the "
                                                   "router (a CA made for the run)"),
+    foot: float = typer.Option(0.0, "--foot", min=0.0, max=1.0,
+                               help="share of wearers with a boot-mounted IMU (ZUPT-aided INS), 0..1; the rest handheld"),
 ):
     """N simulated wearables through a real zenoh router against the service (see client/load_bench.py)."""
     if ctx.invoked_subcommand is not None:
         return
     result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers,
-                           start_spread_s=start_spread, tls=tls)
+                           start_spread_s=start_spread, tls=tls, foot=foot)
     print_json(result)
