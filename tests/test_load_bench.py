@@ -30,3 +30,27 @@ def test_stage_table_sums_stages_per_frame_and_step_and_takes_the_idle_wait_out(
     assert table["zenoh take"]["us_per_frame"] == 300.0  # 0.7 + 0.1 - 0.5 s
     assert table["worker total"]["us_per_frame"] == 2300.0  # 2.0 + 0.7 + 0.1 - 0.5 s
     assert table["status"]["us_per_frame"] == 0.0
+
+
+def test_boot_streams_give_a_share_of_wearers_boot_signals_without_magnetometer_and_continue_across_frames():
+    import numpy as np
+    import pytest
+
+    from client.simulate import BootStreams
+
+    n, rate = 6, 100.0
+    boots = BootStreams(n, 0.5, rate, 1000.0, seed=2)
+    assert boots.count == 3
+    b = SimpleNamespace(t=1000.0 + np.arange(10) / rate, acc=np.zeros((10, 3)), gyr=np.zeros((10, 3)),
+                        mag=np.ones((10, 3)), pressure_t=np.array([1000.0]), pressure=np.array([1013.0]))
+    first = boots.signals(0, b)
+    second = boots.signals(0, b)
+    assert first["carry"] == "foot" and "mag" not in first and "pressure" not in first
+    acc, _ = boots._walks[0]
+    assert np.array_equal(np.vstack((first["acc"], second["acc"])), acc[:20])  # the walk goes on, frame by frame
+    assert abs(np.linalg.norm(first["acc"][0]) - 9.81) < 0.5  # a boot at rest first: gravity only
+    hand = boots.signals(5, b)
+    assert hand["carry"] == "handheld" and hand["mag"] is b.mag and hand["pressure"] is b.pressure
+    assert BootStreams(n, 0.0, rate, 1000.0, seed=2).count == 0
+    with pytest.raises(ValueError, match="share of boot-mounted"):
+        BootStreams(n, 1.5, rate, 1000.0, seed=2)
