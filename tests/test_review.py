@@ -137,7 +137,7 @@ def test_handheld_and_boot_mounted_wearers_live_then_reprocessed_give_identical_
     svc.wait_idle(10)
     boot_tracker = svc.responders["boot"].tracker
     assert type(boot_tracker.model).__name__ == "ZuptMotionModel"  # carry="foot" chose the INS
-    assert type(svc.responders["hand"].tracker.model).__name__ == "PdrPipeline"
+    assert type(svc.responders["hand"].tracker.model).__name__ == "FleetMember"  # the handheld pipeline, in columnar rounds
     svc.close()
     recorder.close()
     session.close()
@@ -169,8 +169,10 @@ def test_replaying_an_exercise_the_service_already_has_says_what_to_do(tmp_path,
         assert wait_until(lambda: svc.frames_processed >= frames, 60)
         with pytest.raises(ValueError, match=r"already tracks r1 .*--as-incident"):
             replay(exercise, endpoint, speed=0.0, quiet=True)
-        again = replay(exercise, endpoint, speed=0.0, quiet=True, incident=f"{cfg.id}-replay")
+        again = replay(exercise, endpoint, speed=0.0, quiet=True, incident=f"{cfg.id}-replay", wait_for_subscribers_s=0.2)
         assert again["messages"] == sent["messages"]  # under a new incident id it goes out
+        assert again["unheard_keys"]  # ... and nobody serves that id here: the report says so
+        assert sent["unheard_keys"] == []
     finally:
         svc.close()
         session.close()

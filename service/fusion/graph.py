@@ -36,9 +36,9 @@ reach the live estimate.
 **Bounded cost.** gtsam's ``IncrementalFixedLagSmoother`` (iSAM2 with marginalisation) keeps
 the last ``lag_s`` seconds of poses; older ones are marginalised into a linear prior on the
 window and their last smoothed value is frozen in :class:`service.fusion.history.PoseHistory`.
-Adding a step is a true incremental iSAM2 update (it re-eliminates only the top of the Bayes
-tree), cheap enough per step (≈0.1 ms, see ``firetrack bench fusion``) that no batching of
-steps is needed; a fix is followed by up to ``fix_extra_updates`` more iSAM2 iterations
+Adding steps is a true incremental iSAM2 update (it re-eliminates only the top of the Bayes
+tree); :meth:`TrackFusion.add_steps` puts several steps (their step and heading factors) in one
+update, which the estimator does once per ``update_interval_s`` of walking; a fix is followed by up to ``fix_extra_updates`` more iSAM2 iterations
 (until the newest pose settles) so a large correction of the past converges.
 
 **Floors.** Each pose carries its step's floor: the motion model owns the floor (a checkpoint's
@@ -145,7 +145,23 @@ class TrackFusion:
         Raises ``ValueError`` for a step that is not after the previous pose or has non-finite
         length/time/sigmas, ``RuntimeError`` before :meth:`start`.
         """
+        return self.add_steps([ev])
+
+    def add_steps(self, events: list[StepEvent]) -> FusedPose:
+        """Several steps in one iSAM2 update (the same factors as one :meth:`add_step` each);
+        returns the live estimate of the newest pose. One update per second of walking instead of
+        one per step is what :class:`service.fusion.estimators.FusionEstimator` does (issue 15)."""
         self._require_started()
+        graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
+        try:
+            for ev in events:
+                self._stage_step(ev, graph, values, stamps)
+        finally:  # the steps staged before a bad one stay consistent with the history
+            if stamps:
+                self._smoother.update(graph, values, stamps)
+        return self._publish("step")
+
+    def _stage_step(self, ev: StepEvent, graph, values, stamps) -> None:
         s = self.settings
         prev = len(self._hist) - 1
         t_prev = float(self._hist.col("t")[prev])
@@ -163,8 +179,7 @@ class TrackFusion:
         length = ev.length
         cov = step_covariance(length, max(ev.length_sigma, s.length_sigma_floor_m), turn_sigma, s.lateral_sigma_m)
         row = prev + 1
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        stamps = {X(row): float(ev.t)}
+        stamps[X(row)] = float(ev.t)
         step_noise = gtsam.noiseModel.Gaussian.Covariance(cov)
         if self._scale_n >= 0:
             if ev.t - self._scale_t0 >= s.length_scale_interval_s:
@@ -176,6 +191,7 @@ class TrackFusion:
             graph.add(gtsam.BetweenFactorPose2(X(prev), X(row), gtsam.Pose2(length * math.cos(turn), length * math.sin(turn), turn), step_noise))
             walked = length
         values.insert(X(row), self._live_pose.compose(gtsam.Pose2(walked * math.cos(turn), walked * math.sin(turn), turn)))
+        self._live_pose = values.atPose2(X(row))  # the next staged step starts here
         if s.use_mag_heading:
             refused = self._heading.add(ev, turn, row, graph, values, stamps)
             if refused is not None:
@@ -183,14 +199,12 @@ class TrackFusion:
                 self.events.append(FusionEvent(ev.t, "rejected", "compass", refused,
                                                {"spread_rad": self._heading.gate.last_spread}))
         self._freeze_before(ev.t - s.lag_s)
-        self._smoother.update(graph, values, stamps)
         self._hist.append(t=ev.t, index=ev.index, x=math.nan, y=math.nan, heading=math.nan,
                           floor=ev.floor, pdr_floor=ev.floor, length=length,
                           duration=ev.t - t_prev)
         self._steps += 1
         self._last_index = ev.index
         self._live_floor = None
-        return self._publish("step")
 
     def set_floor(self, t: float, floor: int) -> FusedPose:
         """The responder changed floor at ``t`` without a step (a lift): the newest pose is
