@@ -70,6 +70,14 @@ def test_exercise_and_reprocess_commands(tmp_path, shared_data):
     geo = json.loads((tmp_path / "exp" / "tracks.geojson").read_text())
     assert {f["properties"]["responder"] for f in geo["features"]} == {"ff0", "ff1"}
     assert (tmp_path / "exp" / "ff0.tum").read_text().count("\n") > 50
+    import csv
+
+    import numpy as np
+
+    live = list(csv.DictReader((tmp_path / "exp" / "live.csv").open()))  # the poses as published, with covariance
+    assert {r["responder"] for r in live} == {"ff0", "ff1"}
+    cov = np.array([[float(r["cov_xx"]), float(r["cov_xy"]), float(r["cov_yy"])] for r in live])
+    assert np.all(cov[:, 0] > 0) and np.all(cov[:, 2] > 0) and np.all(cov[:, 1] ** 2 <= cov[:, 0] * cov[:, 2] * (1 + 1e-3))
 
 
 def test_bad_exercise_arguments_are_refused(tmp_path):
