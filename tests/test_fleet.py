@@ -3,7 +3,6 @@
 any size; and the service gives the same poses with and without it."""
 from __future__ import annotations
 
-import math
 import warnings
 
 import numpy as np
@@ -13,6 +12,7 @@ from pdr.events import MotionEvent
 from pdr.fleet import PdrFleet
 from pdr.floors import FloorElevations
 from pdr.pipeline import ImuFrame, PdrPipeline, PipelineSettings, frames_of
+from tests.test_pipeline import events_close
 
 IPIN = ["ipin2023/IPIN2023_T3_TrainingTrial01_repetition01.txt.gz",
         "ipin2023/IPIN2023_T3_TrainingTrial21_repetition01.txt.gz",
@@ -21,19 +21,7 @@ IPIN = ["ipin2023/IPIN2023_T3_TrainingTrial01_repetition01.txt.gz",
 
 def same_events(a, b) -> bool:
     """Same events, every number bit for bit (NaN equals NaN)."""
-    if len(a) != len(b):
-        return False
-    for x, y in zip(a, b):
-        if type(x) is not type(y):
-            return False
-        for name in x.__dataclass_fields__:
-            u, v = getattr(x, name), getattr(y, name)
-            if isinstance(u, float):
-                if not (u == v or (math.isnan(u) and math.isnan(v))):
-                    return False
-            elif u != v:
-                return False
-    return True
+    return events_close(a, b, 0.0)
 
 
 def by_kind(events):
