@@ -253,4 +253,4 @@ def test_settings_are_checked():
         FrameGate(reorder_window=-1)
     with pytest.raises(ValueError):
         FrameGate(max_gap_s=0)
-    assert set(GATE_REASONS) == {"duplicate", "late", "time_order"}
+    assert set(GATE_REASONS) == {"duplicate", "late", "time_order", "old_stream"}

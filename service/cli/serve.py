@@ -1,5 +1,11 @@
 """``firetrack serve``: the live service of one incident (router, service, recorder, console).
 
+``--record x.mcap`` on a recording that exists (a restart after a crash, systemd's
+``Restart=``) resumes: the incident's state is rebuilt from the newest snapshot beside it
+(``x.mcap.state``) and the messages recorded after it, and the service writes the next
+segment (``x.1.mcap``, ...); see :mod:`service.review.resume`. It never refuses to start
+over what is there.
+
 The console is the client layer's (``client/console``): the top of the house, where the
 ``firetrack`` command is assembled (``client/cli.py``), hands its starter to
 :func:`set_console_starter`, so this module never imports the client.
@@ -36,7 +42,8 @@ def serve_command(
     connect: list[str] = typer.Option(None, "--connect", help="join a standalone zenoh router instead (e.g. tcp/10.0.0.2:7447)"),
     incident_id: str = typer.Option(None, "--incident", help="incident id (default: the config's, 'demo' for the demo)"),
     config: Path = typer.Option(None, "--config", help="incident config (JSON or TOML); default: the IPIN museum demo"),
-    record: Path = typer.Option(None, "--record", help="record every message of the incident to this MCAP file"),
+    record: Path = typer.Option(None, "--record", help="record every message of the incident to this MCAP file "
+                                                       "(if it exists: resume the incident from it and write the next segment)"),
     console: bool = typer.Option(True, "--console/--no-console", help="also serve the web console"),
     port: int = typer.Option(8080, "--port", help="web console port"),
     seconds: float = typer.Option(math.inf, "--seconds", help="stop after this long (default: until Ctrl-C)"),
@@ -80,13 +87,13 @@ class running_service:
             fail(str(e))
             raise typer.Exit(1)
         self._closers.append(session.close)
-        recorder = None
+        recorder = core = state_file = None
+        self.resumed = None
         if self.record is not None:
-            from service.review.recorder import IncidentRecorder
-
-            recorder = IncidentRecorder(self.record, self.cfg.id).__enter__()
+            recorder, core, state_file = self._recording()
             self._closers.append(lambda: recorder.__exit__(None, None, None))
-        svc = IncidentService(session, self.cfg, self.settings, recorder=recorder, shard=(0, self.workers)).start()
+        svc = IncidentService(session, self.cfg, self.settings, recorder=recorder, shard=(0, self.workers), core=core,
+                              state_file=state_file).start()
         self._closers.append(svc.close)
         if self.workers > 1:
             from service.shell.workers import WorkerPool
@@ -111,6 +118,36 @@ class running_service:
         where = ", ".join(self.connect) if self.connect else ", ".join(self.listen or [DEFAULT_ENDPOINT])
         self.service = svc
         return svc, where
+
+    def _recording(self):
+        """The recorder (a new recording, or the next segment of one that exists), the core to
+        go on with (None: a new one) and the state file for snapshots."""
+        from service.review.recorder import IncidentRecorder, RecordingWriteError
+        from service.review.resume import StateFile, resume, state_path
+        from service.shell.service import ServiceSettings
+
+        settings = (self.settings or ServiceSettings()).core
+        resumed = resume(self.record, self.cfg, settings,
+                         progress=lambda n: err.print(f"resuming: {n} recorded messages replayed ...", highlight=False))
+        core = None
+        segment, path, attachment = 0, self.record, None
+        if resumed is not None:
+            self.resumed = resumed
+            for problem in resumed.problems:
+                err.print(f"[yellow]warning:[/] {problem}", highlight=False)
+            core, segment, path, attachment = resumed.core, resumed.segment, resumed.path, resumed.base.record()
+            b = resumed.base
+            err.print(f"resumed incident {self.cfg.id!r} from the {b.origin}"
+                      + (f" (segment {b.segment}, message {b.position})" if b.origin != "start" else "")
+                      + f" and {resumed.replayed} recorded messages after it in {resumed.seconds:.2f} s: "
+                      f"{len(core.responders)} responder(s); recording on in {path}", highlight=False)
+        try:
+            recorder = IncidentRecorder(path, self.cfg.id, segment=segment, resume=attachment).__enter__()
+        except RecordingWriteError as e:
+            self.__exit__(None, None, None)
+            fail(str(e))
+            raise typer.Exit(1)
+        return recorder, core, StateFile(state_path(self.record), self.cfg.id, segment)
 
     def __exit__(self, *exc):
         for close in reversed(self._closers):

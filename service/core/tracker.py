@@ -97,6 +97,7 @@ class ResponderTracker:
         self.fix_rejects: dict[str, int] = {}  # ... by the estimator's reason (gnss_gate, too_old, ...)
         self.fixes_unused = 0  # nothing to apply them to (see _apply_fix)
         self._first_step_after_placement = True
+        self._gap: tuple[float, float] | None = None  # (t_from, sigma_m) of a gap the next step crosses
 
     def _motion_factory(self, carry: str):
         return self.settings.motion or motion_model_for(carry)
@@ -170,6 +171,14 @@ class ResponderTracker:
             return True
         return any(isinstance(f, CheckpointFix) for _, _, f in self._pending_fixes)
 
+    def note_gap(self, t_from: float, t_to: float, sigma_m: float) -> None:
+        """No samples between ``t_from`` and ``t_to``: the first step after ``t_from`` gets a
+        position sigma of ``sigma_m`` more (the walk the gap may hide), so the next fix
+        re-anchors the track (:meth:`service.fusion.estimators.TrackEstimator.add_gap`)."""
+        if self._gap is not None:
+            t_from, sigma_m = min(t_from, self._gap[0]), math.hypot(sigma_m, self._gap[1])
+        self._gap = (t_from, sigma_m)
+
     def on_fix(self, fix) -> PoseEstimate | None:
         """Apply a fix now if its time is covered by the steps so far, else when a step passes it."""
         last_t = self.last_step.t if self.last_step else -math.inf
@@ -231,6 +240,11 @@ class ResponderTracker:
             self.estimator = make_estimator(self.settings.engine, self.settings.fusion)
             self.estimator.start(p0.t, p0.x, p0.y, ev.heading, ev.heading_sigma, p0.sigma,
                                  p0.floor if p0.floor is not None else ev.floor)
+        if self._gap is not None and ev.t > self._gap[0]:
+            add_gap = getattr(self.estimator, "add_gap", None)  # an estimator of one's own may not have it
+            if add_gap is not None:
+                add_gap(self._gap[1])
+            self._gap = None
         self.live = self._published(self.estimator.add_step(ev), ev.index)
         return self.live
 

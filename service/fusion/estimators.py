@@ -46,6 +46,11 @@ class TrackEstimator(Protocol):
 
     def add_fix(self, fix) -> FixOutcome: ...
 
+    def add_gap(self, sigma_m: float) -> None:
+        """No samples for a while before the next step: widen that step's position by
+        ``sigma_m`` (m), so a fix after the gap re-anchors the track."""
+        ...
+
     def set_floor(self, t: float, floor: int) -> PoseEstimate:
         """The responder changed floor at ``t`` without a step (a lift): the newest pose again,
         on ``floor``."""
@@ -68,6 +73,9 @@ class DeadReckoningEstimator:
 
     def add_step(self, ev: StepEvent) -> PoseEstimate:
         return self._dr.add_step(ev)
+
+    def add_gap(self, sigma_m: float) -> None:
+        """Dead reckoning keeps no uncertainty to widen: a checkpoint moves it whatever it is."""
 
     def add_fix(self, fix) -> FixOutcome:
         if isinstance(fix, CheckpointFix):
@@ -100,6 +108,9 @@ class FusionEstimator:
     def add_step(self, ev: StepEvent) -> PoseEstimate:
         self._steps = ev.index
         return self._pose(self.fusion.add_step(ev))
+
+    def add_gap(self, sigma_m: float) -> None:
+        self.fusion.add_gap(sigma_m)
 
     def add_fix(self, fix) -> FixOutcome:
         before = Counter(self.fusion.rejected)

@@ -54,6 +54,17 @@ make the marker jump step by step (the zig-zag of indoor GNSS); a checkpoint, wh
 operator confirmed, and a UWB range (decimetres) move it at once. ``display_gain = 1`` shows the graph's estimate itself.
 The smoothed track is the graph's own.
 
+**Gaps.** :meth:`TrackFusion.add_gap` (no samples for a while: an outage, lost frames, a new
+stream): the next step's factor gets an isotropic position sigma more (the walk the gap may
+hide), so the next fix re-anchors the track instead of being gated away.
+
+**Snapshots.** gtsam's smoother cannot be pickled; a pickled :class:`TrackFusion` keeps
+everything else and restarts its graph from the newest pose: a prior with that pose's full
+marginal covariance (and the step-length scale's marginal), the window's poses frozen at their
+current estimates. The live pose goes on from exactly where it was; what is lost is the
+window's correlations (a later fix corrects the pose it attaches to and what follows, not the
+poses before the snapshot).
+
 **Covariance.** gtsam's Pose2 marginal is in the pose's body frame (tangent space, retract
 ``T·Exp(ξ)``); the published 2x2 is rotated into ENU: ``Σ_w = R(θ) Σ_b[:2, :2] R(θ)ᵀ``.
 """
@@ -155,6 +166,57 @@ class TrackFusion:
         self._scale_n = -1  # index of the current step-length scale variable (-1: not estimated)
         self._scale_t0 = -math.inf  # s, when the current scale variable was opened
         self._scale = 1.0  # its latest estimate
+        self._gap_sigma = 0.0  # m, position sigma the next step adds for a gap before it (add_gap)
+
+    # ---------------------------------------------------------------- snapshots
+
+    def __getstate__(self) -> dict:
+        """Everything but the smoother, which :meth:`__setstate__` restarts from the newest pose
+        (see the module docstring, *Snapshots*). The object itself is not changed."""
+        state = self.__dict__.copy()
+        sm = state.pop("_smoother")
+        state["_live_pose"] = (self._live_pose.x(), self._live_pose.y(), self._live_pose.theta())
+        state["_restart"] = None
+        if sm is None:
+            return state
+        row = len(self._hist) - 1
+        est = sm.calculateEstimate()
+        hist = PoseHistory(max(len(self._hist), 1))
+        for k in range(len(self._hist)):
+            hist.append(**{c: self._hist.col(c)[k] for c in self._hist.columns})
+        xs, ys, hs = hist.col("x"), hist.col("y"), hist.col("heading")
+        for r in range(self._window_start, row + 1):  # the window's poses, frozen at their current estimates
+            p = est.atPose2(X(r))
+            xs[r], ys[r], hs[r] = p.x(), p.y(), wrap(p.theta())
+        p = est.atPose2(X(row))
+        restart = {"row": row, "t": float(self._hist.col("t")[row]), "pose": (p.x(), p.y(), p.theta()),
+                   "cov": np.array(sm.marginalCovariance(X(row)), float), "scale": None}
+        if self._scale_n >= 0:
+            restart["scale"] = (self._scale_n, float(est.atDouble(S(self._scale_n))),
+                                float(sm.marginalCovariance(S(self._scale_n))[0, 0]))
+        state.update(_hist=hist, _window_start=row, _anchors={}, _restart=restart)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        restart = state.pop("_restart")
+        self.__dict__.update(state)
+        self._live_pose = gtsam.Pose2(*state["_live_pose"])
+        self._smoother = None
+        if restart is None:
+            return
+        self._smoother = gtsam.IncrementalFixedLagSmoother(self.settings.lag_s, self._isam_params())
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        key, pose = X(restart["row"]), gtsam.Pose2(*restart["pose"])
+        cov = 0.5 * (restart["cov"] + restart["cov"].T)
+        graph.add(gtsam.PriorFactorPose2(key, pose, gtsam.noiseModel.Gaussian.Covariance(cov)))
+        values.insert(key, pose)
+        stamps = {key: restart["t"]}
+        if restart["scale"] is not None:
+            n, value, var = restart["scale"]
+            values.insert(S(n), value)
+            graph.add(gtsam.PriorFactorDouble(S(n), value, gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(max(var, 1e-12)))))
+            stamps[S(n)] = restart["t"]
+        self._smoother.update(graph, values, stamps)
 
     # ---------------------------------------------------------------- inputs
 
@@ -170,15 +232,7 @@ class TrackFusion:
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"TrackFusion.start: {name} must be finite and > 0, got {v!r}")
         s = self.settings
-        params = gtsam.ISAM2Params()
-        thresholds = gtsam.ISAM2ThresholdMap()
-        thresholds.insert(("x", np.array([s.relinearize_position_m, s.relinearize_position_m, s.relinearize_heading_rad])))
-        thresholds.insert(("a", np.array([s.relinearize_position_m, s.relinearize_position_m])))
-        thresholds.insert(("s", np.array([s.relinearize_scale])))
-        params.setRelinearizeThreshold(thresholds)
-        params.relinearizeSkip = int(s.relinearize_skip)
-        params.findUnusedFactorSlots = True  # reuse slots of marginalised factors: bounded memory
-        self._smoother = gtsam.IncrementalFixedLagSmoother(s.lag_s, params)
+        self._smoother = gtsam.IncrementalFixedLagSmoother(s.lag_s, self._isam_params())
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         pose = gtsam.Pose2(x, y, heading)
         graph.add(gtsam.PriorFactorPose2(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(
@@ -194,6 +248,25 @@ class TrackFusion:
         self._hist.append(t=t, index=0, x=math.nan, y=math.nan, heading=math.nan, floor=floor, pdr_floor=floor,
                           length=0.0, duration=0.0)
         return self._publish("snap")
+
+    def _isam_params(self) -> gtsam.ISAM2Params:
+        s = self.settings
+        params = gtsam.ISAM2Params()
+        thresholds = gtsam.ISAM2ThresholdMap()
+        thresholds.insert(("x", np.array([s.relinearize_position_m, s.relinearize_position_m, s.relinearize_heading_rad])))
+        thresholds.insert(("a", np.array([s.relinearize_position_m, s.relinearize_position_m])))
+        thresholds.insert(("s", np.array([s.relinearize_scale])))
+        params.setRelinearizeThreshold(thresholds)
+        params.relinearizeSkip = int(s.relinearize_skip)
+        params.findUnusedFactorSlots = True  # reuse slots of marginalised factors: bounded memory
+        return params
+
+    def add_gap(self, sigma_m: float) -> None:
+        """No samples for a while before the next step: that step adds an isotropic position
+        sigma of ``sigma_m`` (m; the walk the gap may hide), so the next fix can re-anchor."""
+        if not (math.isfinite(sigma_m) and sigma_m >= 0):
+            raise ValueError(f"add_gap: sigma_m must be finite and >= 0, got {sigma_m!r}")
+        self._gap_sigma = math.hypot(self._gap_sigma, sigma_m)
 
     def add_step(self, ev: StepEvent) -> FusedPose:
         """Add one step; returns the live estimate of the new pose (what the service publishes).
@@ -226,6 +299,10 @@ class TrackFusion:
         turn_sigma = max(turn_sigma, s.turn_sigma_floor_rad)
         length = ev.length
         cov = step_covariance(length, max(ev.length_sigma, s.length_sigma_floor_m), turn_sigma, s.lateral_sigma_m)
+        if self._gap_sigma > 0:  # a gap before this step: the position may have moved anywhere near (add_gap)
+            cov = cov + np.diag([self._gap_sigma ** 2, self._gap_sigma ** 2, 0.0])
+            self.events.append(FusionEvent(ev.t, "gap", "step", f"position sigma +{self._gap_sigma:.1f} m"))
+            self._gap_sigma = 0.0
         row = prev + 1
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         stamps = {X(row): float(ev.t)}

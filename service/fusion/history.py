@@ -28,6 +28,10 @@ class PoseHistory:
     def __len__(self) -> int:
         return self._n
 
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return tuple(COLUMNS)
+
     def append(self, **values) -> int:
         """Add one pose (every column named); returns its row."""
         if self._n == len(self._cols["t"]):

@@ -3,18 +3,31 @@
 Everything an incident decides happens in :class:`service.core.incident_core.IncidentCore`;
 this shell only moves messages between zenoh and the core, and stamps the time::
 
-    firetrack/{incident}/*/imu       FIFO channel ─┐
-    firetrack/{incident}/*/fix       callback ─────┤  worker thread: rounds ─► IncidentCore ─► .../pose
-    firetrack/{incident}/*/presence  liveliness ───┤                                        └► .../status
-    status timer (1 Hz) ── tick ───────────────────┘
+    firetrack/{incident}/*/imu       FIFO channel ─┐  (advanced subscribers: a wearable's kept frames
+    firetrack/{incident}/*/fix       FIFO channel ─┤   are fetched on detection and after a miss)
+    firetrack/{incident}/*/presence  liveliness ───┤  worker thread: intake ─► record ─► IncidentCore ─► .../pose
+    status timer (1 Hz) ── tick ───────────────────┘                                                  └► .../status
     firetrack/{incident}/*/track     queryable: the core's track of the responder
 
-Threads. Frames wait in zenoh's own FIFO channel until the worker takes them (no Python
-callback per frame, so frames never queue for the GIL behind the worker); fixes, presence and
-the once-a-second tick come by callback through a queue. The worker stamps each message with
-the service clock as it takes it, records it (the order a recording is read back in is the
-order the core saw), feeds the core a round at a time and publishes what the core answers.
-Track queries read the core between rounds.
+Threads. Frames and fixes wait in zenoh's own FIFO channels until the worker takes them (no
+Python callback per message, so a flood of them never queues for the GIL behind the worker);
+presence and the once-a-second tick come by callback through a queue. The worker asks the
+core's intake about each message by its key and size before copying its payload
+(:meth:`IncidentCore.admit`: size, admission of new ids, per-source budget), stamps what it
+takes with the service clock, records it (the order a recording is read back in is the order
+the core saw), feeds the core a round at a time and publishes what the core answers. Track
+queries read the core between rounds.
+
+Delivery. Both subscribers are zenoh's *advanced* subscribers (``zenoh.ext``): a wearable's
+advanced publisher keeps its last frames (:mod:`client.wearable`), and the subscriber fetches
+them when it detects the publisher (a service that starts or restarts after the wearable) and
+whenever the publisher's heartbeat shows samples it missed (an outage, a router restart), in
+order. What could not be fetched any more is a gap in the seq numbers, counted by the frame
+gate (``Status.lost``); zenoh's own miss reports are counted in ``missed``.
+
+Snapshots. With a recorder and a state file (:class:`service.review.resume.StateFile`), the
+worker writes the core's snapshot beside the recording every ``snapshot_every_s`` after a
+round, once what the core has seen is safely in the recording; ``serve`` resumes from it.
 """
 from __future__ import annotations
 
@@ -27,6 +40,7 @@ import time
 from dataclasses import dataclass, field
 
 import zenoh
+import zenoh.ext as zext
 
 from service.core.incident_core import CoreSettings, Inbound, IncidentCore, Outbound
 from service.protocol import wire
@@ -40,9 +54,12 @@ log = logging.getLogger("firetrack.service")
 class ServiceSettings:
     core: CoreSettings = field(default_factory=CoreSettings)
     status_period_s: float = 1.0  # s between Status messages
-    max_queue: int = 200_000  # callback messages waiting for the worker (beyond: the callbacks block)
+    max_queue: int = 100_000  # presence changes and ticks waiting for the worker (beyond: the oldest presence goes)
     max_round: int = 5000  # messages the worker takes before it runs the core
     imu_channel: int = 20_000  # frames zenoh may hold for the worker (beyond: back-pressure to the router)
+    fix_channel: int = 5_000  # fixes zenoh may hold for the worker
+    history_frames: int = 3000  # frames asked of a wearable's keep when it is detected or missed some
+    snapshot_every_s: float = 5.0  # s between snapshots of the core beside the recording (with a state file)
     idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
     warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
 
@@ -51,12 +68,18 @@ class IncidentService:
     """The service of one incident on an open zenoh session: ``start()``, ``close()``."""
 
     def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
-                 recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1)):
+                 recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1), core: IncidentCore | None = None,
+                 state_file=None):
         if session is None:
             raise ValueError("IncidentService needs an open zenoh session; offline, use service.core.IncidentCore")
         self.session = session
         self.settings = settings or ServiceSettings()
-        self.core = IncidentCore(incident, self.settings.core)
+        self.core = core if core is not None else IncidentCore(incident, self.settings.core)
+        self.state_file = state_file  # service.review.resume.StateFile: snapshots beside the recording
+        self.missed = 0  # samples zenoh reported missed (its sample-miss detection)
+        self.snapshots = 0
+        self.snapshot_error: str | None = None
+        self._last_snapshot = -math.inf
         self.incident = incident
         self.id = incident.id
         self.shard = shard  # (k, K): this worker serves the responders with in_shard(id, k, K)
@@ -74,6 +97,7 @@ class IncidentService:
         self._decl: list = []
         self._publishers: dict[str, object] = {}
         self._imu = None  # the frames' subscriber (a zenoh FIFO channel), once started
+        self._fix = None  # the fixes' subscriber
         self._looks = 0  # times the worker looked for input ...
         self._last_busy_look = 0  # ... and the last time it found some (wait_idle)
 
@@ -111,10 +135,19 @@ class IncidentService:
             log.info("warmed up in %.2f s (a simulated responder: %d poses, %d fixes applied)",
                      w.seconds, w.poses, w.fixes_applied)
         s = self.session
-        self._imu = s.declare_subscriber(wire.key_all(self.id, "imu"),
-                                         zenoh.handlers.FifoChannel(self.settings.imu_channel))
+        st = self.settings
+        self._imu = zext.declare_advanced_subscriber(
+            s, wire.key_all(self.id, "imu"), zenoh.handlers.FifoChannel(st.imu_channel),
+            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=st.history_frames),
+            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
+        # fixes: recovered after a miss, but never fetched again on detection (a fix applied
+        # before a restart must not be applied twice; frames have seq numbers, fixes do not)
+        self._fix = zext.declare_advanced_subscriber(
+            s, wire.key_all(self.id, "fix"), zenoh.handlers.FifoChannel(st.fix_channel),
+            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
         self._decl += [
-            s.declare_subscriber(wire.key_all(self.id, "fix"), self._enqueue),
+            self._imu.sample_miss_listener(self._on_miss),
+            self._fix.sample_miss_listener(self._on_miss),
             s.declare_queryable(wire.key_all(self.id, "track"), self._on_track_query),
             s.liveliness().declare_subscriber(wire.key_all(self.id, "presence"), self._on_presence, history=True),
         ]
@@ -143,12 +176,13 @@ class IncidentService:
         for th in self._threads:
             th.join(timeout)
         self._threads.clear()
-        if self._imu is not None:
-            try:
-                self._imu.undeclare()
-            except Exception:
-                pass
-            self._imu = None
+        for sub in (self._imu, self._fix):
+            if sub is not None:
+                try:
+                    sub.undeclare()
+                except Exception:
+                    pass
+        self._imu = self._fix = None
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
         """Block until everything received so far is processed (tests, benchmarks): the worker
@@ -165,15 +199,18 @@ class IncidentService:
     def _mine(self, key: str) -> bool:
         return self.shard[1] == 1 or in_shard(key, *self.shard)
 
-    def _enqueue(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        if self._mine(key):
-            self._queue.put(("fix", key, sample.payload.to_bytes()))
-
     def _on_presence(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         if self._mine(key):
-            self._queue.put(("presence", key, b"1" if sample.kind == zenoh.SampleKind.PUT else b"0"))
+            try:
+                self._queue.put_nowait(("presence", key, b"1" if sample.kind == zenoh.SampleKind.PUT else b"0"))
+            except queue.Full:  # a storm of liveliness tokens must not block zenoh's threads
+                log.warning("presence of %s dropped: the worker's queue is full", key[:120])
+
+    def _on_miss(self, miss) -> None:
+        self.missed += miss.nb
+        log.warning("zenoh reports %d sample(s) missed from publisher %s (not recoverable from its keep; the gate "
+                    "counts the frames as lost)", miss.nb, miss.source)
 
     def _tick_loop(self) -> None:
         while not self._stop.wait(self.settings.status_period_s):
@@ -215,21 +252,31 @@ class IncidentService:
                 return
 
     def _take_frames(self, limit: int | None) -> list[Inbound]:
-        """Frames waiting in zenoh's channel for this worker's responders, stamped as taken."""
+        """Frames, then fixes, waiting in zenoh's channels for this worker's responders, each
+        through the intake (by key and size, before its payload is copied) and stamped as taken."""
         out: list[Inbound] = []
-        if self._imu is None:
-            return out
+        for kind, sub in (("imu", self._imu), ("fix", self._fix)):
+            if sub is None:
+                continue
+            self._take_from(kind, sub, out, limit)
+        return out
+
+    def _take_from(self, kind: str, sub, out: list[Inbound], limit: int | None) -> None:
+        admit, clock, mine = self.core.admit, self.clock, self._mine
         while limit is None or len(out) < limit:
             try:
-                sample = self._imu.try_recv()
+                sample = sub.try_recv()
             except zenoh.ZError:  # undeclared (closing)
                 break
             if sample is None:
                 break
             key = str(sample.key_expr)
-            if self._mine(key):
-                out.append(Inbound("imu", key, sample.payload.to_bytes(), self.clock()))
-        return out
+            if not mine(key):
+                continue
+            payload = sample.payload
+            now = clock()
+            if admit(kind, key, len(payload), now) is None:
+                out.append(Inbound(kind, key, payload.to_bytes(), now))
 
     def _take_queued(self, items: list[Inbound], wait: float) -> tuple[int, int, bool]:
         """Append what the callbacks queued to ``items``, waiting up to ``wait`` s for the
@@ -268,8 +315,43 @@ class IncidentService:
                 if ticks:
                     out += self.core.tick(self.clock())
             self._publish(out)
+            if ticks:
+                self._forget_publishers()
+            self._snapshot_if_due()
         finally:
             self.busy_s += time.perf_counter() - started
+
+    def _forget_publishers(self) -> None:
+        """Publishers of responders the core let go (expired) are undeclared: bounded state."""
+        gone = [k for k in self._publishers if k.split("/")[2] not in self.core.responders]
+        for k in gone:
+            try:
+                self._publishers.pop(k).undeclare()
+            except Exception:
+                pass
+
+    def _snapshot_if_due(self) -> None:
+        """The core's snapshot into the state file beside the recording, every ``snapshot_every_s``,
+        once the recording holds everything the core has seen (a failure is logged once and
+        the service goes on: the recording alone still lets ``serve`` resume)."""
+        sf = self.state_file
+        now = time.monotonic()
+        if sf is None or self.recorder is None or self.recorder_error is not None or self.snapshot_error is not None \
+                or now - self._last_snapshot < self.settings.snapshot_every_s:
+            return
+        self._last_snapshot = now
+        try:
+            with self._rec_lock:
+                self.recorder.flush()  # everything fed so far is in the file before the snapshot says so
+                position = self.recorder.message_count
+            with self._core_lock:
+                blob = self.core.snapshot()
+            sf.write(blob, position, self.clock())
+            self.snapshots += 1
+        except Exception as e:
+            self.snapshot_error = str(e)
+            log.error("writing the snapshot %s failed; no more snapshots (a restart replays the recording): %s",
+                      getattr(sf, "path", sf), e)
 
     # ------------------------------------------------------------------ output
     def _publish(self, out: list[Outbound]) -> None:
