@@ -52,7 +52,8 @@ class SimulationPublisher:
             waits = np.random.default_rng([seed, 0x5747]).uniform(0.0, start_spread_s, n)
             for i, w in enumerate(waits):
                 self.fleet.stand_still(i, float(w), at=start_t)
-        self.wearables = [Wearable(session, incident_id, r) for r in self.names]
+        # each keeps its last keep_frames frames to resend (10 s by default: many walkers in one process)
+        self.wearables = [Wearable(session, incident_id, r, keep_frames=keep_frames) for r in self.names]
         self.seq = np.zeros(n, dtype=np.int64)
         self.truth = truth
         self.started = False

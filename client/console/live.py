@@ -40,6 +40,7 @@ def pose_json(p: wire.Pose, received_at: float) -> dict:
 def status_json(s: wire.Status, received_at: float) -> dict:
     return {"responder": s.responder, "t": s.t, "motion": s.motion, "motion_since": s.motion_since,
             "alarms": list(s.alarms), "rejected": dict(s.rejected), "frames": s.frames, "gaps": s.gaps,
+            "lost": s.lost, "gap_s": round(s.gap_s, 2), "streams": s.streams,
             "last_heard": s.last_heard, "steps": s.steps, "received_at": received_at}
 
 

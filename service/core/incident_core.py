@@ -124,6 +124,7 @@ class CoreSettings:
     same_clock_tolerance_s: float = 5.0  # s: a new stream whose first sample is within the receive gap + this
     # of the old stream's last is on the same device clock (the track's times stay the device's)
     min_stream_gap_s: float = 0.01  # s between a stream's last sample and the next stream's first, at least
+    max_clock_lead_s: float = 60.0  # s a device clock may run ahead of the service's across a gap (beyond: a leap)
 
 
 @dataclass
@@ -310,8 +311,10 @@ class IncidentCore:
                 self._dirty.pop(rid, None)
                 self.intake.forget(rid)
                 self.counters.expired += 1
-                log.warning("%s left the incident after %.0f s of silence (%d steps, %d poses; its track is in the "
-                            "recording)", rid, now - max(r.last_input, r.first_heard), r.tracker.steps, r.poses)
+                # a responder that walked is news; an id that never did is one of a crowd (a flood of ids)
+                (log.warning if r.tracker.steps else log.info)(
+                    "%s left the incident after %.0f s of silence (%d steps, %d poses; its track is in the recording)",
+                    rid, now - max(r.last_input, r.first_heard), r.tracker.steps, r.poses)
 
     def _tracker(self, rid: str) -> ResponderTracker:
         """A fresh tracker; not yet placed, it starts at the incident origin with a wide σ
@@ -384,6 +387,7 @@ class IncidentCore:
         t0 = float(b.t[0]) + r.t_offset
         if math.isfinite(r.last_t) and t0 - r.last_t > self.settings.gap_reanchor_s:
             self._run_backlog(r)  # the frames before the gap go first
+            t0 = self._bound_leap(r, b, t0)
             self._gap(r, r.last_t, t0)
         if r.backlog and (not continues(r.backlog[-1], b) or len(r.backlog) >= self.settings.max_coalesce):
             self._run_backlog(r)
@@ -412,6 +416,21 @@ class IncidentCore:
             r.t_offset = r.last_t + max(gap, s.min_stream_gap_s) - t0
         log.warning("%s: new stream (device %s, boot %s) after %.1f s; the track continues%s", r.id, b.device,
                     b.boot, gap, "" if r.t_offset == 0.0 else f" (its clock is {r.t_offset:+.3f} s from the track's)")
+
+    def _bound_leap(self, r: Responder, b: wire.ImuBatch, t0: float) -> float:
+        """A device clock that leaps further ahead than the service's clock went (by more than
+        ``max_clock_lead_s``) is put back on the track's clock after the receive-time gap:
+        a broken or hostile clock must not make the motion model walk through hours of
+        nothing (its state grid would grow with them). Returns the frame's new track time."""
+        s = self.settings
+        rgap = max(self._now - r.last_rt, 0.0) if r.last_rt is not None else 0.0
+        if t0 - r.last_t <= rgap + s.max_clock_lead_s:
+            return t0
+        leap = t0 - r.last_t
+        r.t_offset -= leap - max(rgap, s.min_stream_gap_s)
+        self.reject_log.note(r.id, "clock_leap", f"frame {b.seq}: device time leapt {leap:.1f} s in {rgap:.1f} s; "
+                                                 "the track goes on after the receive-time gap", self._now)
+        return float(b.t[0]) + r.t_offset
 
     def _gap(self, r: Responder, t_from: float, t_to: float) -> None:
         """No frames between ``t_from`` and ``t_to`` (track clock): the tracker widens the step

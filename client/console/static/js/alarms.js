@@ -1,4 +1,4 @@
-/* Alarms: man_down, lost_contact, rejected_frames and disconnected from the service's Status;
+/* Alarms: man_down, lost_contact, rejected_frames, disconnected and flooding from the service's Status;
    lost_contact also when the console has heard nothing of a responder for lost_contact_s.
 
    Life of an alarm (one per responder and kind, S.alarms): raised, it flashes until
@@ -10,7 +10,7 @@ import {$, ago, setText} from "./ui.js";
 import {select} from "./actions.js";
 
 const LABELS = {man_down: "MAN DOWN", lost_contact: "LOST CONTACT", rejected_frames: "BAD DATA",
-                disconnected: "WEARABLE OFF"};
+                disconnected: "WEARABLE OFF", flooding: "FLOODING", recording_failed: "NOT RECORDED"};
 
 /** The alarms each responder has now, by "id|kind". */
 function current(now) {

@@ -9,11 +9,15 @@ import {select} from "./actions.js";
 const STALE_S = 5;  // HEARD turns red after this long
 
 const steps = (r) => Math.max(r.pose ? r.pose.steps : 0, r.status ? r.status.steps : 0);
+// gaps in the responder's frames: seconds not covered and frames known lost (Status.gap_s, .lost)
+const gapText = (r) => (!r.status || !r.status.gaps ? "—"
+  : `${r.status.gap_s.toFixed(1)} s` + (r.status.lost ? ` / ${r.status.lost} lost` : ""));
 const COLUMNS = [
   {key: "id", label: "ID", value: (r) => r.id, text: (r) => r.id},
   {key: "floor", label: "FLOOR", value: (r) => (r.pose ? r.pose.floor : -Infinity), text: (r) => (r.pose ? String(r.pose.floor) : "—")},
   {key: "heard", label: "HEARD", value: (r, now) => (r.lastRx ? now - r.lastRx : Infinity), text: (r, now) => ago(r.lastRx ? now - r.lastRx : NaN)},
   {key: "steps", label: "STEPS", value: steps, text: (r) => String(steps(r))},
+  {key: "gaps", label: "GAPS", value: (r) => (r.status ? r.status.gap_s || 0 : 0), text: gapText},
   {key: "motion", label: "MOTION", value: (r) => (r.status ? r.status.motion : ""),
    text: (r) => (r.status ? MOTION_LABELS[r.status.motion] || r.status.motion : "—")},
 ];
