@@ -28,6 +28,17 @@ def frame(seq, t0=None, device="phone-A", boot=None):
 # --------------------------------------------------------------------------------------
 # The gate: streams by (device, boot, seq)
 # --------------------------------------------------------------------------------------
+def test_frames_of_another_stream_cannot_take_a_live_stream_over():
+    gate = FrameGate(takeover_after_s=0.5)
+    released = []
+    for s in range(100):  # an honest stream at 20 frames/s, an injected one between its frames
+        released += [(b.device, b.seq) for b in gate.offer(frame(s, boot="honest"), s * 0.05)]
+        released += [(b.device, b.seq) for b in gate.offer(frame(s % 3, t0=1e6 + s, device="evil"), s * 0.05 + 0.01)]
+        released += [(b.device, b.seq) for b in gate.offer(frame(s, t0=1e6 + s, boot="honest"), s * 0.05 + 0.02)]
+    assert released == [("phone-A", s) for s in range(100)] and gate.epoch == 0
+    assert gate.counts == {"other_stream": 100, "duplicate": 100}
+
+
 def test_a_new_boot_is_a_new_stream_at_once_and_the_old_one_is_retired():
     gate = FrameGate()
     for s in range(50):
@@ -56,7 +67,8 @@ def test_a_counter_that_restarts_while_time_goes_on_is_a_new_stream_without_a_bo
 def test_a_seq_far_ahead_is_a_restarted_counter_not_a_loss():
     gate = FrameGate(reorder_window=0, max_seq_jump=1000)
     gate.offer(frame(0), 0.0)
-    out = gate.offer(frame(10**9, t0=1.0), 0.1)
+    assert gate.offer(frame(10**9, t0=1.0), 0.1) == [] and gate.counts == {"seq_jump": 1}  # in a live stream
+    out = gate.offer(frame(10**9, t0=1.0), 1.0)  # after a silence: the counter restarted
     assert [b.seq for b in out] == [10**9] and gate.lost == 0 and gate.epoch == 1
     gate2 = FrameGate(reorder_window=0, max_seq_jump=1000)
     gate2.offer(frame(0), 0.0)

@@ -40,6 +40,11 @@ forgotten) when
   last released one): the wearable's counter restarted, whatever its ``boot`` says;
 * a frame's seq jumps ahead by more than ``max_seq_jump``: a counter that restarted elsewhere,
   not a loss (which would otherwise count that many frames lost);
+
+but only once the current stream has been silent for ``takeover_after_s``: a wearable that
+restarts goes quiet first, while frames of another stream interleaved with a live one are
+someone else's on this responder's key. They are turned away (``other_stream``, ``seq_jump``)
+and cannot take the track over;
 * without a ``boot`` (an older wearable), a frame that would be rejected as above after
   ``restart_after_s`` of silence (a rebooted wearable whose clock also went back).
 
@@ -59,7 +64,7 @@ from collections import Counter, deque
 
 from service.protocol.wire import ImuBatch
 
-GATE_REASONS = ("duplicate", "late", "time_order", "old_stream")
+GATE_REASONS = ("duplicate", "late", "time_order", "old_stream", "other_stream", "seq_jump")
 
 
 class FrameGate:
@@ -67,7 +72,7 @@ class FrameGate:
 
     def __init__(self, reorder_window: int = 4, max_gap_s: float = 0.5, *, max_hold_s: float = 1.0,
                  restart_after_s: float = 30.0, max_events: int = 256, max_seq_jump: int = 100_000,
-                 max_retired: int = 16):
+                 max_retired: int = 16, takeover_after_s: float = 0.5):
         if reorder_window < 0:
             raise ValueError(f"reorder_window must be >= 0, got {reorder_window}")
         if not max_gap_s > 0 or not max_hold_s > 0 or not restart_after_s > 0:
@@ -79,6 +84,7 @@ class FrameGate:
         self.max_hold_s = float(max_hold_s)
         self.restart_after_s = float(restart_after_s)
         self.max_seq_jump = int(max_seq_jump)
+        self.takeover_after_s = float(takeover_after_s)
         self.events: deque[tuple[float, str, str]] = deque(maxlen=max_events)
         self._counts: Counter[str] = Counter()
         self.offered = 0  # frames passed to offer()
@@ -154,12 +160,16 @@ class FrameGate:
         self.offered += 1
         out = self.expire(receive_time)
         silence = receive_time - self.last_heard if self.last_heard is not None else 0.0
-        self.last_heard = receive_time
+        quiet = self._released_at is None or receive_time - self._released_at >= self.takeover_after_s
         stream = (batch.device, batch.boot)
         if self._stream is not None and stream != self._stream:
             if batch.boot is not None and stream in self._retired:
                 self._reject(receive_time, "old_stream", f"seq {batch.seq} of device {batch.device!r} boot "
                                                          f"{batch.boot!r}, which a newer stream replaced")
+                return out
+            if not quiet:
+                self._reject(receive_time, "other_stream", f"seq {batch.seq} of device {batch.device!r} boot "
+                                                           f"{batch.boot!r} while {self._stream} is live")
                 return out
             old_device, old_boot = self._stream
             why = (f"device changed from {old_device!r} to {batch.device!r}" if batch.device != old_device
@@ -167,13 +177,18 @@ class FrameGate:
             if old_boot is not None:
                 self._retired.append(self._stream)
             out += self._restart(receive_time, why)
+        self.last_heard = receive_time
         self._stream = stream
         verdict = self._seq_verdict(batch)
-        if verdict is not None and self._counter_restarted(batch):
+        if verdict is not None and quiet and self._counter_restarted(batch):
             out += self._restart(receive_time, f"seq {batch.seq} after seq {self._last_seq} while time went on "
                                                f"(t[0] = {float(batch.t[0])!r} s): the counter restarted")
             verdict = None
         elif self._next is not None and batch.seq - self._next > self.max_seq_jump:
+            if not quiet:
+                self._reject(receive_time, "seq_jump", f"seq {batch.seq} is {batch.seq - self._next} frames ahead "
+                                                       f"of the next expected ({self._next}) in a live stream")
+                return out
             out += self._restart(receive_time, f"seq {batch.seq} is {batch.seq - self._next} frames ahead of the next "
                                                f"expected ({self._next}): the counter restarted")
         elif batch.boot is None and silence >= self.restart_after_s and (verdict or self._time_verdict(batch)):
