@@ -186,3 +186,29 @@ def test_memory_is_bounded_under_a_stream_of_hostile_input():
     assert len(core.responders) <= 50 and len(core._presence) <= core.MAX_PRESENCE
     assert end - mid < 2_000_000  # twice the messages, no more than noise in what is kept
     assert core.counters.errors == 0
+
+
+def test_silent_ids_cost_little_status_traffic_and_an_alarm_goes_out_at_once():
+    """A responder heard in the last ``idle_after_s`` gets a Status every tick; a silent one every
+    ``idle_status_every_s``, and at once when its alarms change."""
+    from service.protocol.schema import LOST_CONTACT_S
+
+    s = CoreSettings(idle_after_s=2.0, idle_status_every_s=5.0)
+    core = IncidentCore(CFG, s)
+    for rid in ("talk", "quiet"):
+        core.feed(Inbound("imu", key(rid), frame_payload(rid, 0, 10.0), 1000.0))
+    sent = {"talk": [], "quiet": []}  # (time, alarms) of every Status answered
+    for k in range(1, 41):  # 40 ticks, 1 s apart; "talk" sends a frame before each, "quiet" never again
+        now = 1000.0 + k
+        core.feed(Inbound("imu", key("talk"), frame_payload("talk", k, 10.0 + 0.1 * k), now - 0.5))
+        for o in core.tick(now):
+            if isinstance(o.message, wire.Status):
+                sent[o.message.responder].append((now, tuple(o.message.alarms)))
+    assert len(sent["talk"]) == 40
+    quiet = sent["quiet"]
+    assert len(quiet) < 40 / 3  # instead of 40
+    for (t0, a0), (t1, a1) in zip(quiet, quiet[1:]):
+        if t0 >= 1000.0 + s.idle_after_s:
+            assert t1 - t0 >= s.idle_status_every_s or a1 != a0, (t0, t1, a0, a1)
+    first = next(t for t, a in quiet if "lost_contact" in a)  # the alarm went out the tick it was raised
+    assert first <= 1000.0 + LOST_CONTACT_S + 1.0

@@ -48,11 +48,19 @@ def serve_command(
     port: int = typer.Option(8080, "--port", help="web console port"),
     seconds: float = typer.Option(math.inf, "--seconds", help="stop after this long (default: until Ctrl-C)"),
     workers: int = typer.Option(1, "--workers", help="worker processes sharing the responders (one per core)"),
+    max_responders: int = typer.Option(1024, "--max-responders", help="responders kept at once; new ids beyond are refused"),
+    admit_burst: float = typer.Option(256, "--admit-burst", help="new responder ids admitted at once ..."),
+    admit_per_s: float = typer.Option(2.0, "--admit-per-s", help="... and per second after that"),
+    roster: Path = typer.Option(None, "--roster", help="a file of responder ids, one per line, always admitted"),
+    roster_only: bool = typer.Option(False, "--roster-only", help="admit the roster's ids only"),
+    expire_after: float = typer.Option(1800.0, "--expire-after", help="s of silence after which a responder leaves "
+                                                                        "(its track stays in the recording)"),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log every responder, fix and reject"),
 ):
     """Run the service for one incident: one pipeline per responder, poses and status out."""
     setup_logging(verbose)
     cfg = incident_or_exit(config, incident_id)
+    settings = _service_settings(max_responders, admit_burst, admit_per_s, roster, roster_only, expire_after)
     if workers < 1:
         fail(f"--workers must be at least 1, got {workers}")
         raise typer.Exit(2)
@@ -60,12 +68,50 @@ def serve_command(
         fail("--record records one process's inputs; with --workers > 1 run `firetrack record` beside the service")
         raise typer.Exit(2)
     stop = stop_on_signals()
-    with running_service(cfg, listen, connect, record, console, port, workers=workers) as (svc, where):
+    with running_service(cfg, listen, connect, record, console, port, settings=settings, workers=workers) as (svc, where):
         out.print(f"[bold]firetrack[/] serving incident [bold]{cfg.id}[/] ({cfg.name}) on {where}")
         if console:
             out.print(f"console: http://127.0.0.1:{port}/")
         stop.wait(None if math.isinf(seconds) else seconds)
     out.print(f"stopped; {len(svc.responders)} responder(s), {svc.frames_processed} frames processed")
+
+
+def _service_settings(max_responders, admit_burst, admit_per_s, roster, roster_only, expire_after):
+    """The service's settings from the command's isolation options (errors name the option)."""
+    import dataclasses
+
+    from service.core.intake import IntakeSettings
+    from service.shell.service import ServiceSettings
+
+    ids = None
+    if roster is not None:
+        try:
+            ids = frozenset(line.strip() for line in roster.read_text().splitlines() if line.strip())
+        except OSError as e:
+            fail(f"--roster {roster}: {e.strerror or e}")
+            raise typer.Exit(2)
+        from service.protocol.keys import is_valid_id
+
+        bad = sorted(i for i in ids if not is_valid_id(i))
+        if bad:
+            fail(f"--roster {roster}: not responder ids: {', '.join(repr(b) for b in bad[:5])}")
+            raise typer.Exit(2)
+    elif roster_only:
+        fail("--roster-only needs --roster FILE")
+        raise typer.Exit(2)
+    try:
+        intake = IntakeSettings(max_responders=max_responders, admit_burst=admit_burst, admit_per_s=admit_per_s,
+                                roster=ids, roster_only=roster_only)
+    except ValueError as e:
+        fail(str(e))
+        raise typer.Exit(2)
+    if not expire_after > 0:
+        fail(f"--expire-after must be positive (s), got {expire_after}")
+        raise typer.Exit(2)
+    base = ServiceSettings()
+    core = dataclasses.replace(base.core, intake=intake, expire_after_s=expire_after,
+                               expire_unplaced_s=min(base.core.expire_unplaced_s, expire_after))
+    return dataclasses.replace(base, core=core)
 
 
 class running_service:

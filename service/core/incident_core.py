@@ -125,6 +125,8 @@ class CoreSettings:
     # of the old stream's last is on the same device clock (the track's times stay the device's)
     min_stream_gap_s: float = 0.01  # s between a stream's last sample and the next stream's first, at least
     max_clock_lead_s: float = 60.0  # s a device clock may run ahead of the service's across a gap (beyond: a leap)
+    idle_after_s: float = 2.0  # s without a message after which a responder's Status goes out less often ...
+    idle_status_every_s: float = 5.0  # ... every this many s (and at once when its alarms change)
 
 
 @dataclass
@@ -179,7 +181,9 @@ class IncidentCore:
 
     def tick(self, now: float) -> list[Outbound]:
         """Time passes: frames held for a missing one beyond the gate's wait are released, and
-        every responder's Status is answered."""
+        every responder's Status is answered: at every tick while it is heard, every
+        ``idle_status_every_s`` once it has been silent for ``idle_after_s`` (and at once when
+        its alarms change), so a crowd of silent ids costs little status traffic."""
         self._now = now
         for r in list(self.responders.values()):
             try:
@@ -188,9 +192,14 @@ class IncidentCore:
             except Exception:
                 self._error(f"while releasing the held frames of {r.id}")
         self._run_dirty()
+        s = self.settings
         for r in list(self.responders.values()):
             try:
-                self._out.append(Outbound(wire.key(self.id, r.id, "status"), self.status_of(r, now)))
+                st = self.status_of(r, now)
+                idle = now - r.last_input >= s.idle_after_s
+                if not idle or st.alarms != r.last_alarms or now - r.last_status >= s.idle_status_every_s:
+                    self._out.append(Outbound(wire.key(self.id, r.id, "status"), st))
+                    r.last_status, r.last_alarms = now, st.alarms
             except Exception:
                 self._error(f"status of {r.id}")
         out, self._out = self._out, []

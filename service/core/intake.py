@@ -43,13 +43,13 @@ _ID_RE = re.compile(ID_PATTERN)
 
 @dataclass(frozen=True)
 class IntakeSettings:
-    max_responders: int = 256  # responders the incident keeps at once; new ids beyond are refused
-    admit_burst: float = 64.0  # new responder ids admitted at once ...
-    admit_per_s: float = 1.0  # ... and per second after that (ids/s)
+    max_responders: int = 1024  # responders the incident keeps at once; new ids beyond are refused
+    admit_burst: float = 256.0  # new responder ids admitted at once (a large crew arriving) ...
+    admit_per_s: float = 2.0  # ... and per second after that (ids/s)
     roster: frozenset[str] | None = None  # ids always admitted (the incident's roster), None: no roster
     roster_only: bool = False  # admit the roster's ids only
     source_rate: float = 100.0  # messages/s a source may send (a wearable sends about 11)
-    source_burst: float = 3000.0  # messages a source may send at once (a wearable's kept frames after an outage)
+    source_burst: float = 4000.0  # messages a source may send at once (a wearable's kept frames after an outage)
     bad_after: int = 20  # rejects within bad_window_s that make a source a sender of garbage ...
     bad_window_s: float = 10.0  # s
     bad_rate: float = 5.0  # ... held to this many messages/s ...

@@ -37,6 +37,8 @@ class Responder:
     stream_start: object = None  # the gate's first frame of the stream the tracker follows now
     gap_end: float = -math.inf  # s, track clock: the first sample after the latest gap
     last_input: float = -math.inf  # service time of the newest message of any kind (expiry)
+    last_status: float = -math.inf  # service time of the newest Status answered
+    last_alarms: list = field(default_factory=list)  # the alarms it carried
 
 
 def continues(prev: wire.ImuBatch, b: wire.ImuBatch) -> bool:

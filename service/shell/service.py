@@ -80,6 +80,7 @@ class IncidentService:
         self.snapshots = 0
         self.snapshot_error: str | None = None
         self._last_snapshot = -math.inf
+        self._expired_seen = 0
         self.incident = incident
         self.id = incident.id
         self.shard = shard  # (k, K): this worker serves the responders with in_shard(id, k, K)
@@ -317,6 +318,9 @@ class IncidentService:
             self._publish(out)
             if ticks:
                 self._forget_publishers()
+                if self.core.counters.expired != self._expired_seen:
+                    self._expired_seen = self.core.counters.expired
+                    _return_memory()
             self._snapshot_if_due()
         finally:
             self.busy_s += time.perf_counter() - started
@@ -396,6 +400,19 @@ class IncidentService:
         except Exception as e:  # a full disk must be loud, not silent
             self.recorder_error = str(e)
             log.error("recording failed, the incident is no longer being recorded: %s", e)
+
+
+def _return_memory() -> None:
+    """After responders left: collect their cycles and hand the freed heap back to the operating
+    system (glibc keeps freed small blocks otherwise, and the process would look as big as at
+    its peak). A no-op where there is no glibc."""
+    gc.collect()
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 decode_track = wire.decode_track  # the reply format lives with the wire format
