@@ -206,3 +206,16 @@ def test_serve_on_an_existing_recording_resumes_instead_of_refusing(tmp_path):
             assert "resumed incident" in p.stderr and "inc.1.mcap" in p.stderr
     assert [q.name for q in segment_paths(path)] == ["inc.mcap", "inc.1.mcap"]
     time.sleep(0)
+
+
+def test_bench_resume_resumes_from_the_snapshot_to_the_same_core_as_a_whole_replay(tmp_path):
+    """``firetrack bench resume`` at a toy size: the snapshot's way replays only what came after
+    it, and both ways give the steps of the live core and about the same last poses (not bit for
+    bit: a resumed estimator restarts its graph from the snapshot's newest pose and marginal)."""
+    from service.review.resume import bench_resume
+
+    r = bench_resume(responders=2, minutes=0.5, workdir=tmp_path, log=lambda m: None)
+    assert r["replayed_after_snapshot"] < r["replayed_from_start"] == r["frames"]
+    assert all(a == b == c for a, b, c in r["steps_equal"].values())
+    assert all(a > 0 for a, _, _ in r["steps_equal"].values())
+    assert r["resumed_cores_apart_m"] < 0.01 and r["snapshot_bytes"]["last"] > 0

@@ -306,3 +306,88 @@ class SegmentReplay:
         if incident_id is None or incident_id == cfg.id:
             return cfg
         return cfg.model_copy(update={"id": incident_id})
+
+
+def bench_resume(responders: int = 4, minutes: float = 20.0, seed: int = 0, workdir=None, log=print) -> dict:
+    """What a restart costs: ``responders`` simulated walkers for ``minutes`` recorded as the
+    live service records them (rounds of 0.1 s, snapshots every 5 s into the state file), then
+    ``resume`` from the newest snapshot (the service's way) and from the start of the recording
+    (the other way). Figures: snapshot size and time, resume time each way, how far the two
+    resumed cores are apart."""
+    import tempfile
+
+    import numpy as np
+
+    from pdr.simulation import WalkerFleet, WalkerSettings
+    from service.protocol import wire
+    from service.review.recorder import IncidentRecorder
+
+    from service.protocol.incident import default_incident
+
+    incident = default_incident()
+    names = [f"w{i:02d}" for i in range(responders)]
+    fleet = WalkerFleet(responders, WalkerSettings(rate_hz=100.0), seed, responders=names, floors=(0, 0),
+                        start_t=1000.0, attitude=False)
+    frames = int(minutes * 600)
+    tmp = tempfile.TemporaryDirectory(prefix="firetrack-resume-") if workdir is None else None
+    root = Path(workdir or tmp.name)
+    path = root / "incident.mcap"
+    core = IncidentCore(incident)
+    sf = StateFile(state_path(path), incident.id, 0)
+    snap_bytes, snap_s, live_cpu = [], [], 0.0
+    t_rx = 1_000_000.0
+    log(f"recording {responders} walkers for {minutes:g} min ...")
+    with IncidentRecorder(path, incident.id) as rec:
+        for k in range(frames):
+            batches = fleet.next_batches(10)
+            items = []
+            for name, b in zip(names, batches):
+                f = wire.ImuBatch(responder=name, device="d", seq=k, t=b.t, acc=b.acc, gyr=b.gyr, mag=b.mag,
+                                  pressure_t=b.pressure_t if len(b.pressure_t) else None,
+                                  pressure=b.pressure if len(b.pressure_t) else None, carry="handheld")
+                items.append(Inbound("imu", wire.key(incident.id, name, "imu"), wire.encode(f), t_rx))
+            t_rx += 0.1
+            for m in items:
+                rec.write(m.key, m.payload, m.received)
+            c0 = time.process_time()
+            out = core.feed_round(items)
+            live_cpu += time.process_time() - c0
+            for o in out:
+                rec.write(o.key, wire.encode(o.message), t_rx)
+            if k % 50 == 49 and k < frames - 30:  # every 5 s, but not in the last 3 s: a crash loses those
+                rec.flush()
+                c0 = time.perf_counter()
+                blob = core.snapshot()
+                sf.write(blob, rec.message_count, t_rx)
+                snap_s.append(time.perf_counter() - c0)
+                snap_bytes.append(len(blob))
+    steps = {n: r.tracker.steps for n, r in core.responders.items()}
+    log("resuming from the newest snapshot ...")
+    c0 = time.perf_counter()
+    from_snapshot = resume(path, incident)
+    t_snapshot = time.perf_counter() - c0
+    state_path(path).rename(root / "kept.state")
+    log("resuming from the start of the recording ...")
+    c0 = time.perf_counter()
+    from_start = resume(path, incident)
+    t_start = time.perf_counter() - c0
+
+    def last_pose(c):
+        return {n: (r.tracker.live.x, r.tracker.live.y) for n, r in c.responders.items() if r.tracker.live is not None}
+
+    a, b = last_pose(from_snapshot.core), last_pose(from_start.core)
+    apart = max((float(np.hypot(a[n][0] - b[n][0], a[n][1] - b[n][1])) for n in a if n in b), default=None)
+    result = {
+        "responders": responders, "minutes": minutes, "frames": frames * responders,
+        "live_cpu_s": round(live_cpu, 2), "walked_s_per_cpu_s": round(frames * 0.1 * responders / live_cpu, 1),
+        "snapshot_bytes": {"first": snap_bytes[0], "last": snap_bytes[-1]},
+        "snapshot_ms": {"median": round(1e3 * float(np.median(snap_s)), 2), "max": round(1e3 * max(snap_s), 2)},
+        "resume_from_snapshot_s": round(t_snapshot, 3), "replayed_after_snapshot": from_snapshot.replayed,
+        "resume_from_start_s": round(t_start, 3), "replayed_from_start": from_start.replayed,
+        "steps_equal": {n: (steps[n], from_snapshot.core.responders[n].tracker.steps,
+                            from_start.core.responders[n].tracker.steps) for n in names},
+        "resumed_cores_apart_m": None if apart is None else round(apart, 4),
+    }
+    if tmp is not None:
+        tmp.cleanup()
+    return result
