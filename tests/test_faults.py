@@ -22,16 +22,13 @@ import sys
 import threading
 import time
 
-import msgpack
-import numpy as np
-import pytest
 import zenoh
 
 from service.protocol import wire
 from service.protocol.incident import default_incident
 from service.protocol.session import client_config, free_local_port, router_config
 from service.shell.service import IncidentService, ServiceSettings
-from tests.faults import RouterProcess, TcpProxy, WalkerWearable, reference
+from tests.faults import RouterProcess, TcpProxy, WalkerWearable, hostile_messages, reference, walker  # noqa: F401
 from tests.zenoh_util import wait_until
 
 CFG = default_incident()
@@ -96,7 +93,7 @@ def test_outages_of_10_and_40_s_and_a_killed_wearable_lose_nothing_silently():
     watch = Watch(session)
     proxies = {r: TcpProxy(port) for r in ("out10", "out40")}
     speed = 2.0  # 20 frames/s of a 2x walk: the outages cover 20 s and 80 s of walking
-    walkers = {r: WalkerWearable(proxies[r].endpoint, CFG.id, r, seed=i, seconds=110.0, speed=speed)
+    walkers = {r: walker(proxies[r].endpoint, r, seed=i, seconds=110.0, speed=speed)
                for i, r in enumerate(("out10", "out40"))}
     killed = None
     try:
@@ -173,7 +170,7 @@ def test_a_router_restart_of_5_s_loses_nothing_silently():
     svc_session = zenoh.open(client_config(ep))
     svc = IncidentService(svc_session, CFG, ServiceSettings()).start()
     watch = Watch(svc_session)
-    w = WalkerWearable(ep, CFG.id, "ff1", seed=3, seconds=66.0, speed=3.0)
+    w = walker(ep, "ff1", seed=3, seconds=66.0, speed=3.0)
     try:
         w.start()
         time.sleep(8.0)
@@ -229,7 +226,7 @@ def test_serve_killed_mid_walk_resumes_the_track_and_reprocess_equals_the_live_p
             return True
         assert wait_until(up, 60, 0.2)
         time.sleep(1.0)
-        w = WalkerWearable(ep, CFG.id, "ff1", seed=5, seconds=90.0, speed=3.0).start()
+        w = walker(ep, "ff1", seed=5, seconds=90.0, speed=3.0).start()
         time.sleep(12.0)  # about 36 s of walking, and a few snapshots
         serve.send_signal(signal.SIGKILL)
         serve.wait(10)
@@ -268,48 +265,6 @@ def test_serve_killed_mid_walk_resumes_the_track_and_reprocess_equals_the_live_p
 # --------------------------------------------------------------------------------------
 # A flood beside an honest and a bystander wearable (small: the benchmark runs 100 k)
 # --------------------------------------------------------------------------------------
-def hostile_messages(n: int, honest: str, seed: int = 0):
-    """``n`` hostile (key, payload) pairs: random bytes, wrong types, NaN, oversize, deep maps,
-    duplicate and backwards frames and bad fixes on the honest responder's key, bad keys and
-    fresh ids."""
-    rng = np.random.default_rng(seed)
-    z = np.zeros((10, 3))
-    nan = wire.ImuBatch(responder=honest, device="evil", seq=1, t=np.arange(10) * 0.01, acc=z, gyr=z).to_wire()
-    acc = np.frombuffer(nan["acc"], "<f8").copy()
-    acc[3] = np.nan
-    nan["acc"] = acc.tobytes()
-    nan_payload = msgpack.packb(nan, use_bin_type=True)
-    deep = b"\x81\xa1a" * 100_000 + b"\xc0"
-    big = b"\x00" * (wire.MAX_PAYLOAD_BYTES + 10)
-    dup = wire.encode(wire.ImuBatch(responder=honest, device="phone", seq=0, t=np.arange(10) * 0.01, acc=z, gyr=z))
-    badfix = msgpack.packb({"v": 1, "kind": "fix", "responder": honest, "t": "soon", "source": "gnss", "lat": 91})
-    k = lambda rid, kind="imu": f"firetrack/{CFG.id}/{rid}/{kind}"  # noqa: E731
-    out = []
-    for i in range(n):
-        c = i % 10
-        if c == 0:
-            out.append((k(honest), rng.bytes(64)))
-        elif c == 1:
-            out.append((k(honest), msgpack.packb({"v": 1, "kind": "imu", "responder": honest, "seq": "x", "t": [1]})))
-        elif c == 2:
-            out.append((k(honest), nan_payload))
-        elif c == 3:
-            out.append((k(honest), big if i % 1000 == 3 else deep if i % 100 == 3 else dup))
-        elif c == 4:
-            out.append((k(honest, "fix"), badfix))
-        elif c == 5:
-            out.append((k("x" * 2000), dup))  # a 2,000-character id (the key limit of the router is the bound)
-        elif c == 6:
-            out.append((k(f"fresh{i}"), dup))  # a new id every time
-        elif c == 7:
-            out.append((k(honest), msgpack.packb(list(range(50)))))
-        elif c == 8:
-            out.append((k(f"r{i % 50}", "fix"), rng.bytes(32)))
-        else:
-            out.append((k(honest), msgpack.packb({"v": 99, "kind": "imu"})))
-    return out
-
-
 def test_a_flood_is_throttled_and_named_and_the_bystander_tracks_as_before():
     import logging
 
@@ -323,13 +278,13 @@ def test_a_flood_is_throttled_and_named_and_the_bystander_tracks_as_before():
     handler.emit = lambda record: logged.append(len(record.getMessage()))
     logging.getLogger("firetrack.service").addHandler(handler)
     attacker = zenoh.open(client_config(ep))
-    honest = WalkerWearable(ep, CFG.id, "honest", seed=1, seconds=50.0, speed=2.0)
-    bystander = WalkerWearable(ep, CFG.id, "bystander", seed=2, seconds=50.0, speed=2.0)
+    honest = walker(ep, "honest", seed=1, seconds=50.0, speed=2.0)
+    bystander = walker(ep, "bystander", seed=2, seconds=50.0, speed=2.0)
     try:
         honest.start()
         bystander.start()
         time.sleep(5.0)
-        msgs = hostile_messages(20_000, "honest")
+        msgs = hostile_messages(20_000, CFG.id, "honest")
         t0 = time.monotonic()
         for i, (key, payload) in enumerate(msgs):  # 20 k in 10 s, none dropped on the way
             attacker.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
@@ -377,7 +332,7 @@ def test_a_wearable_that_exits_during_an_outage_says_what_was_not_acknowledged()
     svc = IncidentService(session, CFG, ServiceSettings()).start()
     proxy = TcpProxy(port)
     try:
-        a = WalkerWearable(proxy.endpoint, CFG.id, "a", seed=1, seconds=30.0, speed=4.0).start()
+        a = walker(proxy.endpoint, "a", seed=1, seconds=30.0, speed=4.0).start()
         assert wait_until(lambda: "a" in svc.responders and svc.responders["a"].gate.accepted > 20, 30)
         proxy.cut()
         assert a.done.wait(30)
@@ -386,7 +341,7 @@ def test_a_wearable_that_exits_during_an_outage_says_what_was_not_acknowledged()
         f = figure("exit during an outage", sent=a.sent(), taken_by_service=taken, **report)
         assert report["flushed"] is False and report["unacknowledged"] >= a.sent() - taken > 0
         proxy.restore()
-        b = WalkerWearable(proxy.endpoint, CFG.id, "b", seed=2, seconds=10.0, speed=4.0).start()
+        b = walker(proxy.endpoint, "b", seed=2, seconds=10.0, speed=4.0).start()
         assert b.done.wait(30)
         report_b = b.close(flush_s=15.0)  # asked to exit with the link up: it waits for the last acknowledgement
         figure("exit with the link up", sent=b.sent(), **report_b)
