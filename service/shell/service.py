@@ -80,6 +80,8 @@ class IncidentService:
         self.snapshots = 0
         self.snapshot_error: str | None = None
         self._last_snapshot = -math.inf
+        self._snapshot_writer: threading.Thread | None = None  # writes (and fsyncs) the newest snapshot's bytes
+        self.snapshots_skipped = 0  # snapshots not written because the previous one was still being written
         self._expired_seen = 0
         self.incident = incident
         self.id = incident.id
@@ -177,6 +179,8 @@ class IncidentService:
         for th in self._threads:
             th.join(timeout)
         self._threads.clear()
+        if self._snapshot_writer is not None:
+            self._snapshot_writer.join(timeout)
         for sub in (self._imu, self._fix):
             if sub is not None:
                 try:
@@ -343,6 +347,9 @@ class IncidentService:
         if sf is None or self.recorder is None or self.recorder_error is not None or self.snapshot_error is not None \
                 or now - self._last_snapshot < self.settings.snapshot_every_s:
             return
+        if self._snapshot_writer is not None and self._snapshot_writer.is_alive():
+            self.snapshots_skipped += 1  # the disk is slower than the snapshots: the next one will do
+            return
         self._last_snapshot = now
         try:
             with self._rec_lock:
@@ -350,12 +357,26 @@ class IncidentService:
                 position = self.recorder.message_count
             with self._core_lock:
                 blob = self.core.snapshot()
-            sf.write(blob, position, self.clock())
+        except Exception as e:
+            self._snapshot_failed(sf, e)
+            return
+        # writing and fsyncing megabytes is the disk's time, not the worker's: a thread of its own
+        # (the state file is replaced whole, so a crash meanwhile leaves the previous snapshot)
+        self._snapshot_writer = threading.Thread(target=self._write_snapshot, args=(sf, blob, position, self.clock()),
+                                                 daemon=True, name="snapshot-writer")
+        self._snapshot_writer.start()
+
+    def _write_snapshot(self, sf, blob: bytes, position: int, now: float) -> None:
+        try:
+            sf.write(blob, position, now)
             self.snapshots += 1
         except Exception as e:
-            self.snapshot_error = str(e)
-            log.error("writing the snapshot %s failed; no more snapshots (a restart replays the recording): %s",
-                      getattr(sf, "path", sf), e)
+            self._snapshot_failed(sf, e)
+
+    def _snapshot_failed(self, sf, e: Exception) -> None:
+        self.snapshot_error = str(e)
+        log.error("writing the snapshot %s failed; no more snapshots (a restart replays the recording): %s",
+                  getattr(sf, "path", sf), e)
 
     # ------------------------------------------------------------------ output
     def _publish(self, out: list[Outbound]) -> None:
