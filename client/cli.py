@@ -20,7 +20,7 @@ from service.protocol.terminal import fail
 
 # optional third-party packages -> the extra that installs them
 EXTRA_OF = {"gtsam": "service", "numba": "service", "mcap": "service", "zstandard": "service", "aiohttp": "console",
-            "PIL": "console", "matplotlib": "eval", "vqf": "eval"}
+            "PIL": "console", "matplotlib": "eval", "vqf": "eval", "cryptography": "service"}
 
 app = typer.Typer(
     name="firetrack",
@@ -68,11 +68,16 @@ def _group(name: str, module: str) -> None:
             _missing(name, missing))
 
 
-def _console_starter(session, cfg, port: int):
+def _console_starter(session, cfg, port: int, security=None):
+    """The console beside ``serve``: on this machine only (127.0.0.1), its operator actions
+    published as the service's own identity; with ``--tls`` and a roster, operators log in."""
     from client.console.server import ConsoleError, start_console
 
     try:
-        return start_console(session, cfg, port=port)
+        if security is None:
+            return start_console(session, cfg, port=port)
+        return start_console(session, cfg, port=port, actor=security.identity.name,
+                             roster=security.roster_path, tls=security.identity)
     except ConsoleError as e:
         raise ValueError(str(e)) from None
 
@@ -87,6 +92,7 @@ _command("replay", "service.cli.record", "replay_command")
 _command("reprocess", "service.cli.review", "reprocess_command")
 _command("exercise", "service.cli.review", "exercise_command")
 _command("schema", "service.cli.schema", "schema_command")
+_group("certs", "service.cli.certs")
 _group("eval", "service.cli.eval")
 _group("tune", "service.cli.tune")
 _group("bench", "service.cli.bench")

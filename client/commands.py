@@ -14,18 +14,27 @@ from service.protocol.terminal import (
     err,
     fail,
     incident_or_exit,
+    insecure,
     out,
     setup_logging,
     stop_on_signals,
+    tls_or_exit,
     warn,
 )
 
+DEMO_DOWN_AT_S = 45.0  # s into the demo when one simulated walker collapses (man-down 30 s later)
+SIM_START_T = 1000.0  # s, the simulated walkers' device clock at their start (client.simulate)
+
+TLS_HELP = "mutual TLS with this identity directory (firetrack certs issue): TLS only, plain TCP refused"
+
 
 def wearable_command(
-    responder: str = typer.Option(..., "--responder", help="responder id (letters, digits, _ . -)"),
+    responder: str = typer.Option(None, "--responder", help="responder id (letters, digits, _ . -); with --tls, "
+                                                            "the certificate's name by default"),
     replay_file: Path = typer.Option(..., "--replay", help="recording to publish (IPIN, Oxford, PyShoe, ...)"),
     speed: float = typer.Option(1.0, "--speed", help="times real time (0: as fast as possible)"),
-    connect: str = typer.Option(DEFAULT_ENDPOINT, "--connect", help="router endpoint"),
+    connect: str = typer.Option(None, "--connect", help=f"router endpoint (default {DEFAULT_ENDPOINT}, "
+                                                        "tls/127.0.0.1:7447 with --tls)"),
     incident_id: str = typer.Option(None, "--incident", help="incident id (default: the config's)"),
     config: Path = typer.Option(None, "--config", help="incident config, for the landmarks' local coordinates"),
     landmark_every: int = typer.Option(0, "--landmark-every", help="also send every K-th landmark as a checkpoint fix (the first is always sent)"),
@@ -33,6 +42,7 @@ def wearable_command(
     wait_router: float = typer.Option(30.0, "--wait-router", help="s to wait for a router that is not up yet"),
     flush: float = typer.Option(5.0, "--flush", help="s to wait at the end (or on Ctrl-C) for the service to "
                                                      "acknowledge the last frame"),
+    tls: Path = typer.Option(None, "--tls", help=TLS_HELP + " (a wearable certificate: CN = the responder id)"),
 ):
     """Publish a real recording as a wearable would: IMU frames (10 per second), landmarks and GNSS as fixes.
 
@@ -44,12 +54,25 @@ def wearable_command(
     from service.protocol import wire
     from service.protocol.terminal import progress_bar
 
+    identity = tls_or_exit(tls, "wearable", what="a wearable")
+    if identity is not None:
+        if responder is not None and responder != identity.name:
+            fail(f"--responder {responder!r}, but the certificate in {identity.dir} is {identity.name!r}'s: the router "
+                 f"lets it publish on {identity.name}'s keys only")
+            raise typer.Exit(2)
+        responder = identity.name
+    if responder is None:
+        fail("--responder is required (or --tls with the wearable's certificate)")
+        raise typer.Exit(2)
     if not wire.is_valid_id(responder):
         fail(f"--responder {responder!r}: use 1-64 letters, digits, '_', '.' or '-'")
         raise typer.Exit(2)
-    cfg = incident_or_exit(config, incident_id)
+    cfg = incident_or_exit(config, incident_id or (identity.incident if identity is not None else None))
+    if identity is None:
+        insecure("this wearable")
     stop = stop_on_signals()
-    session = client_or_exit(connect, wait_router)
+    session = client_or_exit(connect, wait_router, tls=identity)
+    connect = connect or ("tls/127.0.0.1:7447" if identity is not None else DEFAULT_ENDPOINT)
     key = wire.key(cfg.id, responder, "imu").rsplit("/", 1)[0] + "/{imu,fix}"
 
     def started(msgs):
@@ -92,22 +115,27 @@ def simulate_command(
     responders: int = typer.Option(5, "--responders", "-n", help="simulated walkers"),
     seconds: float = typer.Option(60.0, "--seconds", help="how long to walk, s"),
     rate: float = typer.Option(100.0, "--rate", help="IMU rate, Hz"),
-    connect: str = typer.Option(DEFAULT_ENDPOINT, "--connect", help="router endpoint"),
+    connect: str = typer.Option(None, "--connect", help=f"router endpoint (default {DEFAULT_ENDPOINT}, "
+                                                        "tls/127.0.0.1:7447 with --tls)"),
     incident_id: str = typer.Option(None, "--incident", help="incident id (default: the config's)"),
     config: Path = typer.Option(None, "--config", help="incident config (the building the walkers roam)"),
     seed: int = typer.Option(0, "--seed", help="random seed of the walkers"),
     start_spread: float = typer.Option(5.0, "--start-spread", help="s over which the walkers start walking"),
+    tls: Path = typer.Option(None, "--tls", help=TLS_HELP + " (a simulator certificate NAME: walkers NAME-000, ...)"),
 ):
     """Publish synthetic walkers in the incident's building; their true positions go on .../truth."""
     from client.simulate import SimulationPublisher, building_bounds
 
-    cfg = incident_or_exit(config, incident_id)
+    identity = tls_or_exit(tls, "simulator", what="simulate")
+    cfg = incident_or_exit(config, incident_id or (identity.incident if identity is not None else None))
+    if identity is None:
+        insecure("firetrack simulate")
     stop = stop_on_signals()
-    session = client_or_exit(connect)
+    session = client_or_exit(connect, tls=identity)
     floors = (min(f.number for f in cfg.floors), max(f.number for f in cfg.floors)) if cfg.floors else (0, 0)
     try:
         pub = SimulationPublisher(session, cfg.id, responders, rate, seed, bounds=building_bounds(cfg), floors=floors,
-                                  start_spread_s=start_spread)
+                                  start_spread_s=start_spread, prefix=identity.name if identity is not None else "sim")
         try:
             frames = pub.run(seconds, stop)
         finally:
@@ -124,12 +152,16 @@ def demo_command(
     port: int = typer.Option(8080, "--port", help="web console port"),
     listen: str = typer.Option(DEFAULT_ENDPOINT, "--listen", help="router endpoint"),
 ):
-    """The whole system on this machine: router, service, console, replayed IPIN walks and simulated walkers."""
+    """The whole system on this machine: router, service, console, replayed IPIN walks and simulated walkers.
+
+    No certificates: the demo is insecure by design (plain TCP, no access control, no login)
+    and says so. An incident runs `firetrack serve --tls` (README, Security)."""
     from client.simulate import SimulationPublisher, building_bounds
     from client.wearable import replay
     from service.protocol.incident import default_incident
 
     setup_logging(False)
+    insecure("the demo")
     cfg = default_incident()
     stop = stop_on_signals()
     data = Path(__file__).resolve().parents[2] / "shared" / "data" / "ipin2023"
@@ -143,11 +175,17 @@ def demo_command(
             th.start()
             threads.append(th)
         pub = SimulationPublisher(session, cfg.id, responders, 50.0, 1, bounds=building_bounds(cfg), floors=(0, 0))
+        down = None
+        if responders:  # so that every demo shows the man-down alarm: the last walker collapses
+            down = pub.names[-1]
+            pub.fleet.collapse(len(pub.names) - 1, at=SIM_START_T + DEMO_DOWN_AT_S)
         sim = threading.Thread(target=pub.run, args=(seconds if math.isfinite(seconds) else 24 * 3600.0, stop),
                                daemon=True)
         sim.start()
         out.print(f"[bold]firetrack demo[/]: incident {cfg.id} ({cfg.name}), router {where}")
         out.print(f"  {len(walks)} replayed IPIN walk(s) (ipin-1..), {responders} simulated walker(s) (sim-000..)")
+        if down is not None:
+            out.print(f"  {down} collapses {DEMO_DOWN_AT_S:.0f} s in: MAN DOWN shows about 35 s later")
         out.print(f"  open the console: http://127.0.0.1:{port}/   (Ctrl-C to stop)")
         stop.wait(None if math.isinf(seconds) else seconds)
         stop.set()

@@ -22,6 +22,12 @@ updates; ``--start-spread 0`` measures that worst case). Figures:
 * ``frames_sent``/``frames_processed``/``frames_lost`` — lost = sent but never processed, and
   ``frames_not_processed`` says why (the gates' rejects by reason, frames declared lost, held);
 * ``rss_mb`` — peak resident memory of the service process (router included).
+
+``--tls`` runs the same with security on: an incident CA made for the run, the service and
+its workers with a service certificate, the wearables' process with a simulator certificate
+(walkers ``sim-000``...), mutual TLS on every link and the router's access control generated
+from the roster, as ``firetrack serve --tls`` runs it. Run it beside a run without, in the same
+conditions, for the cost of security.
 """
 from __future__ import annotations
 
@@ -29,6 +35,7 @@ import contextlib
 import cProfile
 import io
 import multiprocessing as mp
+import os
 import pstats
 import resource
 import tempfile
@@ -45,12 +52,13 @@ from service.shell.workers import WorkerPool
 
 
 def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float, seed: int, out: str,
-               ready, go, start_spread_s: float) -> None:  # pragma: no cover - runs in the child process
+               ready, go, start_spread_s: float, tls_dir: str | None = None) -> None:  # pragma: no cover - child
 
     from client.simulate import SimulationPublisher
     from service.protocol.session import open_client
+    from service.protocol.tls import TlsIdentity
 
-    session = open_client(endpoint)
+    session = open_client(endpoint, tls=TlsIdentity.load(tls_dir) if tls_dir else None)
     pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s)
     frames = int(seconds * 10) + 20
     send_t = np.full((n, frames), np.nan)
@@ -80,29 +88,50 @@ def _summed(dicts) -> dict[str, int]:
 WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers and graphs are built
 
 
+def _bench_pki(directory: Path, incident: str):
+    """An incident CA for one run: the service, and the simulator the wearables publish as."""
+    from service.protocol import pki
+    from service.protocol.access import load_roster
+    from service.protocol.tls import TlsIdentity
+
+    pki.init_ca(directory, incident)
+    svc = TlsIdentity.load(pki.issue(directory, "service", "svc").dir)
+    sim = TlsIdentity.load(pki.issue(directory, "simulator", "sim").dir)
+    return svc, sim, load_roster(directory / "roster.json")
+
+
 def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
                   profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2,
-                  start_spread_s: float = 5.0) -> dict:
+                  start_spread_s: float = 5.0, tls: bool = False) -> dict:
 
     from service.protocol.incident import default_incident
     from service.protocol.session import open_session
     from service.shell.service import IncidentService, ServiceSettings
 
-    endpoint = f"tcp/127.0.0.1:{free_local_port()}"
+    endpoint = f"{'tls' if tls else 'tcp'}/127.0.0.1:{free_local_port()}"
     cfg = default_incident()
     poses: list[tuple[str, int, float]] = []
     prof = cProfile.Profile() if profile is not None else None
     share0 = sum(in_shard(f"sim-{i:03d}", 0, workers) for i in range(responders))
     with contextlib.ExitStack() as done:  # whatever fails, the processes, threads and sessions end
-        session = open_session([endpoint])
+        stats_dir = done.enter_context(tempfile.TemporaryDirectory(prefix="firetrack-bench-"))
+        svc_id = sim_id = access = None
+        acl = None
+        if tls:
+            from service.protocol.access import access_control, access_message
+
+            svc_id, sim_id, roster = _bench_pki(Path(stats_dir) / "pki", cfg.id)
+            acl, access = access_control(roster, cfg.id), access_message(roster)
+        session = open_session([endpoint], tls=svc_id, acl=acl)
         done.callback(session.close)
-        svc = IncidentService(session, cfg, ServiceSettings(), shard=(0, workers))
+        svc = IncidentService(session, cfg, ServiceSettings(), shard=(0, workers), access=access,
+                              actor=svc_id.name if svc_id else "service")
         svc.pose_hook = lambda rid, msg, oldest: poses.append((rid, oldest, msg.published_at))
         svc.profiler = prof
         done.callback(svc.close)
         svc.start()
-        stats_dir = done.enter_context(tempfile.TemporaryDirectory(prefix="firetrack-bench-"))
-        pool = WorkerPool(endpoint, cfg, workers, stats_dir, log_poses=True)
+        pool = WorkerPool(endpoint, cfg, workers, stats_dir, log_poses=True, tls_dir=str(svc_id.dir) if tls else None,
+                          roster=str(Path(stats_dir) / "pki" / "roster.json") if tls else None)
         done.callback(pool.close)
         if not pool.wait_ready(120):
             raise RuntimeError("the service workers did not start within 120 s")
@@ -110,7 +139,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         ready, go = ctx.Event(), ctx.Event()
         out = str(Path(stats_dir) / "sent.npz")
         child = ctx.Process(target=_publisher, args=(endpoint, cfg.id, responders, seconds, rate, seed, out, ready, go,
-                                                            start_spread_s))
+                                                     start_spread_s, str(sim_id.dir) if tls else None))
         child.start()
         done.callback(lambda: child.kill() if child.is_alive() else None)
         if not ready.wait(120):
@@ -154,6 +183,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
     warm = np.array(warm) * 1e3
     result = {
         "responders": responders,
+        "tls": tls,
         "rate_hz": rate,
         "seconds": seconds,
         "start_spread_s": start_spread_s,
@@ -172,6 +202,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
                                           / max(sum(s["tracker_batches"] for s in shards), 1), 2),
         "worker_busy_fraction": [round(s["busy_s"] / wall, 3) for s in shards],
         "publisher_cpu_s": publisher_cpu,
+        "load_average": [round(x, 2) for x in os.getloadavg()],  # 1, 5, 15 min at the end: a shared machine's load
         "rss_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
                    + resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0,
     }
@@ -193,10 +224,12 @@ def bench_service_command(
     workers: int = typer.Option(2, "--workers", help="service worker processes (one per core)"),
     start_spread: float = typer.Option(5.0, "--start-spread",
                                        help="s over which the wearers start walking (0: all in the same instant)"),
+    tls: bool = typer.Option(False, "--tls", help="mutual TLS on every link and the roster's access control on the "
+                                                  "router (a CA made for the run)"),
 ):
     """N simulated wearables through a real zenoh router against the service (see client/load_bench.py)."""
     if ctx.invoked_subcommand is not None:
         return
     result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers,
-                           start_spread_s=start_spread)
+                           start_spread_s=start_spread, tls=tls)
     print_json(result)

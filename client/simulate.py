@@ -34,12 +34,15 @@ def building_bounds(incident, margin: float = 5.0) -> tuple[float, float, float,
     return (-20.0, 20.0, -10.0, 10.0)
 
 
+SIM_KEEP_FRAMES = 100  # frames each simulated wearable keeps to resend (10 s at 10 frames/s: many in one process)
+
+
 class SimulationPublisher:
     """N simulated wearables on one zenoh session, advanced one frame at a time."""
 
     def __init__(self, session: zenoh.Session, incident_id: str, n: int, rate_hz: float = 100.0, seed: int = 0,
                  bounds=None, floors=(0, 0), prefix: str = "sim", truth: bool = True, start_t: float = 1000.0,
-                 start_spread_s: float = 0.0):
+                 start_spread_s: float = 0.0, keep_frames: int = SIM_KEEP_FRAMES):
         self.session = session
         self.incident_id = incident_id
         self.rate_hz = rate_hz

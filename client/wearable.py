@@ -61,7 +61,8 @@ class Wearable:
     """
 
     def __init__(self, session: zenoh.Session, incident_id: str, responder: str, on_matching=None,
-                 keep_frames: int = KEEP_FRAMES, keep_fixes: int = KEEP_FIXES, boot: str | None = None):
+                 keep_frames: int = KEEP_FRAMES, keep_fixes: int = KEEP_FIXES, boot: str | None = None,
+                 on_command=None, auto_ack: bool = True):
         if keep_frames < 1 or keep_fixes < 1:
             raise ValueError("keep_frames and keep_fixes must be at least 1")
         self.session = session
@@ -93,6 +94,26 @@ class Wearable:
         self._on_matching = on_matching
         self._listener = self._probe.declare_matching_listener(self._matching_changed) if on_matching else None
         self._status = session.declare_subscriber(wire.key(incident_id, responder, "status"), self._on_status)
+        self._ack = session.declare_publisher(wire.key(incident_id, responder, "ack"), **qos)
+        self._on_command, self._auto_ack = on_command, auto_ack
+        self.commands: list[wire.Command] = []  # orders received (roll calls, evacuation)
+        self._orders = session.declare_subscriber(wire.key(incident_id, responder, "command"), self._command)
+
+    def _command(self, sample) -> None:
+        """A roll call or an evacuation order: this wearable acknowledges it (a replay or a
+        simulator on its own; a real device when its wearer presses the button)."""
+        try:
+            cmd = wire.decode(sample.payload.to_bytes(), expect=wire.Command)
+        except wire.WireError:
+            return
+        self.commands.append(cmd)
+        if self._on_command is not None:
+            self._on_command(cmd)
+        if self._auto_ack:
+            self.acknowledge(cmd)
+
+    def acknowledge(self, cmd: wire.Command) -> None:
+        self._ack.put(wire.encode(wire.Ack(responder=self.responder, id=cmd.id, action=cmd.action, at=time.time())))
 
     @property
     def heard(self) -> bool:
@@ -168,7 +189,7 @@ class Wearable:
         :meth:`delivery` as it stood then, with ``flushed`` (everything acknowledged)."""
         flushed = self.flush(flush_s) if flush_s > 0 else None
         report = {**self.delivery(), "flushed": flushed}
-        for d in (self._listener, self._status, self._token, self._probe, *self._pub.values()):
+        for d in (self._orders, self._ack, self._listener, self._status, self._token, self._probe, *self._pub.values()):
             if d is None:
                 continue
             try:

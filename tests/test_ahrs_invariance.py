@@ -62,8 +62,9 @@ def test_the_same_orientation_at_every_sample_rate(name):
 
 def test_the_rate_test_catches_gains_per_sample():
     """Control: the same filter with its time constants counted in samples of 100 Hz fails it."""
+    d = FILTERS[DEFAULT_FILTER].Settings()
     runs = _runs_at_every_rate(lambda rate, q0: make_filter(
-        DEFAULT_FILTER, {"tau_acc": 1.2 * 100 / rate, "tau_mag": 20.0 * 100 / rate}, q0=q0))
+        DEFAULT_FILTER, {"tau_acc": d.tau_acc * 100 / rate, "tau_mag": d.tau_mag * 100 / rate}, q0=q0))
     assert _worst_rate_difference(runs) > 5.0
 
 

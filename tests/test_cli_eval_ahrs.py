@@ -103,3 +103,28 @@ def test_tune_grid_with_cross_validation(vicon_file, tmp_path):
     assert r.exit_code == 2 and "unknown parameter 'nope'" in r.output
     r = runner.invoke(app, ["tune", "ahrs", str(vicon_file), "--cv"])
     assert r.exit_code == 2 and "--cv needs a --grid" in r.output
+
+
+def test_tune_grid_balanced_by_data_set(vicon_file, tmp_path):
+    """--balance dataset: every data set (recording kind) one vote, in the choice and in each fold."""
+    from tests.test_broad import _fields, _write
+
+    broad = [str(_write(tmp_path / f"0{k}_undisturbed_{k}.mat", _fields(seconds=12, seed=k))) for k in (1, 2)]
+    args = ["tune", "ahrs", *broad, str(vicon_file), "-f", "decoupled", "-g", "tau_mag=5,40", "--cv", "--json"]
+    r = runner.invoke(app, [*args, "--balance", "dataset"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.stdout)
+    assert rep["balance"] == "dataset"
+    per = rep["chosen"]["per_recording_deg"]
+    b = [per[name] for name in per if "undisturbed" in name]
+    assert len(b) == 2
+    assert rep["chosen"]["mean_deg"] == pytest.approx(0.5 * (sum(b) / 2) + 0.5 * per["synthetic_vicon.mat"])
+    assert rep["chosen"]["per_dataset_deg"]["broad"] == pytest.approx(sum(b) / 2)
+    cv = rep["cross_validation"]
+    assert set(cv["held_out_mean_by_dataset_deg"]) == {"broad", "vicon_ahrs"}
+    assert cv["held_out_mean_by_dataset_deg"]["vicon_ahrs"] == cv["folds"][2]["held_out_deg"]
+    plain = json.loads(runner.invoke(app, args).stdout)
+    assert plain["balance"] == "recording"
+    assert plain["chosen"]["mean_deg"] == pytest.approx(sum(plain["chosen"]["per_recording_deg"].values()) / 3)
+    r = runner.invoke(app, [*args, "--balance", "imu"])
+    assert r.exit_code == 2 and "--balance must be recording or dataset" in r.output

@@ -25,6 +25,7 @@ from PIL import Image
 from client.console.server import ConsoleError, start_console
 from client.wearable import Wearable
 from pdr.synthetic import static_imu
+from service.core.incident_core import CoreSettings
 from service.protocol import wire
 from service.protocol.incident import default_incident, plan_pixel_to_enu
 from service.protocol.messages import recording_messages
@@ -80,7 +81,7 @@ class Page:
         self.context = browser.new_context(viewport=VIEWPORT)
         self.page = self.context.new_page()
         self.errors: list[str] = []
-        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        self.page.on("pageerror", lambda e: self.errors.append(str(e) + " @ " + str(getattr(e, "stack", ""))[:600]))
         # offline at an incident: the page asks its own server for everything (no CDN, no fonts)
         self.foreign: list[str] = []
         self.page.on("request", lambda r: None if r.url.startswith((url, url.replace("http", "ws", 1), "data:"))
@@ -128,6 +129,26 @@ class Collector:
     def all(self):
         with self._lock:
             return list(self.items)
+
+
+class FixCollector(Collector):
+    """The fixes a console publishes, as operator actions on its own key (``.../{actor}/op``)."""
+
+    def __init__(self, session, cfg, responder: str, actor: str = "console"):
+        self.responder = responder
+        super().__init__(session, wire.key(cfg.id, actor, "op"))
+
+    def _on(self, sample):
+        op = wire.decode(sample.payload.to_bytes(), expect=wire.OperatorAction)
+        if op.action == "fix" and op.responder == self.responder:
+            with self._lock:
+                self.items.append((op, wire.decode(op.fix, expect=wire.Fix)))
+
+    def all(self):  # the fixes
+        return [f for _, f in super().all()]
+
+    def actions(self):
+        return [op for op, _ in super().all()]
 
 
 def imu_frames(responder: str, t0: float, seconds: float, still: bool, seq0: int = 0, seed: int = 0,
@@ -181,7 +202,7 @@ def test_markers_move_a_map_click_places_a_fix_and_review_scrubs_the_track(stack
     # long enough to still be walking when the fix is sent (it applies at the next step); stopped after
     frames = {r: imu_frames(r, 1000.0, 150.0, still=False, seed=i) for i, r in enumerate(ids)}
     wearables = {r: Wearable(cl, cfg.id, r) for r in ids}
-    fixes = Collector(cl, wire.key(cfg.id, "alpha", "fix"))
+    fixes = FixCollector(cl, cfg, "alpha")
     stop = threading.Event()
     sender = threading.Thread(target=send_paced, args=(wearables, frames, 8.0, stop), daemon=True)
     page = Page(browser, console.url)
@@ -236,7 +257,8 @@ def test_markers_move_a_map_click_places_a_fix_and_review_scrubs_the_track(stack
         page.page.locator("#modal-ok").click()
         assert wait_until(lambda: len(fixes.all()) == 1, 5), "the console published no fix"
         fix = fixes.all()[0]
-        assert fix.source == "checkpoint" and fix.operator == "console" and fix.floor == cfg.start_floor
+        assert fix.source == "checkpoint" and fix.operator == "local" and fix.floor == cfg.start_floor
+        assert fixes.actions()[0].operator == "local"  # the open demo console: whoever is at this machine
         assert math.dist((fix.x, fix.y), (cp.x, cp.y)) <= 1.5 * metres_per_px  # the click, within a pixel
         assert fix.t >= later["t"]  # stamped with alpha's latest device time
         assert wait_until(lambda: svc.responders["alpha"].tracker.fixes_applied > applied_before, 15), \
@@ -276,7 +298,7 @@ def test_a_motionless_responder_raises_man_down_which_is_acknowledged_and_raised
     svc, console, cl, cfg, endpoint = stack
     w = Wearable(cl, cfg.id, "echo")
     page = Page(browser, console.url)
-    alarm = '#alarms .alarm[data-key="echo|man_down"]'
+    alarm = '#alarms .alarm[data-responder="echo"]'
     try:
         still = imu_frames("echo", 2000.0, 40.0, still=True, rate=25.0)
         for b in still:  # device time is what counts: 40 s of stillness sent at once
@@ -370,7 +392,7 @@ def test_silence_raises_lost_contact_in_the_page_itself(browser):
     console = start_console(session, cfg, port=free_port(), lost_contact_s=1.0)
     cl = client(endpoint)
     page = None
-    alarm = '#alarms .alarm[data-key="ghost|lost_contact"]'
+    alarm = '#alarms .alarm[data-responder="ghost"]'
 
     def heard():
         now = time.time()
@@ -394,7 +416,7 @@ def test_silence_raises_lost_contact_in_the_page_itself(browser):
         heard()
         talker.start()
         try:
-            page.wait("(s) => document.querySelector(s)?.querySelector('.state').textContent === 'CLEARED'",
+            page.wait("(s) => document.querySelector(s)?.querySelector('.kinds').textContent.includes('(cleared)')",
                       alarm, timeout_ms=5000)
             assert "flashing" in page.page.locator(alarm).get_attribute("class")  # not acknowledged yet
             page.page.locator(alarm + " button.ack").click()
@@ -463,7 +485,7 @@ def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
     svc, console, cl, cfg, endpoint = stack
     url = console.url
     # declared first: a subscriber takes a moment to reach the router, and the fix below must not pass it by
-    fixes = Collector(cl, wire.key(cfg.id, "foxtrot", "fix"))
+    fixes = FixCollector(cl, cfg, "foxtrot")
     status, inc = http(url + "api/incident")
     assert status == 200 and inc["id"] == cfg.id and [f["number"] for f in inc["floors"]] == [-2, -1, 0]
     plan = inc["plans"]["0"]
@@ -514,7 +536,7 @@ def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
     status, body = post("api/fix", {"responder": "foxtrot", "name": "t01-lm2"})
     assert status == 200 and body["sent"]["name"] == "t01-lm2" and body["sent"]["t"] == 77.5
     assert wait_until(lambda: len(fixes.all()) == 1, 5)
-    assert fixes.all()[0] == wire.Fix.checkpoint("foxtrot", 77.5, name="t01-lm2", operator="console")
+    assert fixes.all()[0] == wire.Fix.checkpoint("foxtrot", 77.5, name="t01-lm2", operator="local")
 
     # checkpoints: added, visible to the page's next load, duplicates and bad floors refused
     status, body = post("api/checkpoint", {"name": "door-7", "x": 3.5, "y": -4.0, "floor": -1, "note": "side door"})
@@ -552,3 +574,121 @@ def test_a_taken_port_is_a_clear_error_and_close_does_not_hang(stack, browser):
     page.wait("() => !window.__firetrack.connected", timeout_ms=5000)
     assert "NO CONNECTION" in page.page.locator("#conn").inner_text()
     page.close()
+
+
+# ------------------------------------------------------------------ issue 18: honest silence, accountability
+def test_heard_grows_while_a_wearable_is_silent(browser, stack):
+    """HEARD counts from the wearable's last frame (Status.last_heard), not from the service's
+    status message, so it keeps growing while the service goes on reporting a silent wearable."""
+    svc, console, cl, cfg, _ = stack
+    w = Wearable(cl, cfg.id, "quiet1")
+    imu = static_imu(seconds=3.0, rate_hz=50.0)
+    for b in wire.imu_batches_from_arrays("quiet1", "dev-q", imu.t + 500.0, imu.acc, imu.gyr, imu.mag, per_batch=5):
+        w.send("imu", b)
+    page = Page(browser, console.url)
+    try:
+        cell = "#roster tr[data-id='quiet1'] td.heard"
+        page.wait(f"() => document.querySelector(\"{cell}\")")
+        time.sleep(2.0)  # the wearable is silent now; the service still publishes its Status (every
+        # idle_status_every_s once it has been silent for idle_after_s, service/core/incident_core.py)
+        first = page.js(f"() => window.__firetrack.snapshot().quiet1.status.received_at")
+        a = page.js("() => { const r = window.__firetrack.responders.get('quiet1'); "
+                    "return Date.now() / 1000 + window.__firetrack.clockOffset - r.status.last_heard; }")
+        every = CoreSettings().idle_status_every_s
+        assert wait_until(lambda: page.js("() => window.__firetrack.snapshot().quiet1.status.received_at") > first,
+                          every + 3.0, 0.2)
+        second = page.js(f"() => window.__firetrack.snapshot().quiet1.status.received_at")
+        b = page.js("() => { const r = window.__firetrack.responders.get('quiet1'); "
+                    "return Date.now() / 1000 + window.__firetrack.clockOffset - r.status.last_heard; }")
+        assert second > first  # statuses kept coming ...
+        assert b > a + 2.0 and b > 4.0  # ... and HEARD still grew
+        page.wait(f"() => parseFloat(document.querySelector(\"{cell}\").textContent) >= 4")
+    finally:
+        w.close()
+        page.close()
+
+
+def test_twenty_responders_in_alarm_leave_the_map_usable(browser, tmp_path):
+    """One compact alarm row per person: twenty people in alarm must not cover the map."""
+    session, endpoint = router()
+    cfg = default_incident().model_copy(update={"id": "many-alarms"})
+    console = start_console(session, cfg, port=free_port())
+    cl = client(endpoint)
+    page = None
+    try:
+        page = Page(browser, console.url)
+        now = time.time()
+        cp = cfg.checkpoints[0]
+        for i in range(20):
+            rid = f"ff{i:02d}"
+            cl.put(wire.key(cfg.id, rid, "pose"), wire.encode(wire.Pose(
+                responder=rid, t=100.0, x=cp.x + (i % 5) * 2.0, y=cp.y + (i // 5) * 2.0, floor=cp.floor, lat=49.46,
+                lon=11.11, heading_deg=0.0, cov=np.eye(2), steps=10, source="fused", seq=1, published_at=now)))
+            alarms = ["man_down", "lost_contact"] if i % 2 else ["lost_contact", "disconnected", "par_unanswered"]
+            cl.put(wire.key(cfg.id, rid, "status"), wire.encode(wire.Status(
+                responder=rid, t=100.0, motion="no_motion", motion_since=0.0, alarms=alarms,
+                alarms_since={a: now - 40.0 for a in alarms}, last_heard=now - 40.0)))
+        page.wait("() => document.querySelectorAll('#alarms .alarm').length === 20")
+        rows = page.js("() => [...document.querySelectorAll('#alarms .alarm')].map(e => [e.dataset.responder, e.dataset.kinds])")
+        assert rows[0][1].startswith("man_down")  # the most severe first, one row per person
+        assert len({r for r, _ in rows}) == 20
+        bar = page.page.locator("#alarms").bounding_box()
+        mapbox = page.page.locator("#map").bounding_box()
+        assert bar["height"] <= 0.25 * VIEWPORT["height"], bar  # the bar scrolls instead of growing
+        assert mapbox["height"] >= 0.6 * VIEWPORT["height"], mapbox  # the map keeps most of the screen
+        assert "for 40 s" in page.page.locator("#alarms .alarm").first.inner_text() or \
+            "for 41 s" in page.page.locator("#alarms .alarm").first.inner_text()  # the service's clock, not the page's
+        shot = Path(os.environ.get("FIRETRACK_SCREENSHOTS", tmp_path)) / "console-20-alarms.png"
+        page.page.screenshot(path=str(shot))
+        assert Image.open(shot).size == (VIEWPORT["width"], VIEWPORT["height"])
+    finally:
+        if page is not None:
+            page.close()
+        console.close()
+        cl.close()
+        session.close()
+
+
+def test_a_roll_call_flags_the_one_who_does_not_answer(browser):
+    """PAR: the commander starts a roll call; every wearable acknowledges except one, who is
+    flagged once the answer time (30 s by default, 3 s here) has passed."""
+    from service.core.incident_core import CoreSettings
+
+    session, endpoint = router()
+    cfg = default_incident().model_copy(update={"id": "par-drill"})
+    svc = IncidentService(session, cfg, ServiceSettings(core=CoreSettings(command_answer_s=3.0))).start()
+    console = start_console(session, cfg, port=free_port())
+    cl = client(endpoint)
+    names = ["p1", "p2", "p3"]
+    wearables = {r: Wearable(cl, cfg.id, r, auto_ack=(r != "p3")) for r in names}
+    page = None
+    try:
+        imu = static_imu(seconds=2.0, rate_hz=50.0)
+        for r, w in wearables.items():
+            for b in wire.imu_batches_from_arrays(r, f"dev-{r}", imu.t + 10.0, imu.acc, imu.gyr, imu.mag, per_batch=5):
+                w.send("imu", b)
+        page = Page(browser, console.url)
+        page.wait("() => ['p1', 'p2', 'p3'].every(r => window.__firetrack.responders.get(r)?.status)")
+        page.page.locator("#btn-par").click()
+        page.wait("() => [...document.querySelectorAll('.toast.ok')].some(e => e.textContent.includes('Roll call'))")
+        assert all(len(w.commands) == 1 and w.commands[0].action == "par" for w in wearables.values())
+        par = lambda r: f"document.querySelector(\"#roster tr[data-id='{r}'] td.par\")?.textContent"  # noqa: E731
+        page.wait(f"() => {par('p1')} === '✓' && {par('p2')} === '✓'")
+        assert page.js(f"() => {par('p3')}") in ("waiting", "MISSING")  # not answered (MISSING once 3 s passed)
+        page.wait(f"() => {par('p3')} === 'MISSING'", timeout_ms=10_000)  # after the answer time
+        page.page.locator('#alarms .alarm[data-responder="p3"]').wait_for(timeout=5000)
+        assert "NO PAR" in page.page.locator('#alarms .alarm[data-responder="p3"]').inner_text()
+        st = svc.core.status_of(svc.responders["p3"], time.time())
+        assert "par_unanswered" in st.alarms and st.commands["par"]["acked_at"] is None
+        assert svc.core.status_of(svc.responders["p1"], time.time()).commands["par"]["acked_at"] is not None
+        wearables["p3"].acknowledge(wearables["p3"].commands[0])  # p3 answers late: the flag goes
+        page.wait(f"() => {par('p3')} === '✓'", timeout_ms=10_000)
+    finally:
+        if page is not None:
+            page.close()
+        for w in wearables.values():
+            w.close()
+        console.close()
+        cl.close()
+        svc.close()
+        session.close()

@@ -87,11 +87,14 @@ def test_schema_command_writes_json_schema(tmp_path):
         assert kind in text
 
 
-def test_load_bench_reports_every_figure_and_loses_nothing():
-    """``firetrack bench`` end to end at a toy size: a real router, two workers, a publisher process."""
+@pytest.mark.parametrize("tls", [False, True])
+def test_load_bench_reports_every_figure_and_loses_nothing(tls):
+    """``firetrack bench`` end to end at a toy size: a real router, two workers, a publisher process;
+    with ``--tls`` every link is mutual TLS and the router enforces the roster's access control."""
     from client.load_bench import bench_service
 
-    r = bench_service(responders=6, seconds=6.0, workers=2, log=lambda m: None)
+    r = bench_service(responders=6, seconds=6.0, workers=2, log=lambda m: None, tls=tls)
+    assert r["tls"] is tls
     for key in ("responders", "rate_hz", "samples_per_s", "realtime_factor", "latency_p50_ms", "latency_p99_ms",
                 "frames_sent", "frames_processed", "frames_lost", "rss_mb"):
         assert key in r, key
@@ -115,17 +118,14 @@ def test_ctrl_c_while_starting_ends_without_a_traceback(delay):
 
 
 @pytest.mark.parametrize("args, says", [
-    (["--roster-only"], "--roster-only needs --roster FILE"),
+    (["--roster-only"], "--roster-only needs a roster"),  # the demo incident has none, and no --tls
     (["--expire-after", "0"], "--expire-after must be positive"),
-    (["--roster", "ROSTER"], "not responder ids: 'bad id!'"),
-    (["--roster", "MISSING"], "--roster"),
+    (["--admit-per-s", "0"], "IntakeSettings.admit_per_s must be positive"),
+    (["--max-responders", "0"], "max_responders and bad_after must be at least 1"),
 ])
 def test_serve_refuses_bad_isolation_options_with_the_option_named(tmp_path, args, says):
     from client.cli import app
 
-    roster = tmp_path / "roster.txt"
-    roster.write_text("alpha\nbad id!\n")
-    args = [str(roster) if a == "ROSTER" else str(tmp_path / "none.txt") if a == "MISSING" else a for a in args]
     r = CliRunner().invoke(app, ["serve", "--seconds", "0", "--no-console", *args])
     assert r.exit_code == 2, r.output
     assert says in " ".join(r.output.split())
@@ -155,7 +155,8 @@ def test_the_systemd_unit_restarts_serve_after_sigkill_on_its_fixed_recording_pa
     argv = _unit_exec_start(unit)
     assert argv[0].endswith("/firetrack") and argv[1] == "serve"
     port, web = free_port(), free_port()
-    mapped = {"--connect": ["--listen", f"tcp/127.0.0.1:{port}"],  # no separate router here
+    mapped = {"--tls": [],  # plain TCP on loopback here: no certificates (tests/test_security*.py cover TLS)
+              "--connect": ["--listen", f"tcp/127.0.0.1:{port}"],  # no separate router here
               "--config": ["--config", str(root / "deploy" / "incidents" / "ipin-museum.json")],
               "--record": ["--record", str(tmp_path / Path(argv[argv.index("--record") + 1]).name.replace("%N", "firetrack"))],
               "--port": ["--port", str(web)]}

@@ -48,3 +48,26 @@ def test_leave_one_out_needs_two_recordings():
 
     with pytest.raises(ValueError, match=">= 2 recordings"):
         leave_one_out([[1.0], [2.0]])
+
+
+def test_balanced_criterion_gives_every_group_one_vote():
+    import numpy as np
+    import pytest
+
+    from pdr.ahrs.tuning import criterion, leave_one_out
+
+    # three recordings of data set A, one of B: point 0 suits A a little better, point 1 suits B much better
+    table = np.array([[1.0, 1.0, 1.0, 4.0],
+                      [2.1, 2.1, 2.1, 1.0]])
+    groups = ["A", "A", "A", "B"]
+    assert np.allclose(criterion(table, range(4)), [1.75, 1.825])  # per recording A outvotes B 3:1
+    assert np.allclose(criterion(table, range(4), groups), [2.5, 1.55])  # one vote per data set
+    assert leave_one_out(table).chosen == 0
+    cv = leave_one_out(table, groups)
+    assert cv.chosen == 1
+    # holding out B's only recording leaves A alone to choose: point 0, which scores 4 on B
+    assert cv.folds[3] == (3, 0, 4.0)
+    # holding out one of A's, both data sets still vote: point 1
+    assert cv.folds[0] == (0, 1, 2.1)
+    with pytest.raises(ValueError, match="3 group labels for 4 recordings"):
+        leave_one_out(table, groups[:3])

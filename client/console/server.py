@@ -16,15 +16,25 @@ HTTP API (JSON; errors are ``{"error": "..."}`` with a 4xx status naming what is
 ``GET /api/track/{id}`` a responder's smoothed track from the service's ``.../track`` queryable
 ``GET /api/tracks``     every responder's track (one wildcard query), for the review slider
 ``GET /api/state``      what the console holds now (poses, statuses, trails, reject counts)
-``POST /api/fix``       ``{responder, x, y, floor}`` or ``{responder, name}`` [``sigma``]: publish a
-                        checkpoint :class:`service.protocol.wire.Fix` stamped with the responder's latest
-                        device time, ``operator="console"``
+``GET /api/session``    who is logged in here (``user``, ``role``) and whether a login is needed
+``POST /api/login``     ``{user, password}`` or ``{certificate: true}`` (HTTPS with a client
+                        certificate): a session cookie; 401 when wrong, 429 after repeated failures
+``POST /api/logout``    ends the session
+``POST /api/fix``       ``{responder, x, y, floor}`` or ``{responder, name}`` [``sigma``]: a checkpoint
+                        :class:`service.protocol.wire.Fix` stamped with the responder's latest device
+                        time, published as an operator action (``.../{actor}/op``) naming the operator
 ``POST /api/checkpoint``  ``{name, x, y, floor}`` [``sigma_m``, ``note``]: add a named checkpoint
+``POST /api/ack``       ``{responder, alarm}``: an alarm acknowledged (recorded by the service)
 ======================  =========================================================================
 
-POST bodies must be ``application/json``: a page of another site cannot send that type
-without a CORS preflight, which this server never grants, so it cannot place fixes through
-an officer's browser.
+Security (:mod:`client.console.auth`): every request's ``Host`` must be one of the console's
+own addresses and a POST's or WebSocket's ``Origin`` one of its origins (403 otherwise); with
+a roster every API call and the live feed need a login (401), and only operators act
+(viewers get 403). POST bodies must be ``application/json`` too. Operator actions go to the
+service as :class:`service.protocol.wire.OperatorAction` on ``firetrack/{incident}/{actor}/op``
+(``actor``: this console's certificate name), which the service records and answers with an
+:class:`service.protocol.wire.Audit` (shown as a notice, and as a flag on the responder when
+the fix was an implausible jump).
 """
 from __future__ import annotations
 
@@ -42,6 +52,14 @@ import numpy as np
 import zenoh
 from aiohttp import WSMsgType, web
 
+from client.console.auth import (
+    SESSION_COOKIE,
+    Logins,
+    SiteError,
+    SitePolicy,
+    is_loopback,
+    server_ssl_context,
+)
 from client.console.live import LiveBoard
 from client.console.plans import grid_matrix, plan_png, plan_problem, served_plan
 from pdr.events import bearing_deg
@@ -64,6 +82,9 @@ CLIENT_BACKLOG = 20  # messages queued for a slow page before they are replaced 
 START_TIMEOUT_S = 10.0
 STOP_TIMEOUT_S = 5.0
 POST_MAX_BYTES = 64 * 1024
+SESSION_KEY = web.RequestKey("session", object) if hasattr(web, "RequestKey") else "session"  # aiohttp >= 3.12 wants typed keys
+AUDITS_KEPT = 200  # recent audits (operator actions, flags) a page gets in its snapshot
+PUBLIC_PATHS = ("/", "/api/session", "/api/login", "/api/logout")  # besides /static/: what a logged-out page may load
 
 
 class ConsoleError(RuntimeError):
@@ -140,8 +161,15 @@ class ConsoleServer:
 
     def __init__(self, session: zenoh.Session, cfg: IncidentConfig, host: str, port: int,
                  batch_period_s: float = BATCH_PERIOD_S, lost_contact_s: float = LOST_CONTACT_S,
-                 static_dir: Path = STATIC_DIR):
+                 static_dir: Path = STATIC_DIR, actor: str = "console", logins: Logins | None = None,
+                 tls=None, https: bool = False, origins: list[str] | None = None):
         self.session = session
+        self.actor = actor
+        self.logins = logins or Logins(None)
+        self.tls, self.https, self.origins = tls, https, origins
+        self.site: SitePolicy | None = None
+        self.audits: list[dict] = []
+        self.flags: dict[str, dict] = {}  # responder -> its latest flagged fix (audit)
         self.cfg = cfg
         self.host = host
         self.port = port
@@ -151,6 +179,7 @@ class ConsoleServer:
         self.board = LiveBoard()
         self.pages: set[_Page] = set()
         self.fixes_sent = 0
+        self.commands_sent = 0
         self.added_checkpoints: set[str] = set()
         self._subs: list = []
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -171,16 +200,22 @@ class ConsoleServer:
             why = {errno.EADDRINUSE: "the port is in use by another program (choose another with --port)",
                    errno.EACCES: "permission denied (ports below 1024 need privileges)",
                    errno.EADDRNOTAVAIL: f"{self.host} is not an address of this machine"}.get(e.errno, str(e))
-            raise ConsoleError(f"cannot serve the console on http://{self.host}:{self.port}/: {why}") from None
+            raise ConsoleError(f"cannot serve the console on {self._scheme}://{self.host}:{self.port}/: {why}") from None
+        except SiteError as e:
+            self._stop_loop()
+            raise ConsoleError(str(e)) from None
         except BaseException:
             self._stop_loop()
             raise
         iid = self.cfg.id
+        self.logins.on_revoked = self._revoked_from_thread
         try:
             for kind in ("pose", "status"):
                 self._subs.append(self.session.declare_subscriber(
                     wire.key_all(iid, kind),
                     lambda s, kind=kind: self.board.on_sample(kind, str(s.key_expr), s.payload.to_bytes())))
+            self._subs.append(self.session.declare_subscriber(
+                wire.key_all(iid, "audit"), lambda s: self._on_audit(s.payload.to_bytes())))
         except Exception as e:  # a closed session: stop the server again, say why
             self.close()
             raise ConsoleError(f"cannot subscribe to the poses of incident {iid!r}: {e}") from None
@@ -188,8 +223,14 @@ class ConsoleServer:
         return self
 
     @property
+    def _scheme(self) -> str:
+        return "https" if self.https else "http"
+
+    @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}/"
+        if self.site is not None:
+            return self.site.primary + "/"
+        return f"{self._scheme}://{self.host}:{self.port}/"
 
     def _run_loop(self) -> None:
         asyncio.set_event_loop(self._loop)
@@ -205,7 +246,7 @@ class ConsoleServer:
             self._thread.join(STOP_TIMEOUT_S)
 
     async def _serve(self) -> None:
-        app = web.Application(client_max_size=POST_MAX_BYTES)
+        app = web.Application(client_max_size=POST_MAX_BYTES, middlewares=[self._guard])
         r = app.router
         r.add_get("/", self._index)
         r.add_static("/static/", self.static_dir, show_index=False)
@@ -215,11 +256,17 @@ class ConsoleServer:
         r.add_get("/api/tracks", self._tracks)
         r.add_get("/api/track/{responder}", self._track)
         r.add_get(r"/plan/{floor:-?\d+}.png", self._plan)
+        r.add_get("/api/session", self._session_info)
+        r.add_post("/api/login", self._login)
+        r.add_post("/api/logout", self._logout)
         r.add_post("/api/fix", self._fix)
         r.add_post("/api/checkpoint", self._checkpoint)
+        r.add_post("/api/command", self._command)
+        r.add_post("/api/ack", self._ack)
         runner = web.AppRunner(app, access_log=None, shutdown_timeout=1.0)
         await runner.setup()
-        site = web.TCPSite(runner, self.host, self.port)
+        ssl_ctx = server_ssl_context(self.tls, request_client_cert=not self.logins.open) if self.https else None
+        site = web.TCPSite(runner, self.host, self.port, ssl_context=ssl_ctx)
         try:
             await site.start()
         except BaseException:
@@ -227,6 +274,11 @@ class ConsoleServer:
             raise
         self._runner = runner
         self.port = int(runner.addresses[0][1])  # the real one when port 0 asked for any free port
+        try:
+            self.site = SitePolicy.for_server(self.host, self.port, self.https, self.origins)
+        except SiteError:
+            await runner.cleanup()
+            raise
         self._broadcaster = asyncio.get_running_loop().create_task(self._broadcast())
 
     def close(self) -> None:
@@ -246,6 +298,7 @@ class ConsoleServer:
             except Exception as e:  # shutting down: say so, go on stopping the loop
                 log.warning("console shutdown: %s", e)
         self._stop_loop()
+        self.logins.close()
 
     async def _shutdown(self) -> None:
         if self._broadcaster is not None:
@@ -266,7 +319,27 @@ class ConsoleServer:
 
     # ------------------------------------------------------------------ live updates
     def _snapshot_text(self) -> str:
-        return json.dumps({"type": "snapshot", "now": time.time(), **self.board.snapshot()})
+        return json.dumps({"type": "snapshot", "now": time.time(), **self.board.snapshot(),
+                           "flags": self.flags, "audits": self.audits[-20:]})
+
+    def _on_audit(self, payload: bytes) -> None:
+        """The service's verdict on an action (or a flagged checkpoint fix): to every page,
+        from zenoh's thread to the console's loop."""
+        try:
+            a = wire.decode(payload, expect=wire.Audit)
+        except wire.WireError as e:
+            log.warning("console: an audit message not understood: %s", e)
+            return
+        d = {k: v for k, v in a.model_dump().items() if v is not None}
+        if self._loop is not None and self._loop.is_running():
+            self._loop.call_soon_threadsafe(self._take_audit, d)
+
+    def _take_audit(self, d: dict) -> None:
+        self.audits.append(d)
+        del self.audits[:-AUDITS_KEPT]
+        if "implausible_jump" in d.get("flags", []) and d.get("responder"):
+            self.flags[d["responder"]] = d
+        self._send_all({"type": "audit", "now": time.time(), "audit": d})
 
     def _send_all(self, message: dict) -> None:
         text = json.dumps(message)
@@ -283,12 +356,10 @@ class ConsoleServer:
                 self._send_all({"type": "update", "now": time.time(), **changes})
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
-        origin = request.headers.get("Origin")
-        if origin is not None and origin.split("://", 1)[-1] != request.host:
-            # browsers let any site open a WebSocket to this machine; only the console's own page may listen
-            return _error(403, f"WebSocket from {origin} refused: open the console at http://{request.host}/")
+        # browsers let any site open a WebSocket to this machine: the guard checked Host, Origin and the session
         ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=POST_MAX_BYTES)
         await ws.prepare(request)
+        request[SESSION_KEY].sockets.add(ws)
         page = _Page(ws)
         page.push(self._snapshot_text())
         self.pages.add(page)
@@ -299,8 +370,94 @@ class ConsoleServer:
                     break
         finally:
             self.pages.discard(page)
+            request[SESSION_KEY].sockets.discard(ws)
             sender.cancel()
         return ws
+
+    def _revoked_from_thread(self, sessions) -> None:
+        loop = self._loop
+        if loop is not None and loop.is_running() and not self._closed:
+            loop.call_soon_threadsafe(self._close_sockets, sessions)
+
+    def _close_sockets(self, sessions) -> None:
+        """Sessions ended by a revocation: their live feeds close at once."""
+        for s in sessions:
+            for ws in list(s.sockets):
+                asyncio.get_running_loop().create_task(ws.close(code=4401, message=b"session ended: revoked"))
+
+    # ------------------------------------------------------------------ the guard: Host, Origin, session
+    @web.middleware
+    async def _guard(self, request: web.Request, handler):
+        site = self.site
+        if site is None:
+            return _error(503, "the console is starting")
+        problem = site.host_problem(request.headers.get("Host"))
+        if problem is None and (request.method not in ("GET", "HEAD", "OPTIONS") or request.path == "/ws"):
+            problem = site.origin_problem(request.headers.get("Origin"))
+        if problem is not None:
+            log.warning("console: refused %s %s: %s", request.method, request.path, problem)
+            return _error(403, problem)
+        session = self.logins.session(request.cookies.get(SESSION_COOKIE))
+        request[SESSION_KEY] = session
+        if session is None and request.path not in PUBLIC_PATHS and not request.path.startswith("/static/"):
+            return _error(401, "log in first (POST /api/login)")
+        return await handler(request)
+
+    def _actor_session(self, request: web.Request):
+        """The session of an operator who may act, or :class:`_HttpError` 403 for a viewer."""
+        s = request[SESSION_KEY]
+        if not s.may_act:
+            raise _HttpError(403, f"{s.user} is a {s.role}: viewers cannot act (fix, checkpoint, acknowledge, PAR)")
+        return s
+
+    # ------------------------------------------------------------------ login
+    def _session_json(self, s) -> dict:
+        info = {"auth": "open" if self.logins.open else "required", "user": None, "role": None,
+                "incident": self.cfg.id, "https": self.https}
+        if s is not None:
+            info.update(user=s.user, role=s.role, via=s.via)
+        return info
+
+    async def _session_info(self, request: web.Request) -> web.Response:
+        info = self._session_json(request[SESSION_KEY])
+        cert = self._peer_certificate(request)
+        if cert is not None and info["user"] is None:
+            from service.protocol.pki import certificate_common_name
+
+            info["certificate"] = certificate_common_name(cert)
+        return web.json_response(info)
+
+    def _peer_certificate(self, request: web.Request) -> bytes | None:
+        sslobj = request.transport.get_extra_info("ssl_object") if request.transport is not None else None
+        return sslobj.getpeercert(binary_form=True) if sslobj is not None else None
+
+    async def _login(self, request: web.Request) -> web.Response:
+        if self.logins.open:
+            return web.json_response(self._session_json(request[SESSION_KEY]))
+        address = request.remote or "?"
+        if self.logins.throttled(address):
+            return _error(429, "too many failed logins from this address: wait a minute")
+        try:
+            body = await self._body(request)
+        except _HttpError as e:
+            return _error(e.status, e.args[0])
+        if body.get("certificate") is True:
+            s = self.logins.with_certificate(self._peer_certificate(request), address)
+            if s is None:
+                return _error(401, "no client certificate of an operator or viewer of this incident was presented")
+        else:
+            s = self.logins.with_password(body.get("user"), body.get("password"), address)
+            if s is None:
+                return _error(401, "wrong user or password")
+        resp = web.json_response(self._session_json(s))
+        resp.set_cookie(SESSION_COOKIE, s.token, httponly=True, samesite="Strict", secure=self.https, path="/")
+        return resp
+
+    async def _logout(self, request: web.Request) -> web.Response:
+        self.logins.logout(request.cookies.get(SESSION_COOKIE))
+        resp = web.json_response({"user": None})
+        resp.del_cookie(SESSION_COOKIE, path="/")
+        return resp
 
     # ------------------------------------------------------------------ pages and data
     async def _index(self, request: web.Request) -> web.FileResponse:
@@ -317,6 +474,7 @@ class ConsoleServer:
             "id": cfg.id, "name": cfg.name, "origin": cfg.origin.model_dump(), "start_floor": cfg.start_floor,
             "floors": [{"number": f.number, "name": f.name, "elevation_m": f.elevation_m} for f in cfg.floors],
             "checkpoints": self._checkpoints_json(), "plans": plans,
+            "roster": [m.model_dump() for m in cfg.roster],
             "settings": {"lost_contact_s": self.lost_contact_s, "batch_period_s": self.batch_period_s,
                          "trail_points": self.board.trail_points},
         }
@@ -330,7 +488,8 @@ class ConsoleServer:
 
     async def _state(self, request: web.Request) -> web.Response:
         snap = self.board.snapshot()
-        snap.update(pages=len(self.pages), fixes_sent=self.fixes_sent, received=dict(self.board.received))
+        snap.update(pages=len(self.pages), fixes_sent=self.fixes_sent, received=dict(self.board.received),
+                    flags=self.flags, audits=self.audits[-20:])
         return web.json_response(snap)
 
     async def _plan(self, request: web.Request) -> web.Response:
@@ -408,7 +567,7 @@ class ConsoleServer:
             raise _HttpError(400, f"the body must be a JSON object, got {type(body).__name__}")
         return body
 
-    def build_fix(self, body: dict) -> wire.Fix:
+    def build_fix(self, body: dict, operator: str = "console") -> wire.Fix:
         """A checkpoint Fix from a request body, or :class:`_HttpError` saying what is wrong."""
         rid = body.get("responder")
         if not isinstance(rid, str) or not wire.is_valid_id(rid):
@@ -431,10 +590,10 @@ class ConsoleServer:
             except UnknownCheckpointError as e:
                 raise _HttpError(404, str(e)) from None
             if cp.name not in self.added_checkpoints:  # the service's config file has it: it resolves the name
-                return wire.Fix.checkpoint(rid, t, name=cp.name, sigma=sigma, operator="console")
+                return wire.Fix.checkpoint(rid, t, name=cp.name, sigma=sigma, operator=operator)
             # added in this console: a service in another process may not know it, so send where it is
             return wire.Fix.checkpoint(rid, t, x=cp.x, y=cp.y, floor=cp.floor, sigma=sigma or cp.sigma_m,
-                                       operator="console")
+                                       operator=operator)
         x, y = _finite_number(body, "x"), _finite_number(body, "y")
         floor = _integer(body, "floor")
         if floor is None:
@@ -444,27 +603,95 @@ class ConsoleServer:
         numbers = [f.number for f in self.cfg.floors]
         if floor not in numbers:
             raise _HttpError(400, f"floor {floor} is not configured for incident {self.cfg.id!r}; floors: {numbers}")
-        return wire.Fix.checkpoint(rid, t, x=x, y=y, floor=floor, sigma=sigma, operator="console")
+        return wire.Fix.checkpoint(rid, t, x=x, y=y, floor=floor, sigma=sigma, operator=operator)
+
+    async def _publish_action(self, action: wire.OperatorAction) -> str:
+        """An operator action to the service, on this console's own key (its certificate's name)."""
+        key = wire.key(self.cfg.id, self.actor, "op")
+        payload = wire.encode(action)
+        await asyncio.get_running_loop().run_in_executor(
+            None, lambda: self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK))
+        log.info("console: %s by %s published on %s", action.action, action.operator, key)
+        return key
 
     async def _fix(self, request: web.Request) -> web.Response:
         try:
-            fix = self.build_fix(await self._body(request))
+            who = self._actor_session(request)
+            fix = self.build_fix(await self._body(request), operator=who.user)
         except _HttpError as e:
             return _error(e.status, e.args[0])
         except (ValueError, TypeError, RecursionError) as e:  # a field no check above foresaw (pydantic's are ValueErrors)
             return _error(400, f"the fix cannot be made from this body: {' '.join(str(e).split())[:300]}")
-        key = wire.key(self.cfg.id, fix.responder, "fix")
-        payload = wire.encode(fix)
-        await asyncio.get_running_loop().run_in_executor(
-            None, lambda: self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK))
+        key = await self._publish_action(wire.OperatorAction(
+            action="fix", operator=who.user, utc=time.time(), responder=fix.responder, fix=wire.encode(fix)))
         self.fixes_sent += 1
         sent = {k: v for k, v in fix.model_dump().items() if v is not None}
-        log.info("console: checkpoint fix for %s sent: %s", fix.responder, sent)
         self._send_all({"type": "fix", "now": time.time(), "fix": sent})
-        return web.json_response({"sent": sent, "key": key})
+        return web.json_response({"sent": sent, "key": key, "operator": who.user})
+
+    def _responder_field(self, body: dict) -> str:
+        rid = body.get("responder")
+        if not isinstance(rid, str) or not wire.is_valid_id(rid):
+            raise _HttpError(400, f"'responder' must be a responder id ([A-Za-z0-9_.-]{{1,64}}), got {rid!r}")
+        return rid
+
+    async def _ack(self, request: web.Request) -> web.Response:
+        try:
+            who = self._actor_session(request)
+            body = await self._body(request)
+            rid = self._responder_field(body)
+            alarm = body.get("alarm")
+            if not isinstance(alarm, str) or not 0 < len(alarm) <= 64:
+                raise _HttpError(400, f"'alarm' must be the alarm's kind (e.g. man_down), got {alarm!r}")
+        except _HttpError as e:
+            return _error(e.status, e.args[0])
+        key = await self._publish_action(wire.OperatorAction(action="ack", operator=who.user, utc=time.time(),
+                                                             responder=rid, alarm=alarm))
+        return web.json_response({"acknowledged": {"responder": rid, "alarm": alarm}, "operator": who.user, "key": key})
+
+    async def _command(self, request: web.Request) -> web.Response:
+        """A roll call (``{"action": "par"}``) or an evacuation order (``{"action": "evacuate"}``)
+        to every responder this console knows, or to ``"responders": [...]``; each wearable
+        acknowledges, and the service's Status says who has not. An operator's action: the
+        orders name the operator (``issued_by``), and the console publishes the action on its own
+        ``op`` key, the record of who issued it (the orders' keys name the responders only)."""
+        try:
+            who = self._actor_session(request)
+            body = await self._body(request)
+            action = body.get("action")
+            if action not in ("par", "evacuate"):
+                raise _HttpError(400, f"'action' must be 'par' (roll call) or 'evacuate', got {action!r}")
+            known = self.board.responders()
+            wanted = body.get("responders", known)
+            if not isinstance(wanted, list) or not all(isinstance(r, str) and wire.is_valid_id(r) for r in wanted):
+                raise _HttpError(400, "'responders' must be a list of responder ids")
+            if not wanted:
+                raise _HttpError(409, "no responder is known to this console yet")
+        except _HttpError as e:
+            return _error(e.status, e.args[0])
+        self.commands_sent += 1
+        now = time.time()
+        order_id = f"{action}-{int(now)}-{self.commands_sent}"
+        payloads = [(wire.key(self.cfg.id, rid, "command"),
+                     wire.encode(wire.Command(responder=rid, id=order_id, action=action, issued_at=now,
+                                              issued_by=who.user))) for rid in wanted]
+
+        def put_all():
+            for key, payload in payloads:
+                self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+
+        await asyncio.get_running_loop().run_in_executor(None, put_all)
+        await self._publish_action(wire.OperatorAction(action=action, operator=who.user, utc=now, order=order_id,
+                                                       responders=wanted))
+        log.info("console: %s %s by %s sent to %d responder(s)", action, order_id, who.user, len(wanted))
+        self._send_all({"type": "command", "now": now, "command": {"id": order_id, "action": action,
+                                                                    "responders": wanted, "issued_at": now}})
+        return web.json_response({"id": order_id, "action": action, "responders": wanted, "issued_at": now,
+                                  "operator": who.user})
 
     async def _checkpoint(self, request: web.Request) -> web.Response:
         try:
+            who = self._actor_session(request)
             body = await self._body(request)
             name = body.get("name")
             if not isinstance(name, str) or not name.strip():
@@ -489,6 +716,8 @@ class ConsoleServer:
             return _error(e.status, e.args[0])
         self.added_checkpoints.add(cp.name)
         log.info("console: checkpoint %r added at (%.2f, %.2f) floor %d", cp.name, cp.x, cp.y, cp.floor)
+        await self._publish_action(wire.OperatorAction(action="checkpoint", operator=who.user, utc=time.time(),
+                                                       name=cp.name, x=cp.x, y=cp.y, floor=cp.floor, note=cp.note))
         self._send_all({"type": "checkpoints", "now": time.time(), "checkpoints": self._checkpoints_json()})
         return web.json_response({"checkpoint": next(c for c in self._checkpoints_json() if c["name"] == cp.name)},
                                  status=201)
@@ -527,13 +756,45 @@ class ConsoleHandle:
 
 
 def start_console(session: zenoh.Session, cfg: IncidentConfig, port: int = 8080, host: str = "127.0.0.1",
-                  batch_period_s: float = BATCH_PERIOD_S, lost_contact_s: float = LOST_CONTACT_S) -> ConsoleHandle:
-    """Serve the console of ``cfg``'s incident on ``http://host:port/`` (port 0: any free port),
-    fed by ``session``: one update message per page every ``batch_period_s``; the page raises
-    lost_contact for a responder not heard for ``lost_contact_s``. Raises :class:`ConsoleError`
-    when the port cannot be bound."""
+                  batch_period_s: float = BATCH_PERIOD_S, lost_contact_s: float = LOST_CONTACT_S, *,
+                  actor: str = "console", roster: Path | str | None = None, tls=None, https: bool | None = None,
+                  origins: list[str] | None = None) -> ConsoleHandle:
+    """Serve the console of ``cfg``'s incident on ``host:port`` (port 0: any free port), fed by
+    ``session``: one update message per page every ``batch_period_s``; the page raises
+    lost_contact for a responder not heard for ``lost_contact_s``.
+
+    Security (:mod:`client.console.auth`): ``actor`` is the identity operator actions are
+    published as (the console's certificate name); with ``roster`` operators and viewers log
+    in; ``tls`` (a :class:`service.protocol.tls.TlsIdentity`) serves the page over HTTPS, which
+    is the default, and required, beyond this machine (``https`` forces it on or off);
+    ``origins`` are the addresses the page is opened at (checked against Host and Origin).
+    Raises :class:`ConsoleError` when the port cannot be bound or the setup is not safe."""
     if not 0 <= int(port) <= 65535:
         raise ConsoleError(f"port {port} is not a TCP port (0-65535)")
     if not (batch_period_s > 0 and lost_contact_s > 0):
         raise ConsoleError(f"batch_period_s ({batch_period_s}) and lost_contact_s ({lost_contact_s}) must be positive")
-    return ConsoleHandle(ConsoleServer(session, cfg, host, int(port), batch_period_s, lost_contact_s).start())
+    if not wire.is_valid_id(actor):
+        raise ConsoleError(f"actor {actor!r} must be an id ([A-Za-z0-9_.-]{{1,64}})")
+    local = is_loopback(host)
+    if https is None:
+        https = not local
+    if https and tls is None:
+        raise ConsoleError("the console serves beyond this machine over HTTPS only: give it --tls (a console "
+                           "certificate whose --san names the address officers open)" if not local else
+                           "HTTPS needs --tls (the console's certificate)")
+    if not local and roster is None:
+        raise ConsoleError(f"--host {host} serves beyond this machine: that needs logins (--tls with the incident "
+                           "roster, whose operators and viewers log in)")
+    if not local and not https:
+        raise ConsoleError(f"--host {host} serves beyond this machine: that needs HTTPS (leave --no-https out)")
+    try:
+        logins = Logins(Path(roster) if roster is not None else None)
+    except ValueError as e:
+        raise ConsoleError(str(e)) from None
+    server = ConsoleServer(session, cfg, host, int(port), batch_period_s, lost_contact_s, actor=actor, logins=logins,
+                           tls=tls, https=https, origins=origins)
+    try:
+        return ConsoleHandle(server.start())
+    except BaseException:
+        logins.close()
+        raise

@@ -35,7 +35,10 @@ P_MAG_MIN_UNDISTURBED = 19
 P_MAG_MAX_REJECT = 20
 P_MAG_REJECT_FACTOR = 21
 P_BIAS_SIGMA_FORGET = 22
-N_PARAMS = 23
+P_ACC_RATE_FAST = 23
+P_ACC_TRUST_SIGMA = 24
+P_ACC_TRUST_NORM = 25
+N_PARAMS = 26
 
 # -- state vector ------------------------------------------------------------------------------
 S_STARTED = 0  # 0 before the first sample, 1 after
@@ -176,6 +179,9 @@ def decoupled_run(s, p, t, acc, gyr, mag, use_mag, turn, out):  # pragma: no cov
     tau_acc = p[P_TAU_ACC]
     tau_rest = p[P_TAU_REST]
     rate_limit = p[P_ACC_RATE_MAX]
+    rate_fast = p[P_ACC_RATE_FAST]
+    trust_w = -0.5 / (p[P_ACC_TRUST_SIGMA] * p[P_ACC_TRUST_SIGMA])
+    trust_n = -0.5 / (p[P_ACC_TRUST_NORM] * p[P_ACC_TRUST_NORM])
     c_dt = -1.0
     c_acc = (0.0, 0.0, 0.0, 0.0, 0.0)
     c_rest = (0.0, 0.0, 0.0, 0.0, 0.0)
@@ -287,6 +293,21 @@ def decoupled_run(s, p, t, acc, gyr, mag, use_mag, turn, out):  # pragma: no cov
                     qw, qx, qy, qz = _qmul(math.cos(0.5 * turn_angle), ey * sh, -ex * sh, 0.0, qw, qx, qy, qz)
                     qw, qx, qy, qz = _unit4(qw, qx, qy, qz)
                     s[S_QA], s[S_QA + 1], s[S_QA + 2], s[S_QA + 3] = qw, qx, qy, qz
+                if rate_fast > 0.0 and not starting and dt > 0.0:
+                    # fast path: towards this sample's specific force, by at most acc_rate_fast·w·dt;
+                    # the trust w falls with the innovation e = R(q_a) a_I − |ā_I| z and with | |a| − |ā_I| |
+                    g_ref = math.sqrt(s[S_ACC_LP] ** 2 + s[S_ACC_LP + 1] ** 2 + s[S_ACC_LP + 2] ** 2)
+                    ex, ey, ez = _rotate(qw, qx, qy, qz, aix, aiy, aiz)
+                    dz = ez - g_ref
+                    dn = an - g_ref
+                    w_trust = math.exp(trust_w * (ex * ex + ey * ey + dz * dz) + trust_n * dn * dn)
+                    hn = math.sqrt(ex * ex + ey * ey)
+                    if hn > 1e-12 * an:
+                        turn_angle = min(math.atan2(hn, ez), rate_fast * w_trust * dt)
+                        sh = math.sin(0.5 * turn_angle) / hn
+                        qw, qx, qy, qz = _qmul(math.cos(0.5 * turn_angle), ey * sh, -ex * sh, 0.0, qw, qx, qy, qz)
+                        qw, qx, qy, qz = _unit4(qw, qx, qy, qz)
+                        s[S_QA], s[S_QA + 1], s[S_QA + 2], s[S_QA + 3] = qw, qx, qy, qz
 
         # 6D orientation, body -> E6
         sw, sx, sy, sz = _qmul(s[S_QA], s[S_QA + 1], s[S_QA + 2], s[S_QA + 3], gw, gx, gy, gz)

@@ -3,8 +3,9 @@
 The structure follows D. Laidig, T. Seel, "VQF: Highly accurate IMU orientation estimation
 with bias estimation and magnetic disturbance rejection", Information Fusion 91 (2023)
 187-204 (doi:10.1016/j.inffus.2022.10.014), written here from the paper; the heading
-correction is a scalar Kalman filter of our own, and the accelerometer correction may be
-rate-limited. Quaternions are scalar first, Hamilton, body -> frame. Per sample, with
+correction is a scalar Kalman filter of our own, the accelerometer correction may be
+rate-limited, and a second, fast accelerometer correction acts while the accelerometer can
+be trusted. Quaternions are scalar first, Hamilton, body -> frame. Per sample, with
 ``dt`` the interval (clipped to ``[0, max_dt]``):
 
 1. **Strapdown** into an almost-inertial frame I (as in VQF)::
@@ -21,7 +22,24 @@ rate-limited. Quaternions are scalar first, Hamilton, body -> frame. Per sample,
    then tilt the estimate only that fast). The first ``tau_acc`` seconds use the running
    mean of ``a_I`` instead, turned onto z in full (no rate limit), so the start needs no
    settling; a filter given a start orientation ``q0`` instead starts the low-pass at
-   q0's vertical, so it keeps q0 and corrects it like any later error. The 6D orientation is ``q_6 = q_a ⊗ q_g``.
+   q0's vertical, so it keeps q0 and corrects it like any later error.
+
+   **Fast path** (ours; the constant-step accelerometer correction of FSCF, Justa, Šmídl,
+   Hamáček, Sensors 20(14):3824, 2020, eq. 33, applied only to a trusted sample). After the
+   step above, ``q_a`` is turned towards *this* sample's specific force ``e = R(q_a) a_I``
+   by ``min(∠(e, z), acc_rate_fast · w · dt)`` with the trust::
+
+       w = exp(−|e − g z|² / (2 σ_e²) − (|a| − g)² / (2 σ_n²)),   g = |ā_I|
+
+   (``ā_I`` the low-pass output, ``σ_e = acc_trust_sigma``, ``σ_n = acc_trust_norm``, m/s²):
+   a Gaussian weight on the innovation of the sample against the gravity the filter now
+   believes in. ``w`` is 1 while the sensor is not accelerating and the estimate is close,
+   and falls towards 0 under linear acceleration, tapping and vibration. Why: a gyroscope whose axes are misaligned with the
+   accelerometer's by an angle ε turns I by about ε·|ω| (Justa's recording: ε ≈ 3.5°, so
+   6°/s at 100°/s of rotation), faster than the low-pass (lag ≈ ``tau_acc``) and the rate
+   limit can follow; a constant step towards the trusted sample removes that drift, and a
+   constant step follows the median of noisy samples rather than their spread. The 6D
+   orientation is ``q_6 = q_a ⊗ q_g``.
 
 3. **Gyroscope bias at rest** (VQF's rest-phase bias estimation). Gyroscope and accelerometer are
    low-passed (``tau_rest``); the sensor is at rest when for ``rest_time`` seconds every
@@ -56,9 +74,11 @@ rate-limited. Quaternions are scalar first, Hamilton, body -> frame. Per sample,
 Output: ``q = R_z(δ) ⊗ q_a ⊗ q_g`` (body -> ENU), turned into the caller's frame.
 
 Every time setting is in seconds and every rate in rad/s, so one setting means the same at
-50 Hz and at 286 Hz. The defaults of the gains (``tau_acc``, ``acc_rate_max``, ``tau_mag``) were chosen on the 14 BROAD trials and Justa's Vicon recording by
-leave-one-recording-out cross-validation (``firetrack tune ahrs --cv``; figures in
-``docs/ahrs.md``); the rest, bias and disturbance settings take the values of VQF's published defaults.
+50 Hz and at 286 Hz. The defaults of the gains (``tau_acc``, ``acc_rate_max``, ``tau_mag``,
+``acc_rate_fast``, ``acc_trust_sigma``, ``acc_trust_norm``) were chosen on the 14 BROAD trials
+and Justa's Vicon recording, each data set (each IMU) one vote, by leave-one-recording-out
+cross-validation (``firetrack tune ahrs --cv --balance dataset``; figures in ``docs/ahrs.md``);
+the rest, bias and disturbance settings take the values of VQF's published defaults.
 """
 from __future__ import annotations
 
@@ -80,7 +100,10 @@ class DecoupledSettings(FilterSettings):
     # -- gains: chosen by cross-validation (see the module docstring) --
     tau_acc: float = 1.2  # s, time constant of the specific-force low-pass in I
     acc_rate_max: float = 0.03  # rad/s, limit on the inclination correction rate (0: none)
-    tau_mag: float = 20.0  # s, heading correction time constant
+    tau_mag: float = 25.0  # s, heading correction time constant
+    acc_rate_fast: float = 0.2  # rad/s, fast inclination correction towards a trusted specific force (0: off)
+    acc_trust_sigma: float = 1.0  # m/s², innovation |R(q_a) a_I − |ā_I| z| at which the fast step is weighted exp(−½)
+    acc_trust_norm: float = 1.0  # m/s², | |a| − |ā_I| | at which the fast step is weighted exp(−½) (inf: not used)
     # -- rest detection and bias (VQF defaults) --
     tau_rest: float = 0.5  # s, low-pass of the rest detector
     rest_gyr: float = math.radians(2.0)  # rad/s, largest gyroscope deviation at rest
@@ -174,12 +197,12 @@ class Decoupled(OrientationFilter):
 
 def _check(s: DecoupledSettings) -> None:
     """Settings that would divide by zero or run backwards get a clear error."""
-    positive = ("max_dt", "tau_acc", "tau_mag", "tau_rest", "rest_time", "bias_sigma_init", "bias_forget",
+    positive = ("max_dt", "tau_acc", "tau_mag", "acc_trust_sigma", "acc_trust_norm", "tau_rest", "rest_time", "bias_sigma_init", "bias_forget",
                 "bias_sigma_rest", "bias_sigma_forget", "mag_tau_current", "mag_tau_ref", "mag_norm_th", "mag_dip_th", "mag_reject_factor")
     for name in positive:
         if not getattr(s, name) > 0:
             raise ValueError(f"decoupled filter: {name} must be > 0, got {getattr(s, name)!r}")
-    for name in ("acc_rate_max", "rest_gyr", "rest_acc", "bias_clip",
+    for name in ("acc_rate_max", "acc_rate_fast", "rest_gyr", "rest_acc", "bias_clip",
                  "mag_first_time", "mag_new_time", "mag_new_min_gyr", "mag_min_undisturbed", "mag_max_reject"):
         if not getattr(s, name) >= 0:
             raise ValueError(f"decoupled filter: {name} must be >= 0, got {getattr(s, name)!r}")

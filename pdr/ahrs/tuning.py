@@ -93,7 +93,7 @@ def grid_points(grid: dict[str, list[float]]) -> list[dict[str, float]]:
 class CrossValidation:
     """Leave-one-out over the columns (recordings) of a score table (rows: grid points)."""
 
-    chosen: int  # row minimising the mean over every recording: the defaults to ship
+    chosen: int  # row minimising the criterion over every recording: the defaults to ship
     folds: list[tuple[int, int, float]]  # (held-out column, row chosen without it, its held-out score)
 
     @property
@@ -102,18 +102,42 @@ class CrossValidation:
         return sum(f[2] for f in self.folds) / len(self.folds)
 
 
-def leave_one_out(table) -> CrossValidation:
-    """For each recording j: the grid point with the lowest mean score over the others, scored on j.
+def criterion(table, columns, groups=None) -> np.ndarray:
+    """The selection criterion of every grid point over the recordings ``columns``.
 
-    ``table[i][j]`` is grid point i's score (lower is better) on recording j. Ties go to
-    the first point, so the result is deterministic.
+    Without ``groups``: the mean score over those recordings, each one vote. With
+    ``groups`` (one label per recording, e.g. its data set): the mean over groups of the
+    mean within each group, so every data set (every IMU) has one vote however many
+    recordings it holds:
+
+        J_i = (1/|G|) Σ_g (1/|C_g|) Σ_{j ∈ C_g} table[i, j]
+
+    where ``G`` are the groups present among ``columns`` and ``C_g`` their columns.
+    """
+    t = np.asarray(table, dtype=float)
+    cols = list(columns)
+    if groups is None:
+        return t[:, cols].mean(axis=1)
+    labels = [groups[j] for j in cols]
+    means = [t[:, [j for j, g in zip(cols, labels) if g == label]].mean(axis=1) for label in dict.fromkeys(labels)]
+    return np.mean(means, axis=0)
+
+
+def leave_one_out(table, groups=None) -> CrossValidation:
+    """For each recording j: the grid point with the lowest criterion over the others, scored on j.
+
+    ``table[i][j]`` is grid point i's score (lower is better) on recording j; ``groups``
+    (optional, one label per recording) balances the criterion by group (:func:`criterion`).
+    Ties go to the first point, so the result is deterministic.
     """
     t = np.asarray(table, dtype=float)
     if t.ndim != 2 or t.shape[0] == 0 or t.shape[1] < 2:
         raise ValueError(f"leave-one-out needs a points x recordings table with >= 2 recordings, got {t.shape}")
+    if groups is not None and len(groups) != t.shape[1]:
+        raise ValueError(f"{len(groups)} group labels for {t.shape[1]} recordings")
+    n = t.shape[1]
     folds = []
-    for j in range(t.shape[1]):
-        others = np.delete(t, j, axis=1).mean(axis=1)
-        i = int(np.argmin(others))
+    for j in range(n):
+        i = int(np.argmin(criterion(t, [k for k in range(n) if k != j], groups)))
         folds.append((j, i, float(t[i, j])))
-    return CrossValidation(int(np.argmin(t.mean(axis=1))), folds)
+    return CrossValidation(int(np.argmin(criterion(t, range(n), groups))), folds)

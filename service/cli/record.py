@@ -83,6 +83,7 @@ def record(
     fsync: bool = False,
     overwrite: bool = False,
     quiet: bool = False,
+    tls=None,
 ) -> dict:
     """Record every sample under ``firetrack/{incident}/**`` until ``duration`` s have passed,
     ``max_messages`` are recorded, ``stop_event`` is set or SIGINT/SIGTERM arrives; returns
@@ -105,7 +106,7 @@ def record(
 
     rejected: Counter[str] = Counter()
     started = time.monotonic()
-    session = open_client(connect)
+    session = open_client(connect, tls=tls)
     try:
         with IncidentRecorder(out, incident, chunk_size, flush_interval_s, fsync=fsync, overwrite=overwrite) as rec, \
                 _StopOnSignals(stop):
@@ -185,6 +186,7 @@ def replay(
     wait_for_subscribers_s: float = 2.0,
     quiet: bool = False,
     force: bool = False,
+    tls=None,
 ) -> dict:
     """Publish a recording's messages to a router with the recorded timing divided by ``speed``.
 
@@ -211,7 +213,7 @@ def replay(
     total = None if start is not None else sum(summary["keys"][k] for k in keys)
     stop = stop_event or threading.Event()
     counts: Counter[str] = Counter()
-    session = open_client(connect)
+    session = open_client(connect, tls=tls)
     try:
         if not force and any(k.endswith("/imu") for k in keys):  # frames: the service keeps their seqs
             target = incident or summary["incident"] or keys[0].split("/")[1]
@@ -298,18 +300,30 @@ def _wait_for_subscribers(publishers: dict, timeout: float, stop: threading.Even
 # ------------------------------------------------------------------------------------------
 # typer commands (registered by client/cli.py)
 # ------------------------------------------------------------------------------------------
+TLS_HELP = ("mutual TLS with this identity directory (a service certificate: the router lets it read and publish every "
+            "key of the incident); TLS only")
+
+
 def record_command(
-    connect: str = typer.Option(DEFAULT_CONNECT, "--connect", help="zenoh router endpoint"),
+    connect: str = typer.Option(None, "--connect", help=f"zenoh router endpoint (default {DEFAULT_CONNECT}, "
+                                                        "tls/127.0.0.1:7447 with --tls)"),
     incident: str = typer.Option(..., "--incident", help="incident name: records firetrack/{incident}/**"),
     out_file: Path = typer.Option(..., "--out", help="MCAP file to write (refuses to overwrite unless --overwrite)"),
     seconds: float = typer.Option(None, "--seconds", help="stop after this many seconds (default: until Ctrl-C)"),
     flush_interval: float = typer.Option(1.0, "--flush-interval", help="a crash loses at most this many seconds of messages"),
     fsync: bool = typer.Option(False, "--fsync", help="fsync each chunk (survives a power cut too)"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing file"),
+    tls: Path = typer.Option(None, "--tls", help=TLS_HELP),
 ):
     """Record every message of an incident into an MCAP file, as it was on the wire."""
+    from service.protocol.terminal import insecure, tls_or_exit
+
+    identity = tls_or_exit(tls, "service", what="record")
+    if identity is None:
+        insecure("firetrack record")
     try:
-        record(connect, incident, out_file, seconds, flush_interval_s=flush_interval, fsync=fsync, overwrite=overwrite)
+        record(connect, incident, out_file, seconds, flush_interval_s=flush_interval, fsync=fsync, overwrite=overwrite,
+               tls=identity)
     except (RecordingWriteError, ConnectionError, ValueError) as e:
         fail(str(e))
         raise typer.Exit(1)
@@ -321,14 +335,21 @@ def replay_command(
     from_s: float = typer.Option(None, "--from", help="skip this many seconds from the recording's start"),
     responder: list[str] = typer.Option(None, "--responder", help="only this responder; repeat for more"),
     kind: list[str] = typer.Option(None, "--kind", help="kinds to publish (default: imu, fix); repeat for more"),
-    connect: str = typer.Option(DEFAULT_CONNECT, "--connect", help="zenoh router endpoint"),
+    connect: str = typer.Option(None, "--connect", help=f"zenoh router endpoint (default {DEFAULT_CONNECT}, "
+                                                        "tls/127.0.0.1:7447 with --tls)"),
     as_incident: str = typer.Option(None, "--as-incident", help="publish under this incident name instead"),
     force: bool = typer.Option(False, "--force", help="replay even when the service already tracks these responders"),
+    tls: Path = typer.Option(None, "--tls", help=TLS_HELP),
 ):
-    """Publish a recording's inputs (imu, fix) back to a router with their recorded timing."""
+    """Publish a recording's inputs (imu, fix, operator actions) back to a router with their recorded timing."""
+    from service.protocol.terminal import insecure, tls_or_exit
+
+    identity = tls_or_exit(tls, "service", what="replay (it publishes as every recorded responder)")
+    if identity is None:
+        insecure("firetrack replay")
     try:
         replay(file, connect, speed, from_s, responder or None, tuple(kind) if kind else INPUT_KINDS,
-               incident=as_incident, force=force)
+               incident=as_incident, force=force, tls=identity)
     except (ConnectionError, ValueError, OSError) as e:
         fail(str(e))
         raise typer.Exit(1)

@@ -18,17 +18,21 @@ from pathlib import Path
 
 import typer
 
-from service.protocol.session import DEFAULT_ENDPOINT
+from service.protocol.session import DEFAULT_ENDPOINT, default_endpoint
 from service.protocol.terminal import (
     err,
     fail,
     incident_or_exit,
+    insecure,
     out,
     setup_logging,
     stop_on_signals,
+    tls_or_exit,
+    warn,
+    warn_plan_problems,
 )
 
-_console_starter: Callable | None = None  # (session, cfg, port) -> an object with close(); raises ValueError
+_console_starter: Callable | None = None  # (session, cfg, port, security) -> an object with close(); raises ValueError
 
 
 def set_console_starter(starter: Callable) -> None:
@@ -51,57 +55,60 @@ def serve_command(
     max_responders: int = typer.Option(1024, "--max-responders", help="responders kept at once; new ids beyond are refused"),
     admit_burst: float = typer.Option(256, "--admit-burst", help="new responder ids admitted at once ..."),
     admit_per_s: float = typer.Option(2.0, "--admit-per-s", help="... and per second after that"),
-    roster: Path = typer.Option(None, "--roster", help="a file of responder ids, one per line, always admitted"),
-    roster_only: bool = typer.Option(False, "--roster-only", help="admit the roster's ids only"),
+    roster_only: bool = typer.Option(False, "--roster-only", help="admit the roster's responders only (the incident "
+                                                                  "config's roster and, with --tls, the wearables of the "
+                                                                  "incident roster); they are always admitted"),
     expire_after: float = typer.Option(1800.0, "--expire-after", help="s of silence after which a responder leaves "
                                                                         "(its track stays in the recording)"),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log every responder, fix and reject"),
+    tls: Path = typer.Option(None, "--tls", help="mutual TLS with this service identity (firetrack certs issue "
+                                                 "--role service): TLS only, access control from the roster"),
+    roster: Path = typer.Option(None, "--roster", help="the incident roster (default: roster.json beside the --tls directory)"),
 ):
     """Run the service for one incident: one pipeline per responder, poses and status out."""
     setup_logging(verbose)
-    cfg = incident_or_exit(config, incident_id)
-    settings = _service_settings(max_responders, admit_burst, admit_per_s, roster, roster_only, expire_after)
+    identity = tls_or_exit(tls, "service", what="serve")
+    security = security_or_exit(identity, roster, incident_id, router=not connect)
+    cfg = incident_or_exit(config, incident_id or (security.roster.incident if security and security.roster else None))
+    warn_plan_problems(cfg)
+    settings = _service_settings(cfg, security, max_responders, admit_burst, admit_per_s, roster_only, expire_after)
     if workers < 1:
         fail(f"--workers must be at least 1, got {workers}")
         raise typer.Exit(2)
     if workers > 1 and record is not None:
         fail("--record records one process's inputs; with --workers > 1 run `firetrack record` beside the service")
         raise typer.Exit(2)
+    if security is None:
+        insecure("firetrack serve")
     stop = stop_on_signals()
-    with running_service(cfg, listen, connect, record, console, port, settings=settings, workers=workers) as (svc, where):
-        out.print(f"[bold]firetrack[/] serving incident [bold]{cfg.id}[/] ({cfg.name}) on {where}")
+    with running_service(cfg, listen, connect, record, console, port, settings=settings, workers=workers,
+                         security=security) as (svc, where):
+        out.print(f"[bold]firetrack[/] serving incident [bold]{cfg.id}[/] ({cfg.name}) on {where}"
+                  + (f" as {identity.name}, mutual TLS" if identity else ""))
         if console:
-            out.print(f"console: http://127.0.0.1:{port}/")
+            out.print(f"console: {svc.console_url or f'http://127.0.0.1:{port}/'}")
         stop.wait(None if math.isinf(seconds) else seconds)
     out.print(f"stopped; {len(svc.responders)} responder(s), {svc.frames_processed} frames processed")
 
 
-def _service_settings(max_responders, admit_burst, admit_per_s, roster, roster_only, expire_after):
-    """The service's settings from the command's isolation options (errors name the option)."""
+def _service_settings(cfg, security, max_responders, admit_burst, admit_per_s, roster_only, expire_after):
+    """The service's settings from the command's isolation options (errors name the option). The
+    intake's roster: the responders of the incident config's roster and, with ``--tls`` and an
+    incident roster, its wearable identities."""
     import dataclasses
 
     from service.core.intake import IntakeSettings
     from service.shell.service import ServiceSettings
 
-    ids = None
-    if roster is not None:
-        try:
-            ids = frozenset(line.strip() for line in roster.read_text().splitlines() if line.strip())
-        except OSError as e:
-            fail(f"--roster {roster}: {e.strerror or e}")
-            raise typer.Exit(2)
-        from service.protocol.keys import is_valid_id
-
-        bad = sorted(i for i in ids if not is_valid_id(i))
-        if bad:
-            fail(f"--roster {roster}: not responder ids: {', '.join(repr(b) for b in bad[:5])}")
-            raise typer.Exit(2)
-    elif roster_only:
-        fail("--roster-only needs --roster FILE")
+    ids = {m.id for m in cfg.roster}
+    if security is not None and security.roster is not None:
+        ids |= {name for name, ident in security.roster.identities.items() if ident.role == "wearable"}
+    if roster_only and not ids:
+        fail("--roster-only needs a roster: the incident config's (roster) or, with --tls, the incident roster's wearables")
         raise typer.Exit(2)
     try:
         intake = IntakeSettings(max_responders=max_responders, admit_burst=admit_burst, admit_per_s=admit_per_s,
-                                roster=ids, roster_only=roster_only)
+                                roster=frozenset(ids) or None, roster_only=roster_only)
     except ValueError as e:
         fail(str(e))
         raise typer.Exit(2)
@@ -114,22 +121,77 @@ def _service_settings(max_responders, admit_burst, admit_per_s, roster, roster_o
     return dataclasses.replace(base, core=core)
 
 
+class Security:
+    """What ``--tls`` sets up: the service's identity, the roster (None: no run-time policy)
+    and where it was read."""
+
+    def __init__(self, identity, roster=None, roster_path: Path | None = None):
+        self.identity, self.roster, self.roster_path = identity, roster, roster_path
+
+    def acl(self, incident: str) -> dict | None:
+        from service.protocol.access import access_control
+
+        return access_control(self.roster, incident) if self.roster is not None else None
+
+    def access(self):
+        from service.protocol.access import access_message
+
+        return access_message(self.roster, str(self.roster_path)) if self.roster is not None else None
+
+
+def security_or_exit(identity, roster_path: Path | None, incident: str | None, router: bool) -> Security | None:
+    """The identity with its roster, or one clear line and exit code 2. A service that is the
+    router needs the roster (its access control comes from it); joining a standalone router
+    (whose config carries the rules) it is optional: without it the service enforces no
+    revocations."""
+    if identity is None:
+        if roster_path is not None:
+            fail("--roster is read with --tls only")
+            raise typer.Exit(2)
+        return None
+    from service.protocol.access import RosterError, load_roster
+
+    path = roster_path or identity.roster_path()
+    if path is None:
+        if router:
+            fail(f"--tls {identity.dir}: the in-process router needs the incident roster for its access control "
+                 "(roster.json beside the identity directory, or --roster FILE)")
+            raise typer.Exit(2)
+        warn("no incident roster: the router's access control applies, but the service enforces no revocations")
+        return Security(identity)
+    try:
+        roster = load_roster(path)
+    except RosterError as e:
+        fail(str(e))
+        raise typer.Exit(2)
+    if incident and incident != roster.incident:
+        fail(f"--incident {incident!r}, but the roster {path} is for incident {roster.incident!r}: the router's rules "
+             "cover firetrack/{roster's incident}/** only")
+        raise typer.Exit(2)
+    return Security(identity, roster, Path(path))
+
+
 class running_service:
     """Context manager: session (router or client), service, optional recorder and console."""
 
     def __init__(self, cfg, listen=None, connect=None, record: Path | None = None, console: bool = False,
-                 port: int = 8080, settings=None, workers: int = 1):
+                 port: int = 8080, settings=None, workers: int = 1, security: Security | None = None):
         self.cfg, self.listen, self.connect, self.workers = cfg, listen, connect, workers
         self.record, self.console, self.port, self.settings = record, console, port, settings
+        self.security = security
         self._closers: list = []
 
     def __enter__(self):
         from service.protocol.session import open_session
+        from service.protocol.tls import TlsConfigError
         from service.shell.service import IncidentService
 
+        sec = self.security
+        tls = sec.identity if sec is not None else None
         try:
-            session = open_session(self.listen, self.connect)
-        except ConnectionError as e:
+            session = open_session(self.listen, self.connect, tls=tls,
+                                   acl=sec.acl(self.cfg.id) if sec is not None and not self.connect else None)
+        except (ConnectionError, TlsConfigError) as e:
             fail(str(e))
             raise typer.Exit(1)
         self._closers.append(session.close)
@@ -139,13 +201,18 @@ class running_service:
             recorder, core, state_file = self._recording()
             self._closers.append(lambda: recorder.__exit__(None, None, None))
         svc = IncidentService(session, self.cfg, self.settings, recorder=recorder, shard=(0, self.workers), core=core,
-                              state_file=state_file).start()
+                              state_file=state_file, access=sec.access() if sec is not None else None,
+                              actor=tls.name if tls is not None else "service").start()
         self._closers.append(svc.close)
+        svc.console_url = None
+        if sec is not None and sec.roster is not None:
+            self._closers.append(_watch_roster(sec, svc, router=not self.connect).close)
         if self.workers > 1:
             from service.shell.workers import WorkerPool
 
-            ep = (self.connect or self.listen or [DEFAULT_ENDPOINT])[0].replace("0.0.0.0", "127.0.0.1")
-            pool = WorkerPool(ep, self.cfg, self.workers)
+            ep = (self.connect or self.listen or [default_endpoint(tls)])[0].replace("0.0.0.0", "127.0.0.1")
+            pool = WorkerPool(ep, self.cfg, self.workers, tls_dir=str(tls.dir) if tls is not None else None,
+                              roster=str(sec.roster_path) if sec is not None and sec.roster_path else None)
             self._closers.append(pool.close)
             if not pool.wait_ready(60):
                 err.print("[yellow]warning:[/] not every worker process started within 60 s")
@@ -155,13 +222,14 @@ class running_service:
                 fail("the web console is not installed here (pip install 'firetrack[console]'), or run with --no-console")
                 raise typer.Exit(1)
             try:
-                handle = _console_starter(session, self.cfg, self.port)
+                handle = _console_starter(session, self.cfg, self.port, sec)
             except ValueError as e:  # the console's own errors (port in use, ...) are ValueErrors
                 self.__exit__(None, None, None)  # the service and session already opened
                 fail(str(e))
                 raise typer.Exit(1)
             self._closers.append(handle.close)
-        where = ", ".join(self.connect) if self.connect else ", ".join(self.listen or [DEFAULT_ENDPOINT])
+            svc.console_url = getattr(handle, "url", None)
+        where = ", ".join(self.connect) if self.connect else ", ".join(self.listen or [default_endpoint(tls)])
         self.service = svc
         return svc, where
 
@@ -196,9 +264,30 @@ class running_service:
         return recorder, core, StateFile(state_path(self.record), self.cfg.id, segment)
 
     def __exit__(self, *exc):
-        for close in reversed(self._closers):
+        closers, self._closers = self._closers, []
+        for close in reversed(closers):
             try:
                 close()
             except Exception as e:  # shutting down: report, go on closing the rest
                 err.print(f"[yellow]warning:[/] while shutting down: {e}")
         return False
+
+
+def _watch_roster(sec: Security, svc, router: bool):
+    """The roster re-read while the service runs: revocations reach the core at once; a name
+    the in-process router did not have at its start is named (its rules need a restart)."""
+    import logging
+
+    from service.protocol.access import RosterWatcher, access_message
+
+    log = logging.getLogger("firetrack.service")
+    known = set(sec.roster.identities)
+
+    def changed(roster) -> None:
+        svc.update_access(access_message(roster, str(sec.roster_path)))
+        new = sorted(set(roster.identities) - known)
+        if new and router:
+            log.warning("%s joined the roster after the router started: the router refuses them until it is "
+                        "restarted with the new roster (reserve names ahead: firetrack certs reserve)", ", ".join(new))
+
+    return RosterWatcher(sec.roster_path, changed, on_error=lambda m: log.error("roster: %s; the previous one stays", m))

@@ -6,8 +6,10 @@ Two modes for ``tune ahrs``:
   2022 §6.2), scored on the given recordings;
 * with ``--grid name=v1,v2,...`` (repeatable): every combination is scored on every
   recording; ``--cv`` adds leave-one-recording-out cross-validation (for each recording,
-  the combination chosen on the others is scored on it). This is how the shipped defaults
-  of the decoupled filter were chosen.
+  the combination chosen on the others is scored on it). ``--balance dataset`` gives each
+  data set (each IMU: BROAD's trials, Justa's Vicon recording) one vote in the choice
+  instead of each recording one vote. This is how the shipped defaults of the decoupled
+  filter were chosen.
 
 A recording's score is its metric: BROAD trials the total RMSE over the movement samples
 (filter started from its own estimate), other recordings the MAE (or RMSE) from the
@@ -23,7 +25,7 @@ import numpy as np
 import typer
 
 from pdr.ahrs import DEFAULT_FILTER, FILTERS, settings_with
-from pdr.ahrs.tuning import grid_points, leave_one_out, sliding_grid_search
+from pdr.ahrs.tuning import criterion, grid_points, leave_one_out, sliding_grid_search
 from pdr.evaluation.orientation import pooled, score_benchmark, score_orientation
 from service.cli.recordings import load_all
 from service.protocol.terminal import err, fail, out, parse_params, print_json, progress
@@ -73,6 +75,8 @@ def tune_ahrs(
     grid: list[str] = typer.Option(None, "--grid", "-g", help="grid values name=v1,v2,... (repeatable): grid mode"),
     cv: bool = typer.Option(False, "--cv", help="grid mode: leave-one-recording-out cross-validation"),
     cache: Path = typer.Option(None, "--cache", help="grid mode: JSON file of scores to reuse and extend"),
+    balance: str = typer.Option("recording", "--balance",
+                                help="grid mode: one vote per 'recording', or per 'dataset' (the recording's kind, e.g. broad)"),
     objective: str = typer.Option("mae", help="non-BROAD recordings: mae or rmse"),
     train: str = typer.Option(None, help="sliding mode: score only samples A:B while tuning (e.g. 0:2799)"),
     as_json: bool = typer.Option(False, "--json"),
@@ -94,11 +98,14 @@ def tune_ahrs(
     if cv and not grid_values:
         fail("--cv needs a --grid")
         raise typer.Exit(2)
+    if balance not in ("recording", "dataset"):
+        fail(f"--balance must be recording or dataset, got {balance!r}")
+        raise typer.Exit(2)
     recordings, _ = load_all(files)
     if not recordings:
         raise typer.Exit(2)
     if grid_values:
-        report = _grid_mode(recordings, filter_name, fixed, grid_values, cv, cache, objective)
+        report = _grid_mode(recordings, filter_name, fixed, grid_values, cv, cache, objective, balance)
         if as_json:
             print_json(report)
         else:
@@ -127,7 +134,7 @@ def tune_ahrs(
         out.print(f"train ({train or 'all'}) {objective} {result.value:.3f}°; whole recordings MAE {mae:.3f}°, RMSE {rmse:.3f}°")
 
 
-def _grid_mode(recordings, filter_name, fixed, grid_values, cv, cache, objective) -> dict:
+def _grid_mode(recordings, filter_name, fixed, grid_values, cv, cache, objective, balance="recording") -> dict:
     points = grid_points(grid_values)
     names = [Path(r.source).name for r in recordings]
     stored: dict = {}
@@ -143,20 +150,28 @@ def _grid_mode(recordings, filter_name, fixed, grid_values, cv, cache, objective
             table[i, j] = stored[key]
         if cache is not None and (i % 20 == 19 or i == len(points) - 1):
             cache.write_text(json.dumps(stored))
-    means = table.mean(axis=1)
+    groups = [r.kind for r in recordings] if balance == "dataset" else None
+    means = criterion(table, range(len(recordings)), groups)
     best = int(np.argmin(means))
+    kinds = sorted({r.kind for r in recordings})
     report = {
         "filter": filter_name, "fixed": fixed, "grid": grid_values, "recordings": names,
         "score": "BROAD: total RMSE over movement samples; others: " + objective.upper() + " from the reference start (deg)",
+        "balance": balance,
+        "criterion": "mean over recordings" if groups is None else "mean over data sets of the mean within each",
         "chosen": {"params": points[best], "mean_deg": float(means[best]),
+                   "per_dataset_deg": {k: float(np.mean([table[best, j] for j, r in enumerate(recordings) if r.kind == k]))
+                                       for k in kinds},
                    "per_recording_deg": dict(zip(names, table[best].tolist()))},
         "top": [{"params": points[i], "mean_deg": float(means[i])} for i in np.argsort(means)[:10]],
     }
     if cv:
-        result = leave_one_out(table)
+        result = leave_one_out(table, groups)
+        held = {k: float(np.mean([v for j, _, v in result.folds if recordings[j].kind == k])) for k in kinds}
         report["cross_validation"] = {
-            "scheme": "leave one recording out: the grid point with the lowest mean over the other recordings, "
+            "scheme": "leave one recording out: the grid point with the lowest criterion over the other recordings, "
                       "scored on the held-out one",
+            "held_out_mean_by_dataset_deg": held,
             "held_out_mean_deg": result.held_out_mean,
             "folds": [{"held_out": names[j], "params": points[i], "held_out_deg": v} for j, i, v in result.folds],
         }
@@ -165,12 +180,15 @@ def _grid_mode(recordings, filter_name, fixed, grid_values, cv, cache, objective
 
 def _print_grid(report: dict) -> None:
     c = report["chosen"]
-    out.print(f"[bold]{report['filter']}[/] chosen on all {len(report['recordings'])} recordings: {c['params']} "
-              f"mean {c['mean_deg']:.3f}°")
+    out.print(f"[bold]{report['filter']}[/] chosen on all {len(report['recordings'])} recordings ({report['criterion']}): "
+              f"{c['params']} criterion {c['mean_deg']:.3f}°")
+    for k, v in c["per_dataset_deg"].items():
+        out.print(f"  {k} mean: {v:.3f}°")
     for name, v in c["per_recording_deg"].items():
         out.print(f"  {name}: {v:.3f}°")
     if "cross_validation" in report:
         cvr = report["cross_validation"]
-        out.print(f"leave-one-recording-out: held-out mean {cvr['held_out_mean_deg']:.3f}°")
+        out.print(f"leave-one-recording-out: held-out mean {cvr['held_out_mean_deg']:.3f}°; by data set "
+                  + ", ".join(f"{k} {v:.3f}°" for k, v in cvr["held_out_mean_by_dataset_deg"].items()))
         for f in cvr["folds"]:
             out.print(f"  {f['held_out']}: {f['held_out_deg']:.3f}° with {f['params']}")

@@ -7,6 +7,8 @@
 ``disconnected``    the wearable's liveliness token is gone
 ``recording_failed`` the incident is no longer being recorded (disk full, ...)
 ``flooding``        the responder's key sent more than its budget (:mod:`service.core.intake`)
+``par_unanswered``  a roll call (PAR) unanswered after ``command_answer_s``
+``evacuation_unacknowledged`` an evacuation order unacknowledged after ``command_answer_s``
 ==================  ==========================================================================
 
 Man-down is judged on frames: a no-motion state whose stillness began before a gap in the
@@ -26,6 +28,7 @@ DISCONNECTED = "disconnected"
 RECORDING = "recording_failed"
 FLOODING = "flooding"
 NO_MOTION_AFTER_S = 30.0  # s of stillness that make no motion, when the motion model does not say (the PASS rule)
+UNANSWERED = {"par": "par_unanswered", "evacuate": "evacuation_unacknowledged"}
 
 
 def of_responder(r, now: float, settings, recording_failed: bool = False, flooding: bool = False) -> list[str]:
@@ -45,6 +48,9 @@ def of_responder(r, now: float, settings, recording_failed: bool = False, floodi
         out.append(RECORDING)
     if flooding:
         out.append(FLOODING)
+    for action, order in r.commands.items():
+        if order["acked_at"] is None and now - order["issued_at"] > settings.command_answer_s:
+            out.append(UNANSWERED[action])
     return out
 
 

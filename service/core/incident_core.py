@@ -6,7 +6,18 @@
         imu       firetrack/{incident}/{responder}/imu        decode ─► FrameGate ─► ResponderTracker ─► pose
         fix       firetrack/{incident}/{responder}/fix        decode ─► fix type: to the local frame ─┘
         presence  firetrack/{incident}/{responder}/presence   (b"1" connected, b"0" gone)
+        op        firetrack/{incident}/{actor}/op             an operator action ─► authorised? ─► fix ─► Audit
+        access    firetrack/{incident}/{service}/access       the access policy from now on (who may act, who is revoked)
     tick(now)                                                 held frames released, one Status per responder
+
+Who may do what (:mod:`service.protocol.access`). The router's access control decides which
+identity may publish on which key; the core decides what the router cannot: an operator
+action (``op``) is taken only from an identity the policy lets act, and nothing at all from a
+revoked identity (its frames, fixes, presence and actions are refused before any state is
+made for them). Every operator action is answered with an :class:`service.protocol.wire.Audit`
+on ``.../{actor}/audit``, which the shell publishes and records. A checkpoint fix that puts a
+responder further than a person can walk is taken but flagged
+(:mod:`service.core.plausibility`): in its Audit and in ``Status.fixes["flagged"]``.
 
 The core has no threads, sockets or clocks: time comes in with every message (``received``,
 the service's wall clock when the shell took it) and with every :meth:`IncidentCore.tick`.
@@ -57,6 +68,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -69,8 +81,9 @@ from service.core import alarms
 from service.core.fix_types import FixRejected, fix_type_of
 from service.core import snapshot as snapshots
 from service.core.gate import FrameGate
-from service.core.intake import Intake, IntakeSettings
+from service.core.intake import OPERATORS, Intake, IntakeSettings
 from service.core.rejectlog import RejectLog
+from service.core.plausibility import PlausibilitySettings, Reference, judge, semi_major
 from service.core.responder import Responder, continues, frame_of
 from service.core.tracker import (
     CheckpointFix,
@@ -84,7 +97,8 @@ from service.protocol.incident import IncidentConfig
 
 log = logging.getLogger("firetrack.service")
 
-INBOUND_KINDS = ("imu", "fix", "presence")
+INBOUND_KINDS = ("imu", "fix", "presence", "command", "ack", "op", "access")
+MAX_EARLY_ACKS = 8  # acknowledgements kept per responder while their order has not arrived
 
 
 class Inbound(NamedTuple):
@@ -115,6 +129,7 @@ class CoreSettings:
     log_rejects_per_window: int = 3  # full log lines per source and window; all are counted
     log_lines_per_window: int = 40  # full log lines per window over all sources (then summaries)
     max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
+    command_answer_s: float = 30.0  # s a roll call or evacuation order may go unanswered before it alarms
     fix_future_s: float = 2.0  # s: a fix this far ahead of the newest sample is from the future (a wrong clock)
     intake: IntakeSettings = field(default_factory=IntakeSettings)  # budgets and admission (service/core/intake.py)
     expire_after_s: float = 1800.0  # s of silence after which a responder leaves the core (its track stays recorded)
@@ -127,6 +142,7 @@ class CoreSettings:
     max_clock_lead_s: float = 60.0  # s a device clock may run ahead of the service's across a gap (beyond: a leap)
     idle_after_s: float = 2.0  # s without a message after which a responder's Status goes out less often ...
     idle_status_every_s: float = 5.0  # ... every this many s (and at once when its alarms change)
+    plausibility: PlausibilitySettings = field(default_factory=PlausibilitySettings)
 
 
 @dataclass
@@ -134,7 +150,7 @@ class CoreCounters:
     frames_processed: int = 0
     tracker_batches: int = 0  # tracker calls: frames_processed / tracker_batches frames each on average
     errors: int = 0  # exceptions caught while processing (logged a few times per window)
-    received: dict = field(default_factory=lambda: {"imu": 0, "fix": 0})  # payloads taken, good or bad
+    received: dict = field(default_factory=lambda: {"imu": 0, "fix": 0, "op": 0})  # payloads taken, good or bad
     expired: int = 0  # responders that left after their silence
 
 
@@ -160,6 +176,11 @@ class IncidentCore:
         self.reject_log = RejectLog(log, settings.rejected_window_s, settings.log_rejects_per_window,
                                     settings.log_lines_per_window)
         self._expiry_checked = -math.inf
+        self._early_rejects: dict[str, deque] = {}  # rejects at the intake of ids admitted but not made yet
+        self.access = wire.Access(enforce=False)  # until an access message says otherwise: the open demo
+        self._revoked: frozenset[str] = frozenset()
+        self._refused_logged: set[str] = set()
+        self.audits: int = 0
 
     # ------------------------------------------------------------------ inputs
     def feed_round(self, items: Iterable[Inbound]) -> list[Outbound]:
@@ -209,12 +230,20 @@ class IncidentCore:
         """May a message (of ``size`` bytes, on ``key``) enter? None, or the reason it may not
         (:data:`service.core.intake.INTAKE_REASONS`), counted and logged per source. The shell
         asks before copying, recording or feeding it (see :mod:`service.core.intake`)."""
-        reason, source = self.intake.admit(key, size, now, self.responders)
+        if kind == "op":  # an operator's action: its actor is no responder; operators share one budget
+            reason, source = self.intake.admit_shared(OPERATORS, size, now), OPERATORS
+        else:
+            reason, source = self.intake.admit(key, size, now, self.responders)
         if reason is not None:
             self.reject_log.note(source, reason, f"{kind} of {size} bytes on {key[:120]!r}", now)
             r = self.responders.get(source)
-            if r is not None and reason == "oversize":  # a bad message like any other: the burst alarm hears of it
-                r.rejects.append(now)
+            if reason == "oversize" and (r is not None or source in self.intake.sources):
+                # a bad message like any other: the burst alarm hears of it (an id admitted in the same
+                # round, whose Responder the round has not made yet, gets it when it is made)
+                if r is not None:
+                    r.rejects.append(now)
+                else:
+                    self._early_rejects.setdefault(source, deque(maxlen=64)).append(now)
                 self.intake.note_reject(source, now)
         return reason
 
@@ -224,6 +253,12 @@ class IncidentCore:
         motion, since = r.tracker.motion
         rejected = dict(r.gate.counts)
         tr = r.tracker
+        current = alarms.of_responder(r, now, self.settings, self.recording_failed,
+                                      flooding=self.intake.flooding(r.id, now))
+        for kind in [k for k in r.alarm_since if k not in current]:
+            del r.alarm_since[kind]
+        for kind in current:
+            r.alarm_since.setdefault(kind, now)
         for reasons in (r.fixes_rejected, tr.fix_rejects, {"unused": tr.fixes_unused}):
             for reason, n in reasons.items():
                 if n:
@@ -233,10 +268,11 @@ class IncidentCore:
         g = r.gate
         return wire.Status(
             responder=r.id, t=tr.device_time - r.t_offset, motion=motion.value, motion_since=since - r.t_offset,
-            alarms=alarms.of_responder(r, now, self.settings, self.recording_failed,
-                                       flooding=self.intake.flooding(r.id, now)),
-            rejected=rejected, frames=g.accepted, gaps=g.gaps, last_heard=heard, steps=tr.steps,
-            fixes={"applied": tr.fixes_applied, "queued": tr.fixes_queued}, utc_offset=r.utc_offset,
+            alarms=current, alarms_since={k: r.alarm_since[k] for k in current}, rejected=rejected,
+            frames=g.accepted, gaps=g.gaps, last_heard=heard, steps=tr.steps,
+            fixes={"applied": tr.fixes_applied, "queued": tr.fixes_queued,
+                   **({"flagged": r.fixes_flagged} if r.fixes_flagged else {})}, utc_offset=r.utc_offset,
+            last_fix=tr.last_fix, first_heard=r.first_heard, commands={a: dict(o) for a, o in r.commands.items()},
             lost=g.lost, gap_s=g.gap_s, streams=g.streams, device=g.device, boot=g.boot, seq=g.last_seq,
         )
 
@@ -284,6 +320,12 @@ class IncidentCore:
             self._on_fix(key, payload, now)
         elif kind == "presence":
             self._on_presence(key, payload)
+        elif kind in ("command", "ack"):
+            self._on_command(kind, key, payload, now)
+        elif kind == "op":
+            self._on_op(key, payload, now)
+        elif kind == "access":
+            self._on_access(payload)
         else:
             raise ValueError(f"unknown inbound kind {kind!r}; expected one of {INBOUND_KINDS}")
 
@@ -293,6 +335,9 @@ class IncidentCore:
         except ValueError as e:
             self.unattributed[reason_on_fail] = self.unattributed.get(reason_on_fail, 0) + 1
             self.reject_log.note("<bad key>", reason_on_fail, str(e), now)
+            return None
+        if rid in self._revoked:
+            self._refuse_revoked(rid, key)
             return None
         r = self.responders.get(rid)
         if r is None:
@@ -304,6 +349,7 @@ class IncidentCore:
         s = self.settings
         r = Responder(id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=self._tracker(rid),
                       first_heard=now, present=self._presence.pop(rid, None))
+        r.rejects.extend(self._early_rejects.pop(rid, ()))
         self.responders[rid] = r
         log.info("responder %s appeared", rid)
         return r
@@ -340,6 +386,9 @@ class IncidentCore:
             _, rid, _ = wire.parse_key(key)
         except ValueError:
             return
+        if rid in self._revoked:
+            self._refuse_revoked(rid, key)
+            return
         alive = payload == b"1"
         r = self.responders.get(rid)
         if r is not None:
@@ -349,6 +398,37 @@ class IncidentCore:
             while len(self._presence) > self.MAX_PRESENCE:
                 del self._presence[next(iter(self._presence))]
         log.info("wearable of %s %s", rid, "connected" if alive else "disconnected")
+
+    def _on_command(self, kind: str, key: str, payload: bytes, now: float) -> None:
+        """An order to a wearable (roll call, evacuation) or its acknowledgement: kept per
+        responder and action, so Status says who has not answered."""
+        try:
+            _, rid, _ = wire.parse_key(key)
+            if kind == "ack" and rid in self._revoked:
+                self._refuse_revoked(rid, key)
+                return
+            msg = wire.decode(payload, expect=wire.Command if kind == "command" else wire.Ack)
+        except (ValueError, wire.WireError) as e:
+            self.unattributed[f"{kind}_invalid"] = self.unattributed.get(f"{kind}_invalid", 0) + 1
+            log.warning("rejected a %s on %r: %s", kind, key, e)
+            return
+        r = self.responders.get(rid)
+        if r is None or msg.responder != rid:
+            self.unattributed[f"{kind}_unknown_responder"] = self.unattributed.get(f"{kind}_unknown_responder", 0) + 1
+            return
+        if kind == "command":  # an acknowledgement may have overtaken its order (other key, other path)
+            early = r.early_acks.pop((msg.action, msg.id), None)
+            r.commands[msg.action] = {"id": msg.id, "issued_at": msg.issued_at, "issued_by": msg.issued_by,
+                                      "acked_at": early}
+            log.info("%s: %s %s issued by %s", rid, msg.action, msg.id, msg.issued_by or "?")
+            return
+        order = r.commands.get(msg.action)
+        if order is not None and order["id"] == msg.id:
+            if order["acked_at"] is None:
+                order["acked_at"] = msg.at
+                log.info("%s acknowledged %s %s", rid, msg.action, msg.id)
+        elif len(r.early_acks) < MAX_EARLY_ACKS:
+            r.early_acks[(msg.action, msg.id)] = msg.at
 
     def _reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
         """A frame turned away before the gate saw it: counted there like the gate's own."""
@@ -492,6 +572,16 @@ class IncidentCore:
         if fix.responder != r.id:
             self._count_fix_reject(r, "schema", f"responder {fix.responder!r} in a fix on the key of {r.id!r}")
             return
+        outcome, reason, detail, verdict = self._take_fix(r, fix)
+        if verdict is not None and verdict.implausible:  # a device's checkpoint fix: taken, flagged, audited
+            self._audit(wire.Audit(actor=r.id, action="device_fix", outcome=outcome, responder=r.id, reason=reason,
+                                   detail=detail, flags=["implausible_jump"], jump_m=verdict.jump_m,
+                                   walkable_m=verdict.walkable_m, t=fix.t, received=now))
+
+    def _take_fix(self, r: Responder, fix: wire.Fix):
+        """A decoded fix for ``r`` to its tracker: ``(outcome, reason, detail, verdict)``,
+        outcome ``accepted`` or ``refused`` (reason and detail say why), ``verdict`` the
+        plausibility of a checkpoint fix (None for other sources)."""
         self._run_backlog(r)  # the frames that came before the fix go first (its time is judged against them)
         try:
             fix = self._on_device_clock(r, fix)
@@ -500,14 +590,110 @@ class IncidentCore:
                 domain = domain.at_height(self._tag_height(r))
         except FixRejected as e:
             self._count_fix_reject(r, e.reason, str(e))
-            return
+            return "refused", e.reason, str(e), None
         except ValueError as e:  # a domain fix that checks itself (service.fusion.fixes)
             self._count_fix_reject(r, "unknown_reference", str(e))
-            return
+            return "refused", "unknown_reference", str(e), None
+        verdict = None
+        if isinstance(domain, CheckpointFix):
+            verdict = self._plausibility(r, domain)
+            if verdict is not None and verdict.implausible:
+                r.fixes_flagged += 1
+                log.warning("%s: checkpoint fix %.0f m from the %s, at most %.0f m walkable: taken, flagged",
+                            r.id, verdict.jump_m, verdict.against.replace("_", " "), verdict.walkable_m)
+            r.last_checkpoint = Reference(domain.t, domain.x, domain.y, domain.sigma)
         pose = r.tracker.on_fix(domain)
         log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
         if pose is not None:
             self._answer_pose(r, pose)
+        return "accepted", None, None, verdict
+
+    def _plausibility(self, r: Responder, fix: CheckpointFix):
+        """The checkpoint fix against the last checkpoint and the current estimate
+        (:mod:`service.core.plausibility`); None for a responder not placed yet."""
+        refs = []
+        if r.last_checkpoint is not None:
+            refs.append(("last_fix", r.last_checkpoint))
+        live = r.tracker.live
+        if live is not None:
+            refs.append(("estimate", Reference(live.t, live.x, live.y, semi_major(live.cov))))
+        return judge(fix.t, fix.x, fix.y, fix.sigma, refs, self.settings.plausibility) if refs else None
+
+    # ------------------------------------------------------------------ who may do what
+    def _on_access(self, payload: bytes) -> None:
+        try:
+            acc = wire.decode(payload, expect=wire.Access)
+        except wire.WireError as e:  # the service's own message: a bug, loud
+            self.counters.errors += 1
+            log.error("access policy not understood, the previous one stays: %s", e)
+            return
+        first = self.access == wire.Access(enforce=False)
+        self.access = acc
+        self._revoked = frozenset(acc.revoked) if acc.enforce else frozenset()
+        self._refused_logged.clear()
+        log.log(logging.INFO if first else logging.WARNING, "access policy%s: %s",
+                f" from {acc.source}" if acc.source else "",
+                    (f"operators {', '.join(acc.operators) or 'none'}; revoked {', '.join(acc.revoked) or 'none'}")
+                    if acc.enforce else "open (nothing enforced)")
+
+    def _refuse_revoked(self, ident: str, key: str) -> None:
+        self.unattributed["revoked"] = self.unattributed.get("revoked", 0) + 1
+        if ident not in self._refused_logged:
+            self._refused_logged.add(ident)
+            log.warning("refused %s: %s is revoked", key, ident)
+
+    def _on_op(self, key: str, payload: bytes, now: float) -> None:
+        """An operator action: refused unless the actor may act (and is not revoked); a fix
+        goes to its responder's tracker; every action is answered with an Audit."""
+        try:
+            _, actor, _ = wire.parse_key(key)
+        except ValueError as e:
+            self.unattributed["bad_key"] = self.unattributed.get("bad_key", 0) + 1
+            log.warning("rejected an action on %r: %s", key, e)
+            return
+        try:
+            op = wire.decode(payload, expect=wire.OperatorAction)
+        except wire.WireError as e:
+            self.unattributed[f"op_{e.reason}"] = self.unattributed.get(f"op_{e.reason}", 0) + 1
+            log.warning("rejected an action of %s: %s", actor, e)
+            return
+        base = dict(actor=actor, operator=op.operator, action=op.action, responder=op.responder, utc=op.utc,
+                    received=now, order=op.order)
+        acc = self.access
+        if acc.enforce and (actor in self._revoked or actor not in acc.operators):
+            reason = "revoked" if actor in self._revoked else "unauthorised"
+            log.warning("refused a %s action of %s (%s): %s", op.action, actor, op.operator, reason)
+            self._audit(wire.Audit(outcome="refused", reason=reason,
+                                   detail=f"{actor} {'is revoked' if reason == 'revoked' else 'may not act as an operator'}",
+                                   **base))
+            return
+        if op.action != "fix":
+            log.info("%s (%s): %s %s", actor, op.operator, op.action, op.responder or op.name or op.order or "")
+            self._audit(wire.Audit(outcome="recorded", **base))
+            return
+        try:
+            fix = wire.decode(op.fix, expect=wire.Fix)
+        except wire.WireError as e:
+            self._audit(wire.Audit(outcome="refused", reason="schema", detail=e.detail[:500], **base))
+            return
+        r = self.responders.get(op.responder)
+        if fix.responder != op.responder or r is None or op.responder in self._revoked:
+            reason, detail = (("schema", f"the fix is for {fix.responder!r}, the action for {op.responder!r}")
+                              if fix.responder != op.responder else
+                              ("revoked", f"{op.responder} is revoked") if op.responder in self._revoked else
+                              ("unknown_responder", f"no frame of {op.responder!r} has been taken yet"))
+            self._audit(wire.Audit(outcome="refused", reason=reason, detail=detail, **base))
+            return
+        outcome, reason, detail, verdict = self._take_fix(r, fix)
+        flagged = verdict is not None and verdict.implausible
+        self._audit(wire.Audit(outcome=outcome, reason=reason, detail=detail, t=fix.t,
+                               flags=["implausible_jump"] if flagged else [],
+                               jump_m=verdict.jump_m if verdict is not None else None,
+                               walkable_m=verdict.walkable_m if verdict is not None else None, **base))
+
+    def _audit(self, a: wire.Audit) -> None:
+        self.audits += 1
+        self._out.append(Outbound(wire.key(self.id, a.actor, "audit"), a))
 
     def _on_device_clock(self, r: Responder, fix: wire.Fix) -> wire.Fix:
         """The fix with ``t`` on the responder's device clock, or :class:`FixRejected`: a UTC

@@ -2,7 +2,8 @@
 
 Every message is charged to a **source**: the responder id its key names
 (``firetrack/{incident}/{responder}/{kind}``); keys whose id is not a valid id are one source,
-``<bad key>``, and new ids refused by the admission budget another, ``<new ids>``. Each of these
+``<bad key>``, new ids refused by the admission budget another, ``<new ids>``, and operator
+actions (``.../{actor}/op``: an actor is not a responder) share ``<operators>``. Each of these
 checks is a few dictionary look-ups and a little arithmetic, so a flood costs microseconds per
 message however hostile its payloads are:
 
@@ -37,6 +38,7 @@ from service.protocol.schema import MAX_PAYLOAD_BYTES
 
 BAD_KEY = "<bad key>"
 NEW_IDS = "<new ids>"
+OPERATORS = "<operators>"
 INTAKE_REASONS = ("oversize", "not_admitted", "throttled", "bad_key")
 _ID_RE = re.compile(ID_PATTERN)
 
@@ -110,7 +112,7 @@ class Intake:
         s = self.settings
         self.sources: dict[str, SourceState] = {}
         self._admit: TokenBucket | None = None
-        self.pseudo = (BAD_KEY, NEW_IDS)  # sources of messages no responder can be charged with
+        self.pseudo = (BAD_KEY, NEW_IDS, OPERATORS)  # sources of messages no responder can be charged with
         self.admitted = 0  # new responder ids admitted, ever
         self.counts: dict[str, int] = {}  # intake reason -> messages refused, over all sources
         self._roster = s.roster or frozenset()
@@ -142,6 +144,20 @@ class Intake:
             src.last_throttled = now
             return self._drop(src, "throttled"), rid
         return None, rid
+
+    def admit_shared(self, source: str, size: int, now: float) -> str | None:
+        """A message charged to a pseudo-source (``<operators>``): its size and that source's
+        budget; no admission, no responder. None when it may go on, else the reason."""
+        src = self.sources.get(source)
+        if src is None:
+            src = self._source(source, now)
+        if size > self.settings.max_payload_bytes:
+            return self._drop(src, "oversize")
+        if not src.bucket.take(now):
+            src.throttled += 1
+            src.last_throttled = now
+            return self._drop(src, "throttled")
+        return None
 
     @property
     def responders(self) -> int:

@@ -39,6 +39,12 @@ class Responder:
     last_input: float = -math.inf  # service time of the newest message of any kind (expiry)
     last_status: float = -math.inf  # service time of the newest Status answered
     last_alarms: list = field(default_factory=list)  # the alarms it carried
+    alarm_since: dict = field(default_factory=dict)  # alarm -> the service time it began (as ticks saw it)
+    commands: dict = field(default_factory=dict)
+    early_acks: dict = field(default_factory=dict)  # (action, id) -> ack time, for an order not yet arrived  # action -> the newest order: id, issued_at, issued_by, acked_at
+    logged: deque = field(default_factory=lambda: deque(maxlen=64))
+    last_checkpoint: object | None = None  # service.core.plausibility.Reference of the last checkpoint fix taken
+    fixes_flagged: int = 0  # checkpoint fixes taken but flagged as implausible jumps
 
 
 def continues(prev: wire.ImuBatch, b: wire.ImuBatch) -> bool:

@@ -96,6 +96,7 @@ class ResponderTracker:
         self.fixes_rejected = 0  # refused by the estimator's gates ...
         self.fix_rejects: dict[str, int] = {}  # ... by the estimator's reason (gnss_gate, too_old, ...)
         self.fixes_unused = 0  # nothing to apply them to (see _apply_fix)
+        self.last_fix: dict | None = None  # the last fix applied: source and device time
         self._first_step_after_placement = True
         self._gap: tuple[float, float] | None = None  # (t_from, sigma_m) of a gap the next step crosses
 
@@ -268,6 +269,7 @@ class ResponderTracker:
         if isinstance(fix, CheckpointFix) and (self._placed_at is None or self._first_step_after_placement):
             self._place(fix)  # not walked from the last placement yet: this one is where the track starts
             self.fixes_applied += 1
+            self.last_fix = {"source": fix.source, "t": float(fix.t)}
             return None
         if isinstance(fix, CheckpointFix):
             if fix.floor is not None:
@@ -289,6 +291,7 @@ class ResponderTracker:
             self.fix_rejects[reason] = self.fix_rejects.get(reason, 0) + 1
             return None
         self.fixes_applied += 1
+        self.last_fix = {"source": getattr(fix, "source", type(fix).__name__), "t": float(fix.t)}
         self.live = self._published(outcome.pose, self.live.steps if self.live else 0)
         return self.live
 

@@ -7,7 +7,7 @@ import msgpack
 import numpy as np
 from pydantic import ValidationError
 
-from service.protocol import fixes  # noqa: F401  (registers the built-in fix sources before any decode)
+from service.protocol import actions, fixes  # noqa: F401  (register the fix sources and the action kinds before any decode)
 from service.protocol.keys import ID_PATTERN, KEY_ROOT
 from service.protocol.schema import (
     MAX_PAYLOAD_BYTES,
@@ -165,6 +165,11 @@ def json_schema() -> dict:
                 "track": "queryable of the service: a responder's track",
                 "presence": "liveliness token of a connected wearable",
                 "truth": "ground truth from a replayed recording or the simulator (for scoring)",
+                "command": "Command (par: roll call; evacuate), console/service -> wearable",
+                "ack": "Ack of a command, wearable -> service",
+                "op": "OperatorAction, console/operator -> service; the id chunk is the actor (its certificate)",
+                "audit": "Audit, service -> consoles: the verdict on an action or a flagged checkpoint fix",
+                "access": "Access, recorded by the service: the access policy in force from then on",
             },
         },
         "x-limits": {"max_payload_bytes": MAX_PAYLOAD_BYTES, "max_samples": MAX_SAMPLES,

@@ -114,6 +114,28 @@ class UwbAnchor(_Config):
     floor: int | None = Field(None, description="the floor it is mounted on (informative)")
 
 
+class Member(_Config):
+    """A responder expected at the incident: the roster that accountability (PAR) is counted
+    against. ``id`` is the responder id their wearable publishes under."""
+
+    id: str = Field(pattern=ID_PATTERN, description="the responder id of their wearable")
+    name: str | None = Field(None, description="how people call them")
+    team: str | None = Field(None, description="crew or company, e.g. 'Engine 1'")
+    role: str | None = Field(None, description="e.g. 'officer', 'nozzle', 'search', 'safety'")
+
+
+def _duplicates(field: str, attr: str, items: list) -> list[str]:
+    """``field[i].attr: 'x' is used twice (also field[j])`` for every repeated value."""
+    first: dict[str, int] = {}
+    out = []
+    for i, item in enumerate(items):
+        v = getattr(item, attr)
+        if v in first:
+            out.append(f"{field}[{i}].{attr}: {v!r} is used twice (also {field}[{first[v]}])")
+        first.setdefault(v, i)
+    return out
+
+
 class IncidentConfig(_Config):
     """Everything the service and console know about the place of an incident."""
 
@@ -129,6 +151,7 @@ class IncidentConfig(_Config):
     start_floor: int = 0
     checkpoints: list[Checkpoint] = Field(default_factory=list)
     uwb_anchors: list[UwbAnchor] = Field(default_factory=list)
+    roster: list[Member] = Field(default_factory=list, description="the responders expected, with team and role")
     uwb_tag_height_m: float = Field(1.2, ge=0.0, le=3.0, description="m, height of a responder's UWB tag above the "
                                                                        "floor (shoulder or helmet)")
     floor_plans: list[FloorPlan] = Field(default_factory=list)
@@ -146,19 +169,14 @@ class IncidentConfig(_Config):
         numbers = {f.number for f in self.floors}
         if self.start_floor not in numbers:
             problems.append(f"start_floor: floor {self.start_floor} is not configured; floors: {sorted(numbers)}")
-        seen: dict[str, int] = {}
+        problems += _duplicates("checkpoints", "name", self.checkpoints)
         for i, cp in enumerate(self.checkpoints):
-            if cp.name in seen:
-                problems.append(f"checkpoints[{i}].name: {cp.name!r} is used twice (also checkpoints[{seen[cp.name]}])")
-            seen.setdefault(cp.name, i)
             problems += [f"checkpoints[{i}].{p}" for p in self._resolve_checkpoint(cp)]
-        ids: dict[str, int] = {}
+        problems += _duplicates("uwb_anchors", "id", self.uwb_anchors)
         for i, a in enumerate(self.uwb_anchors):
-            if a.id in ids:
-                problems.append(f"uwb_anchors[{i}].id: {a.id!r} is used twice (also uwb_anchors[{ids[a.id]}])")
-            ids.setdefault(a.id, i)
             if a.floor is not None and a.floor not in numbers:
                 problems.append(f"uwb_anchors[{i}].floor: floor {a.floor} is not configured; floors: {sorted(numbers)}")
+        problems += _duplicates("roster", "id", self.roster)
         for i, plan in enumerate(self.floor_plans):
             problems += [f"floor_plans[{i}].{p}" for p in self._resolve_plan(plan)]
         if problems:

@@ -1,5 +1,12 @@
 """Key expressions: ``firetrack/{incident}/{responder}/{kind}``, the one place their rules live.
 
+The id chunk names a responder for ``imu``, ``fix``, ``pose``, ``status``, ``track``,
+``presence`` and ``truth``. For ``op`` (an operator action), ``audit`` (the service's verdict
+on one) and ``access`` (the access policy the service works under) it names the *actor*: the
+console, operator or service identity that published, which with TLS on is the common name
+of its certificate, bound to the key by the router's access control
+(:mod:`service.protocol.access`).
+
 Incident and responder ids match ``[A-Za-z0-9_.-]{1,64}``, so they never contain a
 key-expression separator or wildcard (``/``, ``*``, ``$``, ``#``, ``?``). The service, the
 recorder, the console and the wearables all build and parse keys here.
@@ -8,7 +15,9 @@ from __future__ import annotations
 
 import re
 
-KEY_KINDS = ("imu", "fix", "pose", "status", "track", "presence", "truth")
+KEY_KINDS = ("imu", "fix", "pose", "status", "track", "presence", "truth", "command", "ack", "op", "audit",
+             "access")
+ACTOR_KINDS = ("op", "audit", "access")  # kinds whose id chunk is the publishing identity, not a responder
 KEY_ROOT = "firetrack"
 ID_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"
 _ID_RE = re.compile(ID_PATTERN)

@@ -317,6 +317,8 @@ class Status(WireMessage):
         description="the motion state as of the newest frame (running, crawling, stairs: boot-mounted units)")
     motion_since: Finite = Field(description="s, device clock: when the motion state began")
     alarms: list[str] = Field(default_factory=list, description='e.g. "man_down", "lost_contact", "rejected_frames"')
+    alarms_since: dict[str, float] = Field(default_factory=dict, description="per alarm: s, Unix time UTC of the "
+                                                                             "service's clock when it began")
     rejected: dict[str, int] = Field(default_factory=dict, description="frames and fixes turned away, by reason "
                                                                        "(fixes as fix_<reason>)")
     frames: int = Field(0, ge=0, description="frames accepted")
@@ -333,9 +335,41 @@ class Status(WireMessage):
     boot: str | None = Field(None, max_length=64, description="boot id of the current stream (ImuBatch.boot)")
     seq: int | None = Field(None, ge=0, description="seq of the newest frame the service released from the current "
                                                     "stream: everything up to it is taken or counted in lost")
+    last_fix: dict | None = Field(None, description="the last fix applied: source, and t (device s) it was for")
+    first_heard: Finite | None = Field(None, description="s, Unix time UTC when the service first heard of the "
+                                                         "responder (time in the building counts from here)")
+    commands: dict[str, dict] = Field(default_factory=dict, description="per action (par, evacuate): the newest "
+                                      "order's id, when it was issued (UTC s) and when it was acknowledged (or null)")
 
 
-MESSAGE_TYPES: dict[str, type[WireMessage]] = {m.KIND: m for m in (ImuBatch, Fix, Pose, Status)}
+class Command(WireMessage):
+    """An order to one responder's wearable (console or service -> wearable, ``.../command``).
+
+    ``par``: a personnel accountability report, the roll call a commander starts; the
+    responder confirms (the wearable acknowledges with an :class:`Ack`). ``evacuate``: leave the
+    building now; the wearable alerts its wearer and acknowledges. The service receives the
+    orders too, and says in ``Status.commands`` who has not answered.
+    """
+
+    KIND: ClassVar[str] = "command"
+    responder: Id
+    id: str = Field(min_length=1, max_length=64, description="the order's id; the acknowledgement repeats it")
+    action: Literal["par", "evacuate"] = Field(description="par: roll call; evacuate: leave the building")
+    issued_at: Finite = Field(description="s, Unix time UTC when the order was issued")
+    issued_by: str | None = Field(None, max_length=128, description="who issued it (an operator's identity)")
+
+
+class Ack(WireMessage):
+    """A wearable's acknowledgement of a :class:`Command` (wearable -> service, ``.../ack``)."""
+
+    KIND: ClassVar[str] = "ack"
+    responder: Id
+    id: str = Field(min_length=1, max_length=64, description="the id of the order acknowledged")
+    action: Literal["par", "evacuate"]
+    at: Finite = Field(description="s, Unix time UTC when the wearer acknowledged")
+
+
+MESSAGE_TYPES: dict[str, type[WireMessage]] = {m.KIND: m for m in (ImuBatch, Fix, Pose, Status, Command, Ack)}
 
 
 def imu_batches_from_arrays(responder: str, device: str, t, acc, gyr, mag=None, pressure_t=None, pressure=None,

@@ -151,15 +151,54 @@ def incident_or_exit(config, incident_id: str | None = None):
     return cfg
 
 
-def client_or_exit(connect: str, wait_s: float = 0.0):
-    """A zenoh client session to ``connect`` (a router not up yet is waited for up to
-    ``wait_s``), or one clear line and exit code 1."""
+def client_or_exit(connect: str | None, wait_s: float = 0.0, tls=None):
+    """A zenoh client session to ``connect`` (default: the local router, over TLS with
+    ``tls``; a router not up yet is waited for up to ``wait_s``), or one clear line and exit
+    code 1."""
     import typer
 
     from service.protocol.session import open_client
+    from service.protocol.tls import TlsConfigError
 
     try:
-        return open_client(connect, wait_s, on_wait=warn)
-    except ConnectionError as e:
+        return open_client(connect, wait_s, on_wait=warn, tls=tls)
+    except (ConnectionError, TlsConfigError) as e:
         fail(str(e))
         raise typer.Exit(1)
+
+
+def tls_or_exit(directory, *roles: str, what: str):
+    """The identity in ``--tls DIR`` (None without the option) whose role may do ``what``; one
+    clear line and exit code 2 when it cannot be used."""
+    if directory is None:
+        return None
+    import typer
+
+    from service.protocol.tls import TlsConfigError, TlsIdentity
+
+    try:
+        return TlsIdentity.load(directory).require_role(*roles, what=what)
+    except TlsConfigError as e:
+        fail(str(e))
+        raise typer.Exit(2)
+
+
+def insecure(what: str) -> None:
+    """Say, every time, that this runs without TLS or access control."""
+    warn(f"INSECURE: {what} runs without TLS and without access control: any program that reaches its endpoint "
+         "can read every position and forge frames, fixes and poses. Fine on one laptop for a demo; at an "
+         "incident use --tls (README, Security)")
+
+
+def warn_plan_problems(cfg) -> None:
+    """Say at start-up which floor plans cannot be shown (an image not found next to a config
+    that was copied elsewhere, say); relative image paths are resolved against the config's
+    own folder."""
+    for plan in cfg.floor_plans:
+        if plan.available and plan.georeferenced:
+            continue
+        instead = cfg.floor_plan(plan.floor, fallback=True)
+        shown = (f"the console shows floor {instead.floor}'s plan instead" if instead is not None and instead.available
+                 and instead.georeferenced else "the console draws a grid instead")
+        warn(f"floor plan of floor {plan.floor}: {plan.problem or 'no usable georeference'} (image paths are "
+             f"relative to the config's folder); {shown}")

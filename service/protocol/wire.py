@@ -11,7 +11,8 @@ A message is ONE msgpack map keyed by field name, plus two envelope keys:
   ignore (a new optional field) keep the version; readers ignore keys they do not know. A
   change that breaks readers bumps it, and a reader rejects versions newer than its own
   (reason ``"version"``).
-* ``"kind"``: ``"imu"``, ``"fix"``, ``"pose"`` or ``"status"``.
+* ``"kind"``: ``"imu"``, ``"fix"``, ``"pose"``, ``"status"``, or ``"op"``, ``"audit"``,
+  ``"access"`` (who did what: :mod:`service.protocol.actions`).
 
 Optional fields that are ``None`` are left out of the map; a reader treats an absent key and
 ``nil`` alike. Sample arrays travel as msgpack ``bin``: packed little-endian IEEE-754 float64,
@@ -36,11 +37,12 @@ Key expressions
 ``imu``, ``fix`` (wearable/operator -> service), ``pose``, ``status`` (service -> console),
 ``track`` (the service's queryable of a responder's track), ``presence`` (liveliness token of a
 connected wearable) and ``truth`` (ground truth from a replayed recording or the simulator,
-for scoring). Incident and responder ids match ``[A-Za-z0-9_.-]{1,64}``, so they never contain
+for scoring); ``op``, ``audit`` and ``access`` carry the actor's id instead of a responder's. Incident and responder ids match ``[A-Za-z0-9_.-]{1,64}``, so they never contain
 a key-expression separator or wildcard (``/``, ``*``, ``$``, ``#``, ``?``).
 """
 from __future__ import annotations
 
+from service.protocol.actions import ACTIONS, Access, Audit, OperatorAction  # noqa: F401
 from service.protocol.codec import (  # noqa: F401
     TRACK_FIELDS,
     decode,
@@ -59,6 +61,7 @@ from service.protocol.fixes import (  # noqa: F401
 )
 from service.protocol.keys import (  # noqa: F401
     ID_PATTERN,
+    ACTOR_KINDS,
     KEY_KINDS,
     KEY_ROOT,
     is_valid_id,
@@ -76,6 +79,8 @@ from service.protocol.schema import (  # noqa: F401
     MIN_RATE_HZ,
     REJECT_REASONS,
     SCHEMA_VERSION,
+    Ack,
+    Command,
     Fix,
     ImuBatch,
     Pose,

@@ -70,7 +70,7 @@ from service.review.recording_reader import (  # noqa: F401  (read back where it
     segment_paths,
 )
 
-INPUT_KINDS = ("imu", "fix")  # what a wearable or an operator publishes: what a replay feeds back
+INPUT_KINDS = ("imu", "fix", "command", "ack", "op")  # what wearables, anchors, operators and consoles publish: a replay feeds it back
 
 
 class RecordingWriteError(OSError):

@@ -101,6 +101,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
                              "unmatched_live_poses": r.unmatched}
                        for rid, r in sorted(out.items())},
         "max_deviation_m": worst,
+        "audits": [o.message.model_dump() for o in published if isinstance(o.message, wire.Audit)],  # who did what
         "inputs": n_inputs,
         "errors": core.counters.errors,
         "cpu_s": cpu,

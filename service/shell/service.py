@@ -6,7 +6,11 @@ this shell only moves messages between zenoh and the core, and stamps the time::
     firetrack/{incident}/*/imu       FIFO channel ─┐  (advanced subscribers: a wearable's kept frames
     firetrack/{incident}/*/fix       FIFO channel ─┤   are fetched on detection and after a miss)
     firetrack/{incident}/*/presence  liveliness ───┤  worker thread: intake ─► record ─► IncidentCore ─► .../pose
-    status timer (1 Hz) ── tick ───────────────────┘                                                  └► .../status
+    firetrack/{incident}/*/command   callback ─────┤                                                  ├► .../status
+    firetrack/{incident}/*/ack       callback ─────┤                                                  └► .../audit
+    firetrack/{incident}/*/op        callback ─────┤
+    access policy (roster) ── inject ──────────────┤
+    status timer (1 Hz) ── tick ───────────────────┘
     firetrack/{incident}/*/track     queryable: the core's track of the responder
 
 Threads. Frames and fixes wait in zenoh's own FIFO channels until the worker takes them (no
@@ -39,6 +43,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+import msgpack
 import zenoh
 import zenoh.ext as zext
 
@@ -69,7 +74,7 @@ class IncidentService:
 
     def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
                  recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1), core: IncidentCore | None = None,
-                 state_file=None):
+                 state_file=None, access: wire.Access | None = None, actor: str = "service"):
         if session is None:
             raise ValueError("IncidentService needs an open zenoh session; offline, use service.core.IncidentCore")
         self.session = session
@@ -83,9 +88,11 @@ class IncidentService:
         self._snapshot_writer: threading.Thread | None = None  # writes (and fsyncs) the newest snapshot's bytes
         self.snapshots_skipped = 0  # snapshots not written because the previous one was still being written
         self._expired_seen = 0
+        self.queue_dropped = 0  # callbacks' messages dropped because the worker's queue was full
         self.incident = incident
         self.id = incident.id
         self.shard = shard  # (k, K): this worker serves the responders with in_shard(id, k, K)
+        self.actor = actor  # this service's identity (its certificate's name with --tls): the key of its access record
         self.recorder = recorder
         self.recorder_error: str | None = None
         self.clock = clock
@@ -101,6 +108,7 @@ class IncidentService:
         self._publishers: dict[str, object] = {}
         self._imu = None  # the frames' subscriber (a zenoh FIFO channel), once started
         self._fix = None  # the fixes' subscriber
+        self.access = access  # the policy fed to the core before any input (None: the open demo)
         self._looks = 0  # times the worker looked for input ...
         self._last_busy_look = 0  # ... and the last time it found some (wait_idle)
 
@@ -137,6 +145,8 @@ class IncidentService:
             w = warm_up(self.incident, self.settings.core)
             log.info("warmed up in %.2f s (a simulated responder: %d poses, %d fixes applied)",
                      w.seconds, w.poses, w.fixes_applied)
+        if self.access is not None:  # the policy is the core's (and the recording's) first input
+            self._run_round([Inbound("access", self._access_key(), wire.encode(self.access), self.clock())], 0)
         s = self.session
         st = self.settings
         self._imu = zext.declare_advanced_subscriber(
@@ -151,6 +161,9 @@ class IncidentService:
         self._decl += [
             self._imu.sample_miss_listener(self._on_miss),
             self._fix.sample_miss_listener(self._on_miss),
+            s.declare_subscriber(wire.key_all(self.id, "command"), self._enqueue),
+            s.declare_subscriber(wire.key_all(self.id, "ack"), self._enqueue),
+            s.declare_subscriber(wire.key_all(self.id, "op"), self._enqueue_op),
             s.declare_queryable(wire.key_all(self.id, "track"), self._on_track_query),
             s.liveliness().declare_subscriber(wire.key_all(self.id, "presence"), self._on_presence, history=True),
         ]
@@ -203,6 +216,46 @@ class IncidentService:
     # ------------------------------------------------------------------ zenoh callbacks
     def _mine(self, key: str) -> bool:
         return self.shard[1] == 1 or in_shard(key, *self.shard)
+
+    def _enqueue(self, sample: zenoh.Sample) -> None:
+        """Fixes, orders and acknowledgements: few, so they come by callback (kind from the key)."""
+        key = str(sample.key_expr)
+        if self._mine(key):
+            self._put_nowait((key.rsplit("/", 1)[-1], key, sample.payload.to_bytes()))
+
+    def _put_nowait(self, item) -> None:
+        """A callback's message to the worker's queue; a storm of them must not block zenoh's
+        threads (and everyone's frames behind them): beyond the queue's bound it is dropped,
+        counted and logged (the intake judges the rest when the worker takes them)."""
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            self.queue_dropped += 1
+            if self.queue_dropped in (1, 10, 100) or self.queue_dropped % 10_000 == 0:
+                log.warning("%d message(s) dropped (%s on %s): the worker's queue is full", self.queue_dropped,
+                            item[0], item[1][:120])
+
+    def _enqueue_op(self, sample: zenoh.Sample) -> None:
+        """An operator action: the worker of the responder it is about takes it (an action
+        about no responder, worker 0). Its key names the actor, so the payload says whom."""
+        key, payload = str(sample.key_expr), sample.payload.to_bytes()
+        if self.shard[1] > 1:
+            try:
+                about = msgpack.unpackb(payload, raw=False).get("responder")
+            except Exception:  # not a map: the core refuses it; worker 0 records it
+                about = None
+            mine = in_shard(about, *self.shard) if isinstance(about, str) else self.shard[0] == 0
+            if not mine:
+                return
+        self._put_nowait(("op", key, payload))
+
+    def update_access(self, access: wire.Access) -> None:
+        """A new access policy (the roster changed): the core enforces it from the next round on."""
+        self.access = access
+        self._queue.put(("access", self._access_key(), wire.encode(access)))
+
+    def _access_key(self) -> str:
+        return wire.key(self.id, self.actor, "access")
 
     def _on_presence(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -303,7 +356,11 @@ class IncidentService:
                 continue
             if p[0] == "tick":
                 ticks += 1
-            else:
+            elif p[0] in ("command", "ack", "op"):  # from the network: through the intake like frames
+                now = self.clock()
+                if self.core.admit(p[0], p[1], len(p[2]), now) is None:
+                    items.append(Inbound(*p, now))
+            else:  # presence (liveliness), access (this process's own policy)
                 items.append(Inbound(*p, self.clock()))
         if stop:
             items += self._take_frames(None)

@@ -18,7 +18,8 @@ from pathlib import Path
 
 
 def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop, ready, stats_path: str | None,
-                log_poses: bool = False) -> None:  # pragma: no cover - runs in a child process
+                log_poses: bool = False, tls_dir: str | None = None,
+                roster: str | None = None) -> None:  # pragma: no cover - runs in a child process
     import signal
 
     from service.protocol.incident import incident_from_dict
@@ -27,8 +28,21 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us through ``stop``
     cfg = incident_from_dict(config, base_dir=base_dir)
-    session = open_client(endpoint)
-    svc = IncidentService(session, cfg, shard=(k, n))
+    tls = access = watcher = None
+    if tls_dir is not None:  # the same service identity as worker 0, and the same roster
+        from service.protocol.tls import TlsIdentity
+
+        tls = TlsIdentity.load(tls_dir)
+    if roster is not None:
+        from service.protocol.access import access_message, load_roster
+
+        access = access_message(load_roster(roster), roster)
+    session = open_client(endpoint, tls=tls)
+    svc = IncidentService(session, cfg, shard=(k, n), access=access, actor=tls.name if tls else "service")
+    if roster is not None:
+        from service.protocol.access import RosterWatcher
+
+        watcher = RosterWatcher(roster, lambda r: svc.update_access(access_message(r, roster)))
     poses: list = []
     if log_poses:
         svc.pose_hook = lambda rid, msg, oldest: poses.append((rid, oldest, msg.published_at))
@@ -39,6 +53,8 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
     stats = {"shard": k, "frames_processed": svc.frames_processed, "busy_s": svc.busy_s,
              "tracker_batches": svc.tracker_batches, "frames_not_processed": svc.frame_accounting(),
              "responders": len(svc.responders), "errors": svc.errors, "poses": poses}
+    if watcher is not None:
+        watcher.close()
     svc.close()
     session.close()
     if stats_path:
@@ -63,7 +79,8 @@ def _drain(svc, quiet_s: float, timeout: float) -> None:
 class WorkerPool:
     """Workers 1..K-1 of an incident (worker 0 is the caller's own IncidentService)."""
 
-    def __init__(self, endpoint: str, cfg, n: int, stats_dir: str | None = None, log_poses: bool = False):
+    def __init__(self, endpoint: str, cfg, n: int, stats_dir: str | None = None, log_poses: bool = False,
+                 tls_dir: str | None = None, roster: str | None = None):
         self.ctx = mp.get_context("spawn")
         self.stop = self.ctx.Event()
         self.procs = []
@@ -73,7 +90,8 @@ class WorkerPool:
         for k in range(1, n):
             ready = self.ctx.Event()
             path = str(Path(stats_dir) / f"worker{k}.json") if stats_dir else None
-            p = self.ctx.Process(target=worker_main, args=(endpoint, config, base, k, n, self.stop, ready, path, log_poses),
+            p = self.ctx.Process(target=worker_main,
+                                 args=(endpoint, config, base, k, n, self.stop, ready, path, log_poses, tls_dir, roster),
                                  name=f"firetrack-worker-{k}", daemon=True)
             p.start()
             self.procs.append((p, ready))

@@ -1,8 +1,11 @@
 /* global L */
 /* What the operator does: select a responder, place a checkpoint fix where the map is clicked
    or at a named checkpoint, and name a new checkpoint. Each action is confirmed in the dialog
-   and sent to the console server (POST /api/fix, /api/checkpoint), which publishes it. The
-   SELECTED panel shows the selected responder and enables the actions that apply. */
+   and sent to the console server (POST /api/fix, /api/checkpoint), which publishes it to the
+   service under the logged-in operator's name. The service answers each with an audit ("audit" messages): a
+   refusal, or a fix taken but flagged as further than a person can walk, shows as a notice
+   and on the responder (S.flags). The SELECTED panel shows the selected responder and enables
+   the actions that apply. */
 import {S} from "./state.js";
 import {$, MOTION_LABELS, ask, setText, toast} from "./ui.js";
 import {postJSON} from "./api.js";
@@ -31,6 +34,12 @@ export function renderSelection() {
   const r = S.selected ? S.responders.get(S.selected) : null;
   setText($("sel-id"), S.selected || "none");
   $("btn-fix-cp").disabled = !r || !$("cp-select").value;
+  const flag = r ? S.flags[r.id] : null;
+  $("sel-flag").hidden = !flag;
+  if (flag) {
+    setText($("sel-flag"), `⚠ FIX FLAGGED: ${flag.operator || flag.actor} moved ${flag.responder} ` +
+            `${Math.round(flag.jump_m)} m; at most ${Math.round(flag.walkable_m)} m was walkable`);
+  }
   if (!r) { setText($("sel-info"), "Click a marker or a roster row."); return; }
   const p = r.pose, s = r.status, parts = [];
   if (p) {
@@ -111,9 +120,29 @@ export function onMapClick(x, y, point) {
   if (addMode) { addCheckpointAt(x, y); return; }
   const hit = responderAt(point);
   if (hit) { select(hit); return; }
+  if (S.session && S.session.role === "viewer") return;  // viewers look; they do not place fixes
   if (S.mode !== "live") { toast("Fixes are placed in LIVE mode", "error"); return; }
   if (!S.selected) { toast("Select a responder first: click a marker or a roster row", "error"); return; }
   fixAtPoint(x, y);
+}
+
+const ACTION_WORDS = {fix: "fix", checkpoint: "checkpoint", ack: "acknowledgement", par: "roll call",
+                      evacuate: "evacuation order", device_fix: "fix"};
+
+function onAudit(a) {
+  const who = a.operator ? `${a.operator} (${a.actor})` : a.actor;
+  if (a.outcome === "refused") {
+    toast(`The service refused the ${ACTION_WORDS[a.action]} by ${who}${a.responder ? ` for ${a.responder}` : ""}: ` +
+          `${a.reason}${a.detail ? ` — ${a.detail}` : ""}`, "error");
+  } else if ((a.flags || []).includes("implausible_jump")) {
+    S.flags[a.responder] = a;
+    toast(`⚠ Fix for ${a.responder} by ${who} taken but FLAGGED: ${Math.round(a.jump_m)} m from where ` +
+          `${a.responder} was, at most ${Math.round(a.walkable_m)} m walkable`, "error");
+    renderSelection();
+  } else if (a.action === "fix" && S.flags[a.responder]) {
+    delete S.flags[a.responder];  // a plausible fix since: the flag is history (it stays in the recording)
+    renderSelection();
+  }
 }
 
 /** afterSelect(): what else shows the selection (the roster) refreshes. */
@@ -122,10 +151,11 @@ export function bindActions(afterSelect) {
   $("btn-fix-cp").onclick = fixAtCheckpoint;
   $("cp-select").onchange = () => renderSelection();
   $("btn-add-cp").onclick = () => setAddMode(!addMode);
+  onMessage("audit", (m) => onAudit(m.audit));
   onMessage("checkpoints", (m) => { S.checkpoints = m.checkpoints; fillCheckpointList(); drawCheckpoints(); });
   onMessage("fix", (m) => {
     const f = m.fix;
     const where = f.name ? `checkpoint ${f.name}` : `(${f.x.toFixed(1)}, ${f.y.toFixed(1)}) m, floor ${f.floor}`;
-    toast(`Fix for ${f.responder} at ${where} sent by the console`, "ok");
+    toast(`Fix for ${f.responder} at ${where} sent by ${f.operator || "the console"}`, "ok");
   });
 }

@@ -6,6 +6,8 @@
 import {S, applyPose, applyStatus, responder} from "./state.js";
 import {$} from "./ui.js";
 import {addSample} from "./perf.js";
+import {getJSON} from "./api.js";
+import {sessionEnded} from "./login.js";
 
 const RETRY_MAX_S = 5;  // reconnect back-off grows 1 s per attempt up to this
 
@@ -19,6 +21,7 @@ onMessage("snapshot", (m) => {
   for (const p of m.poses) applyPose(p, false);  // the snapshot's trails hold the latest point already
   for (const s of m.statuses) applyStatus(s);
   S.rejected = m.rejected || {};
+  S.flags = m.flags || {};
   S.dirty = true;
 });
 
@@ -53,9 +56,13 @@ export function connect() {
   const ws = new WebSocket(`${proto}://${location.host}/ws`);
   ws.onopen = () => { S.connected = true; retry = 0; show(); };
   ws.onmessage = receive;
-  ws.onclose = () => {
+  ws.onclose = async (ev) => {
     S.connected = false; show();
+    if (ev.code === 4401) { sessionEnded(); return; }  // revoked
     retry = Math.min(retry + 1, RETRY_MAX_S);
+    if (retry >= 2 && S.session && S.session.auth === "required") {  // refused: is the session over?
+      try { if (!(await getJSON("/api/session")).user) { sessionEnded(); return; } } catch (e) { /* server away: retry */ }
+    }
     setTimeout(connect, 1000 * retry);
   };
 }

@@ -3,22 +3,25 @@
      state.js        the store S (window.__firetrack) and the live data it holds
      connection.js   the WebSocket feed: snapshot, updates, notices by message type
      api.js          the HTTP API (GET, POST JSON)
+     login.js        who is at the keyboard: the login form, the header's user, LOG OUT
      ui.js           DOM helpers, toasts, the confirmation dialog
      perf.js         draw and frame times
      map/            projection.js frames and ellipses; view.js the Leaflet map, fit, north, scale;
                      floors.js plans, grids, checkpoints, floor buttons; grid.js the metre grid;
                      responders.js markers, labels, trails, ellipses
      roster.js       the responder table
-     alarms.js       alarms and their acknowledgement
-     actions.js      selection, checkpoint fixes, new checkpoints
+     alarms.js       alarms and their acknowledgement, one row per responder (sent to the service, recorded with who)
+     par.js          roll call (PAR) and evacuation order (recorded with the operator who issued it)
+     actions.js      selection, checkpoint fixes, new checkpoints, the service's audits and flags
      review.js       the review slider over the smoothed tracks
 
-   Data: GET /api/incident once (floors, checkpoints, plans with their pixel -> ENU maps), then
+   Data: the login first (GET /api/session), then GET /api/incident once (floors, checkpoints, plans with their pixel -> ENU maps), then
    the WebSocket. This module starts everything and runs the animation-frame loop. */
-import {S, frame} from "./state.js";
+import {S, frame, seedRoster} from "./state.js";
 import {$, bindModal, modalOpen, setText, toast} from "./ui.js";
 import {getJSON} from "./api.js";
 import {connect} from "./connection.js";
+import {login} from "./login.js";
 import {frameTick, perfStats, resetPerf} from "./perf.js";
 import {bearingToScreen, ellipseAxes, ellipseOutline} from "./map/projection.js";
 import {centreOn, createMap, enuToScreen, fit, fitResponders, map, screenToEnu} from "./map/view.js";
@@ -26,6 +29,7 @@ import {buildFloors, renderFloorButtons, setFloor} from "./map/floors.js";
 import {drawResponders, flashPhase, initResponders} from "./map/responders.js";
 import {bindRoster, renderRoster} from "./roster.js";
 import {evaluateAlarms} from "./alarms.js";
+import {bindPar} from "./par.js";
 import {bindActions, fillCheckpointList, onMapClick, renderSelection, select, setAddMode} from "./actions.js";
 import {bindReview, reviewPositions, setReviewOffset} from "./review.js";
 
@@ -82,15 +86,18 @@ function bindKeys() {
 
 async function start() {
   bindModal();
+  await login();
   bindKeys();
   bindRoster();
   bindActions(renderRoster);
   bindReview();
+  bindPar();
   const inc = await getJSON("/api/incident");
   S.incident = inc;
   S.settings = {...S.settings, ...inc.settings};
   S.floors = inc.floors;
   S.checkpoints = inc.checkpoints;
+  seedRoster(inc.roster);
   $("incident-name").textContent = `${inc.name || inc.id}`;
   document.title = `firetrack · ${inc.name || inc.id}`;
   createMap($("map"), onMapClick);

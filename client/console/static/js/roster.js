@@ -1,10 +1,18 @@
 /* The roster: one row per responder, sortable by any column (click a header; again to reverse).
    A column is one entry of COLUMNS: its header, the value it sorts by and the text it shows.
-   Rows are marked .selected, .alarmed (an active alarm), .other (on another floor than the one
-   shown) and .stale (not heard for STALE_S). */
-import {S, alarmSets, serverNow} from "./state.js";
+   Every responder of the incident's roster has a row from the start, heard or not: that is
+   what accountability is counted against. Rows are marked .selected, .alarmed (an active
+   alarm), .other (on another floor than the one shown), .stale (the wearable's last frame
+   reached the service more than STALE_S ago) and .unheard (never heard), .flagged (its latest
+   checkpoint fix was an implausible jump, taken because an authorised operator sent it).
+
+   HEARD is the time since the wearable's last frame reached the service (Status.last_heard,
+   the service's clock), so it grows while a wearable is silent even though the service goes
+   on reporting; MOTION is the state as of that frame, shown with a "?" once it is stale. */
+import {S, alarmSets, heardAgo, serverNow} from "./state.js";
 import {$, MOTION_LABELS, ago, setText} from "./ui.js";
 import {select} from "./actions.js";
+import {parText, parValue} from "./par.js";
 
 const STALE_S = 5;  // HEARD turns red after this long
 
@@ -12,14 +20,39 @@ const steps = (r) => Math.max(r.pose ? r.pose.steps : 0, r.status ? r.status.ste
 // gaps in the responder's frames: seconds not covered and frames known lost (Status.gap_s, .lost)
 const gapText = (r) => (!r.status || !r.status.gaps ? "—"
   : `${r.status.gap_s.toFixed(1)} s` + (r.status.lost ? ` / ${r.status.lost} lost` : ""));
+/** m: the 1-sigma radius of the position in its worst direction (the larger eigenvalue of cov). */
+function sigma(r) {
+  if (!r.pose) return NaN;
+  const [xx, xy, yy] = r.pose.cov, m = (xx + yy) / 2, d = Math.sqrt(((xx - yy) / 2) ** 2 + xy * xy);
+  return Math.sqrt(Math.max(m + d, 0));
+}
+/** The last fix applied: its source and how long ago (UTC, with the wearable's clock offset). */
+function lastFix(r, now) {
+  const f = r.status && r.status.last_fix, off = r.status && r.status.utc_offset;
+  if (!f) return {text: "—", age: Infinity};
+  const age = off == null ? NaN : now - (f.t + off);
+  return {text: `${f.source} ${ago(age)}`, age};
+}
+const inside = (r, now) => (r.status && r.status.first_heard ? now - r.status.first_heard : NaN);
+const motion = (r, now) => {
+  if (!r.status) return "—";
+  const m = MOTION_LABELS[r.status.motion] || r.status.motion;
+  return heardAgo(r, now) > S.settings.lost_contact_s ? `${m}?` : m;
+};
+
 const COLUMNS = [
   {key: "id", label: "ID", value: (r) => r.id, text: (r) => r.id},
+  {key: "team", label: "TEAM", value: (r) => (r.member && r.member.team) || "", text: (r) => (r.member && r.member.team) || "—"},
+  {key: "role", label: "ROLE", value: (r) => (r.member && r.member.role) || "", text: (r) => (r.member && r.member.role) || "—"},
   {key: "floor", label: "FLOOR", value: (r) => (r.pose ? r.pose.floor : -Infinity), text: (r) => (r.pose ? String(r.pose.floor) : "—")},
-  {key: "heard", label: "HEARD", value: (r, now) => (r.lastRx ? now - r.lastRx : Infinity), text: (r, now) => ago(r.lastRx ? now - r.lastRx : NaN)},
+  {key: "sigma", label: "±M", value: (r) => (r.pose ? sigma(r) : Infinity), text: (r) => (r.pose ? sigma(r).toFixed(1) : "—")},
+  {key: "heard", label: "HEARD", value: (r, now) => (r.status ? heardAgo(r, now) : Infinity), text: (r, now) => ago(heardAgo(r, now))},
+  {key: "motion", label: "MOTION", value: (r) => (r.status ? r.status.motion : ""), text: motion},
+  {key: "fix", label: "LAST FIX", value: (r, now) => lastFix(r, now).age, text: (r, now) => lastFix(r, now).text},
+  {key: "inside", label: "IN BLDG", value: (r, now) => inside(r, now) || -1, text: (r, now) => ago(inside(r, now))},
   {key: "steps", label: "STEPS", value: steps, text: (r) => String(steps(r))},
   {key: "gaps", label: "GAPS", value: (r) => (r.status ? r.status.gap_s || 0 : 0), text: gapText},
-  {key: "motion", label: "MOTION", value: (r) => (r.status ? r.status.motion : ""),
-   text: (r) => (r.status ? MOTION_LABELS[r.status.motion] || r.status.motion : "—")},
+  {key: "par", label: "PAR", value: parValue, text: parText},
 ];
 
 let sort = {key: "id", dir: 1};
@@ -60,7 +93,9 @@ export function renderRoster() {
     if (tbody.children[i] !== tr) tbody.insertBefore(tr, tbody.children[i] || null);
     COLUMNS.forEach((c, j) => setText(tr.children[j], c.text(r, now)));
     const cls = [r.id === S.selected ? "selected" : "", al.active.has(r.id) ? "alarmed" : "",
-                 r.pose && r.pose.floor !== S.floor ? "other" : "", !(now - r.lastRx <= STALE_S) ? "stale" : ""]
+                 r.pose && r.pose.floor !== S.floor ? "other" : "", heardAgo(r, now) > STALE_S ? "stale" : "",
+                 r.status ? "" : "unheard", parText(r) === "MISSING" ? "par-missing" : "",
+                 S.flags[r.id] ? "flagged" : ""]
       .filter(Boolean).join(" ");
     if (tr.className !== cls) tr.className = cls;
   });

@@ -10,7 +10,8 @@ export const S = {
   plans: {},              // floor -> frame (map/projection.js floorFrame) with url, width, height, fallback, problem
   floor: 0,
   checkpoints: [],
-  responders: new Map(),  // id -> {id, pose, status, trail: [[t, x, y, floor]], lastRx}
+  responders: new Map(),  // id -> {id, member, pose, status, trail: [[t, x, y, floor]], lastRx}
+  roster: new Map(),      // id -> {id, name, team, role}: who is expected (incident config)
   alarms: new Map(),      // "id|kind" -> {key, responder, kind, active, acked, count, raisedAt, clearedAt}
   selected: null,
   mode: "live",           // "live" or "review"
@@ -19,6 +20,8 @@ export const S = {
   clockOffset: 0,         // server clock - page clock (s), from each message's "now"
   connected: false,
   rejected: {},           // the service's counts of ignored messages, by reason
+  flags: {},              // responder -> the service's audit of its latest implausible fix
+  session: null,          // who is logged in: {auth: "open"|"required", user, role}
   settings: {lost_contact_s: 10, trail_points: 120},
   dirty: true,            // the responders layer must be redrawn
   messages: 0,
@@ -34,11 +37,22 @@ export const frame = () => S.plans[S.floor];
 export function responder(id) {
   let r = S.responders.get(id);
   if (!r) {
-    r = {id, pose: null, status: null, trail: [], lastRx: 0};
+    r = {id, member: S.roster.get(id) || null, pose: null, status: null, trail: [], lastRx: 0};
     S.responders.set(id, r);
   }
   return r;
 }
+
+/** The incident's roster: every expected responder has a row before their wearable is heard. */
+export function seedRoster(members) {
+  for (const m of members || []) {
+    S.roster.set(m.id, m);
+    responder(m.id).member = m;
+  }
+}
+
+/** Seconds since the wearable's last frame reached the service (the service's clock), or NaN. */
+export const heardAgo = (r, now) => (r.status ? now - r.status.last_heard : NaN);
 
 /** A Pose from the service: the latest position, and a trail point when it moved. */
 export function applyPose(p, trail = true) {

@@ -8,7 +8,8 @@ const TOASTS_SHOWN = 4;
 export const $ = (id) => document.getElementById(id);
 
 /** How the wearable's motion state reads on screen. */
-export const MOTION_LABELS = {walking: "walking", still: "still", no_motion: "NO MOTION"};
+export const MOTION_LABELS = {walking: "walking", running: "running", crawling: "crawling", stairs: "stairs",
+                              still: "still", no_motion: "NO MOTION"};
 
 /** Set an element's text only when it changes (no needless layout work on timers). */
 export function setText(el, text) { if (el.textContent !== text) el.textContent = text; }
