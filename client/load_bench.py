@@ -23,6 +23,12 @@ updates; ``--start-spread 0`` measures that worst case). Figures:
   ``frames_not_processed`` says why (the gates' rejects by reason, frames declared lost, held);
 * ``rss_mb`` — peak resident memory of the service process (router included).
 
+``--foot F`` makes a share F of the wearers boot-mounted (``carry="foot"``: the ZUPT-aided INS
+instead of the handheld pipeline; :class:`client.simulate.BootStreams`);
+``latency_p99_ms_boot``/``latency_p99_ms_handheld`` split the latency by kind, and
+``worker_cpu_ms_per_responder_s`` (the workers' busy time per responder per second) compares
+what each kind costs between runs.
+
 ``--tls`` runs the same with security on: an incident CA made for the run, the service and
 its workers with a service certificate, the wearables' process with a simulator certificate
 (walkers ``sim-000``...), mutual TLS on every link and the router's access control generated
@@ -52,14 +58,14 @@ from service.shell.workers import WorkerPool
 
 
 def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float, seed: int, out: str,
-               ready, go, start_spread_s: float, tls_dir: str | None = None) -> None:  # pragma: no cover - child
+               ready, go, start_spread_s: float, tls_dir: str | None = None, foot: float = 0.0) -> None:  # pragma: no cover - child
 
     from client.simulate import SimulationPublisher
     from service.protocol.session import open_client
     from service.protocol.tls import TlsIdentity
 
     session = open_client(endpoint, tls=TlsIdentity.load(tls_dir) if tls_dir else None)
-    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s)
+    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s, foot=foot)
     frames = int(seconds * 10) + 20
     send_t = np.full((n, frames), np.nan)
 
@@ -68,13 +74,18 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
             send_t[i, seq] = t
 
     pub.step(1)  # the first (door) fixes and one frame: declarations settle before timing starts
+    payloads = pub.precompute(seconds)  # simulated and encoded before the clock starts: a put per frame
     ready.set()
     go.wait(60)
     cpu0 = time.process_time()
-    sent = 1 + pub.run(seconds, on_frame=lambda i, s, t: on_frame(i, s, t)) // max(n, 1)
+    sent = 1 + pub.run_precomputed(payloads, on_frame=on_frame) // max(n, 1)
     np.savez(out, send_t=send_t, frames_per_walker=sent, cpu=time.process_time() - cpu0)
     pub.close()
     session.close()
+
+
+def _p99(ms: np.ndarray) -> float | None:
+    return float(np.percentile(ms, 99)) if ms.size else None
 
 
 def _summed(dicts) -> dict[str, int]:
@@ -86,6 +97,58 @@ def _summed(dicts) -> dict[str, int]:
 
 
 WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers and graphs are built
+
+# Where the worker's time goes, by stage: (file, function) pairs whose cumulative time the
+# profile sums, for the columnar rounds (pdr/fleet*) and for one-responder-at-a-time
+# pipelines (pdr/pipeline.py and its stage classes) alike, so one table compares both.
+STAGES: dict[str, tuple[tuple[str, str], ...]] = {
+    "zenoh take": (("service/shell/service.py", "_take_frames"), ("service/shell/service.py", "_take_queued")),
+    "decode": (("service/protocol/codec.py", "decode"),),
+    "frame gate": (("service/core/gate.py", "offer"), ("service/core/gate.py", "expire")),
+    "heading (AHRS, bias, compass, per step)": (
+        ("pdr/fleet_kernels.py", "heading_stage"), ("pdr/fleet.py", "_epochs"), ("pdr/fleet.py", "_step_headings"),
+        ("pdr/heading.py", "update"), ("pdr/heading.py", "steps")),
+    "height and floors": (("pdr/fleet.py", "_height_round"), ("pdr/pipeline.py", "_update_height")),
+    "step detection": (("pdr/fleet_kernels.py", "detector_buffer"), ("pdr/fleet_kernels.py", "detector_stage"),
+                       ("pdr/fleet.py", "_design"), ("pdr/steps/base.py", "update"), ("pdr/steps/base.py", "finish")),
+    "step length, stairs, floor events": (("pdr/pipeline.py", "_make_steps"), ("pdr/pipeline.py", "_release")),
+    "motion state": (("pdr/fleet_kernels.py", "motion_windows"), ("pdr/fleet_kernels.py", "motion_grid"),
+                     ("pdr/pipeline.py", "_update_motion")),
+    "pipeline (all stages)": (("pdr/fleet.py", "run"), ("pdr/fleet.py", "finish"), ("pdr/pipeline.py", "update"),
+                              ("pdr/pipeline.py", "finish")),
+    "fusion (graph, dead reckoning)": (("service/fusion/estimators.py", "add_step"), ("service/fusion/estimators.py", "add_fix"),
+                                       ("service/fusion/estimators.py", "set_floor"), ("service/fusion/estimators.py", "flush")),
+    "pose message": (("service/core/incident_core.py", "_emit_poses"), ("service/core/incident_core.py", "pose_message")),
+    "status": (("service/core/incident_core.py", "status_of"),),
+    "publish (encode, put)": (("service/shell/service.py", "_publish"),),
+    "worker total": (("service/shell/service.py", "_run_round"), ("service/shell/service.py", "_take_frames"),
+                     ("service/shell/service.py", "_take_queued")),
+}
+
+
+IDLE_STAGES = ("zenoh take", "worker total")  # they contain the worker's wait for input, taken out
+
+
+def stage_table(stats: pstats.Stats, frames: int, steps: int) -> dict[str, dict[str, float]]:
+    """µs per frame and per step of each stage in :data:`STAGES` (cumulative profile times, which
+    cProfile inflates for Python-heavy code more than for compiled kernels). The time the worker
+    spent blocked in ``queue.get`` waiting for input (idle, not work) is taken out of
+    :data:`IDLE_STAGES` and shown as its own row."""
+    totals = {k: 0.0 for k in STAGES}
+    idle = 0.0
+    for (path, _, func), (_, _, _, cum, callers) in stats.stats.items():
+        path = path.replace("\\", "/")
+        for stage, entries in STAGES.items():
+            if any(path.endswith(f) and func == fn for f, fn in entries):
+                totals[stage] += cum
+        if path.endswith("queue.py") and func == "get":
+            idle += sum(c[3] for (cpath, _, cfunc), c in callers.items()
+                        if cpath.replace("\\", "/").endswith("service/shell/service.py") and cfunc == "_take_queued")
+    for k in IDLE_STAGES:
+        totals[k] -= idle
+    totals["idle (waiting for input)"] = idle
+    return {k: {"us_per_frame": round(1e6 * v / max(frames, 1), 1), "us_per_step": round(1e6 * v / max(steps, 1), 1)}
+            for k, v in totals.items()}
 
 
 def _bench_pki(directory: Path, incident: str):
@@ -102,7 +165,7 @@ def _bench_pki(directory: Path, incident: str):
 
 def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
                   profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2,
-                  start_spread_s: float = 5.0, tls: bool = False) -> dict:
+                  start_spread_s: float = 5.0, tls: bool = False, foot: float = 0.0) -> dict:
 
     from service.protocol.incident import default_incident
     from service.protocol.session import open_session
@@ -139,7 +202,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         ready, go = ctx.Event(), ctx.Event()
         out = str(Path(stats_dir) / "sent.npz")
         child = ctx.Process(target=_publisher, args=(endpoint, cfg.id, responders, seconds, rate, seed, out, ready, go,
-                                                     start_spread_s, str(sim_id.dir) if tls else None))
+                                                     start_spread_s, str(sim_id.dir) if tls else None, foot))
         child.start()
         done.callback(lambda: child.kill() if child.is_alive() else None)
         if not ready.wait(120):
@@ -158,6 +221,8 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         while svc.frames_processed < per_walker * share0 and time.monotonic() < deadline:
             time.sleep(0.05)
         svc.wait_idle(5.0)
+        svc_frames = svc.frames_processed
+        svc_steps = sum(r.tracker.steps for r in list(svc.responders.values()))
         others = pool.close()
         wall = time.monotonic() - t0
         accounting = [svc.frame_accounting()] + [s.get("frames_not_processed", {}) for s in others]
@@ -173,14 +238,21 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
                 for s in shards if s["busy_s"] > 0 and s["responders"]]
     for s in others:
         poses += [tuple(p) for p in s["poses"]]
-    lat, warm = [], []
+    lat, warm, when, boot = [], [], [], []
     index = {f"sim-{i:03d}": i for i in range(responders)}
+    boots = int(round(foot * responders))  # the first ones wear the IMU on the boot (client.simulate.BootStreams)
     for rid, seq, pub in poses:
         i = index.get(rid)
         if i is not None and seq < send_t.shape[1] and np.isfinite(send_t[i, seq]):
             (warm if seq < WARMUP_FRAMES else lat).append(pub - send_t[i, seq])
+            if seq >= WARMUP_FRAMES:
+                when.append(seq)
+                boot.append(i < boots)
     lat = np.array(lat) * 1e3
+    boot = np.array(boot, dtype=bool)
     warm = np.array(warm) * 1e3
+    when = np.array(when) // 50  # 5 s windows of the run (frames at 10 per second)
+    by_window = [round(float(np.percentile(lat[when == w], 99)), 1) for w in np.unique(when)] if lat.size else []
     result = {
         "responders": responders,
         "tls": tls,
@@ -192,6 +264,11 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "latency_p50_ms": float(np.percentile(lat, 50)) if lat.size else None,
         "latency_p99_ms": float(np.percentile(lat, 99)) if lat.size else None,
         "latency_warmup_max_ms": float(warm.max()) if warm.size else None,
+        "latency_p99_ms_per_5s": by_window,
+        "boot_wearers": boots,
+        "latency_p99_ms_boot": _p99(lat[boot]) if boots else None,
+        "latency_p99_ms_handheld": _p99(lat[~boot]) if boots < responders else None,
+        "worker_cpu_ms_per_responder_s": round(1e3 * sum(s["busy_s"] for s in shards) / (responders * wall), 3),
         "frames_sent": frames_sent,
         "frames_processed": processed,
         "frames_lost": frames_sent - processed,
@@ -208,9 +285,18 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
     }
     if prof is not None:
         buf = io.StringIO()
-        pstats.Stats(prof, stream=buf).sort_stats("cumulative").print_stats(30)
+        stats = pstats.Stats(prof, stream=buf)
+        table = stage_table(stats, svc_frames, svc_steps)
+        buf.write(f"per stage, worker 0 ({svc_frames} frames, {svc_steps} steps; cProfile times)\n")
+        buf.write(f"{'stage':40s} {'us/frame':>10s} {'us/step':>10s}\n")
+        for k, v in table.items():
+            buf.write(f"{k:40s} {v['us_per_frame']:10.1f} {v['us_per_step']:10.1f}\n")
+        buf.write("\n")
+        stats.sort_stats("cumulative").print_stats(30)
         Path(profile).write_text(buf.getvalue())
+        prof.dump_stats(str(profile) + ".pstats")
         result["profile"] = str(profile)
+        result["stages"] = table
     return result
 
 
@@ -226,10 +312,12 @@ def bench_service_command(
                                        help="s over which the wearers start walking (0: all in the same instant)"),
     tls: bool = typer.Option(False, "--tls", help="mutual TLS on every link and the roster's access control on the "
                                                   "router (a CA made for the run)"),
+    foot: float = typer.Option(0.0, "--foot", min=0.0, max=1.0,
+                               help="share of wearers with a boot-mounted IMU (ZUPT-aided INS), 0..1; the rest handheld"),
 ):
     """N simulated wearables through a real zenoh router against the service (see client/load_bench.py)."""
     if ctx.invoked_subcommand is not None:
         return
     result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers,
-                           start_spread_s=start_spread, tls=tls)
+                           start_spread_s=start_spread, tls=tls, foot=foot)
     print_json(result)

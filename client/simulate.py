@@ -37,12 +37,55 @@ def building_bounds(incident, margin: float = 5.0) -> tuple[float, float, float,
 SIM_KEEP_FRAMES = 100  # frames each simulated wearable keeps to resend (10 s at 10 frames/s: many in one process)
 
 
+class BootStreams:
+    """Which simulated wearers have a boot-mounted IMU, and its signals.
+
+    A share ``foot`` of the walkers (the first ``round(foot·n)``) wear the IMU on the boot
+    (``carry="foot"``): their frames carry a synthetic boot IMU's accelerometer and gyroscope
+    (:func:`pdr.zupt.synthetic.foot_walk`: strides of 1.2-1.4 m with turns, 0.45 s stance and
+    0.65 s swing, with sensor noise) and no magnetometer or barometer, as a boot unit has none.
+    The rest are handhelds with the walker fleet's phone signals. A few distinct walks are made
+    once and shared (walker i takes walk i mod ``WALKS``, looping): the service cannot tell,
+    and the load generator stays cheap. The fleet's times are kept, so the frames are paced as
+    the handhelds' are.
+    """
+
+    WALKS = 4
+
+    def __init__(self, n: int, foot: float, rate_hz: float, start_t: float, seed: int):
+        if not 0.0 <= foot <= 1.0:
+            raise ValueError(f"foot is the share of boot-mounted wearers, 0..1; got {foot}")
+        self.count = int(round(foot * n))
+        self._walks = []
+        if self.count:
+            from pdr.zupt.synthetic import foot_walk
+
+            rng = np.random.default_rng([seed, 0xB007])
+            for w in range(min(self.WALKS, self.count)):
+                strides = [(float(rng.uniform(1.2, 1.4)), float(rng.normal(0.0, 0.15)), 0.0) for _ in range(300)]
+                walk = foot_walk(strides, rate_hz=rate_hz, yaw0=float(rng.uniform(-np.pi, np.pi)), acc_noise=0.02,
+                                 gyr_noise=0.002, seed=seed * 101 + w, t0=start_t)
+                self._walks.append((walk.acc, walk.gyr))
+        self._cursor = np.zeros(self.count, dtype=np.int64)
+
+    def signals(self, i: int, b) -> dict:
+        """The ImuBatch fields of walker ``i``'s batch ``b`` other than its times."""
+        if i >= self.count:
+            p_t = b.pressure_t if len(b.pressure_t) else None
+            p_v = b.pressure if len(b.pressure_t) else None
+            return {"acc": b.acc, "gyr": b.gyr, "mag": b.mag, "pressure_t": p_t, "pressure": p_v, "carry": "handheld"}
+        acc, gyr = self._walks[i % len(self._walks)]
+        idx = (self._cursor[i] + np.arange(len(b.t))) % len(acc)
+        self._cursor[i] += len(b.t)
+        return {"acc": acc[idx], "gyr": gyr[idx], "carry": "foot"}
+
+
 class SimulationPublisher:
     """N simulated wearables on one zenoh session, advanced one frame at a time."""
 
     def __init__(self, session: zenoh.Session, incident_id: str, n: int, rate_hz: float = 100.0, seed: int = 0,
                  bounds=None, floors=(0, 0), prefix: str = "sim", truth: bool = True, start_t: float = 1000.0,
-                 start_spread_s: float = 0.0, keep_frames: int = SIM_KEEP_FRAMES):
+                 start_spread_s: float = 0.0, foot: float = 0.0, keep_frames: int = SIM_KEEP_FRAMES):
         self.session = session
         self.incident_id = incident_id
         self.rate_hz = rate_hz
@@ -58,6 +101,7 @@ class SimulationPublisher:
         # each keeps its last keep_frames frames to resend (10 s by default: many walkers in one process)
         self.wearables = [Wearable(session, incident_id, r, keep_frames=keep_frames) for r in self.names]
         self.seq = np.zeros(n, dtype=np.int64)
+        self.boots = BootStreams(n, foot, rate_hz, start_t, seed)
         self.truth = truth
         self.started = False
 
@@ -74,11 +118,8 @@ class SimulationPublisher:
             if not self.started:  # the door it came in by
                 w.send("fix", wire.Fix.checkpoint(w.responder, float(b.t[0]), x=float(b.x[0]), y=float(b.y[0]),
                                                   floor=int(b.floor[0]), sigma=0.3, operator="simulator"))
-            p_t = b.pressure_t if len(b.pressure_t) else None
-            p_v = b.pressure if len(b.pressure_t) else None
             msg = wire.ImuBatch(responder=w.responder, device=f"sim:{w.responder}", seq=int(self.seq[i]), t=b.t,
-                                acc=b.acc, gyr=b.gyr, mag=b.mag, pressure_t=p_t, pressure=p_v, carry="handheld",
-                                utc_offset=time.time() - float(b.t[-1]))
+                                utc_offset=time.time() - float(b.t[-1]), **self.boots.signals(i, b))
             w.send("imu", msg)
             if on_frame is not None:
                 on_frame(i, int(self.seq[i]), time.time())
@@ -121,6 +162,52 @@ class SimulationPublisher:
             if on_tick is not None:
                 on_tick((k + 1) * period)
         self._wait(start + ticks * period, stop)
+        return sent
+
+    def precompute(self, seconds: float, frames_per_s: float = FRAMES_PER_SECOND) -> list[list[bytes]]:
+        """Every walker's frames for the next ``seconds``, encoded now: ``frames[k][i]`` is walker
+        i's k-th frame (seq continuing from what was sent). A load generator that publishes them
+        with :meth:`run_precomputed` costs a ``put`` per frame, not a simulation and an encoding,
+        so at a thousand wearables it is not the bottleneck it measures. The clock offset each
+        frame carries is the one of this moment (device time advances with the wall clock)."""
+        per = max(1, int(round(self.rate_hz / frames_per_s)))
+        ticks = int(round(seconds * self.rate_hz / per))
+        offset: list[float | None] = [None] * len(self.wearables)
+        out: list[list[bytes]] = []
+        for k in range(ticks):
+            row = []
+            for i, b in enumerate(self.fleet.next_batches(per)):
+                if offset[i] is None:
+                    offset[i] = time.time() - float(b.t[0])
+                r = self.wearables[i].responder
+                row.append(wire.encode(wire.ImuBatch(responder=r, device=f"sim:{r}", seq=int(self.seq[i]) + k, t=b.t,
+                                                     utc_offset=offset[i], **self.boots.signals(i, b))))
+            out.append(row)
+        return out
+
+    def run_precomputed(self, frames: list[list[bytes]], stop: threading.Event | None = None,
+                        frames_per_s: float = FRAMES_PER_SECOND, on_frame=None, slices: int = 10) -> int:
+        """Publish :meth:`precompute`'s frames in real time, each walker at its own phase of the
+        frame period (as :meth:`run`); returns the frames sent."""
+        per = max(1, int(round(self.rate_hz / frames_per_s)))
+        period = per / self.rate_hz
+        n = len(self.wearables)
+        g = max(1, min(slices, n))
+        groups = [range(j * n // g, (j + 1) * n // g) for j in range(g)]
+        pubs = [w._pub["imu"] for w in self.wearables]
+        start = time.monotonic()
+        sent = 0
+        for k, row in enumerate(frames):
+            for j, group in enumerate(groups):
+                if not self._wait(start + (k + j / len(groups)) * period, stop):
+                    return sent
+                for i in group:
+                    pubs[i].put(row[i])
+                    if on_frame is not None:
+                        on_frame(i, int(self.seq[i]), time.time())
+                    self.seq[i] += 1
+                sent += len(group)
+        self._wait(start + len(frames) * period, stop)
         return sent
 
     @staticmethod

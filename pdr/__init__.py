@@ -2,3 +2,7 @@
 
 Loaders for real recording formats live at the edge, in :mod:`pdr.io`.
 """
+
+from pdr.kernel_cache import configure as _configure_kernel_cache
+
+_configure_kernel_cache()

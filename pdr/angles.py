@@ -11,7 +11,13 @@ TWO_PI = 2.0 * math.pi
 
 
 def wrap(a):
-    """Angle(s) wrapped to (-π, π]: ``π − ((π − a) mod 2π)``. A float for a float, an array for an array."""
+    """Angle(s) wrapped to (-π, π]: ``π − ((π − a) mod 2π)``. A float for a float, an array for an array.
+
+    A float takes Python's ``%``, which is the same IEEE operations as ``np.mod`` (fmod, then the
+    divisor added when the signs differ, a signed zero otherwise): the same bits, without numpy's
+    per-call overhead (streaming code calls this per step)."""
+    if isinstance(a, float):
+        return math.pi - ((math.pi - float(a)) % TWO_PI)
     w = np.pi - np.mod(np.pi - np.asarray(a, dtype=float), TWO_PI)
     return float(w) if w.ndim == 0 else w
 

@@ -260,7 +260,13 @@ class HeadingEstimator:
     # ---------------------------------------------------------------- compass epochs + filter
     def _run_epochs(self, t, psi, d, norm, inc, w) -> None:
         s = self.settings
-        rows = close_epochs(t, psi, d, norm, inc, w, self._t0, s.epoch, self._epoch_state)
+        self._take_epochs(close_epochs(t, psi, d, norm, inc, w, self._t0, s.epoch, self._epoch_state))
+
+    def _take_epochs(self, rows: np.ndarray) -> None:
+        """Closed compass epochs (rows of :func:`pdr.heading_kernels.close_epochs`) into the
+        reference, the measurement sigma and the filter (also the columnar engine's path,
+        :mod:`pdr.fleet`)."""
+        s = self.settings
         if not len(rows):
             return
         t_end, psi_end, cs, sn, nrm, inc_m, rate = rows.T

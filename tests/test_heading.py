@@ -191,3 +191,16 @@ def test_inclination_gate_needs_a_configured_reference():
     learned = HeadingEstimator(HeadingSettings(reference_seconds=10.0)).update(t, acc, gyr, mag, steps)
     assert np.all(np.isfinite(learned.mag_heading_sigma[inside]))
     assert np.abs(deg(wrap(learned.heading - truth[0]))[inside]).max() > 5.0
+
+
+def test_wrap_of_a_float_is_the_bits_of_the_array_path():
+    """``wrap`` takes Python's ``%`` for a float and ``np.mod`` for an array: the same bits
+    (streaming code wraps per step, batch code per array), around ±π, at zeros and far out."""
+    rng = np.random.default_rng(3)
+    x = np.concatenate([rng.normal(0.0, 10.0, 20_000), rng.uniform(-1e6, 1e6, 5_000),
+                        [0.0, -0.0, math.pi, -math.pi, 2 * math.pi, -3 * math.pi, np.nextafter(math.pi, 4.0),
+                         np.nextafter(-math.pi, -4.0), 1e300, -1e-300, 5e-324]])
+    by_array = wrap(x)
+    by_float = np.array([wrap(float(v)) for v in x])
+    assert by_array.view(np.int64).tolist() == by_float.view(np.int64).tolist()
+    assert type(wrap(np.float64(1.0))) is float and math.isnan(wrap(math.nan))

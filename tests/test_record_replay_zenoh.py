@@ -91,7 +91,7 @@ def test_record_then_replay_inputs(router, client, tmp_path):
     pub_session = client()
     publishers = {k: pub_session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
                   for k in [*dict.fromkeys(k for k, _ in traffic), "firetrack/t1/ff0/imu/raw"]}
-    _wait(lambda: all(p.matching_status for p in publishers.values()), "the recorder's subscription to reach the publisher")
+    _wait(lambda: all(p.matching_status.matching for p in publishers.values()), "the recorder's subscription to reach the publisher")
     pub_session.put("firetrack/other/ff0/imu", b"another incident: not subscribed")
     publishers["firetrack/t1/ff0/imu/raw"].put(b"not a firetrack/{incident}/{responder}/{kind} key")
     for key, payload in traffic:
@@ -111,7 +111,7 @@ def test_record_then_replay_inputs(router, client, tmp_path):
     listener = _Collector(client(), "firetrack/t1/**")
     report = replay(path, router, speed=0, quiet=True)
     inputs = [(k, p) for k, p in traffic if k.rsplit("/", 1)[1] in ("imu", "fix")]
-    assert report["messages"] == len(inputs)
+    assert report["messages"] == len(inputs) and report["unheard_keys"] == []
     _wait(lambda: len(listener) >= len(inputs), "the replayed inputs")
     time.sleep(0.2)  # anything extra (pose, status) would arrive by now
     assert [(k, p) for k, p, _ in listener.samples] == inputs
@@ -122,6 +122,12 @@ def test_record_then_replay_inputs(router, client, tmp_path):
     want = [(k.replace("/t1/", "/t1-replay/"), p) for k, p in traffic if "/ff1/" in k]
     _wait(lambda: len(renamed) >= len(want), "the renamed replay")
     assert [(k, p) for k, p, _ in renamed.samples] == want
+
+    # an incident nobody listens to: the messages went nowhere, and the report says which keys
+    report = replay(path, router, speed=0, responders=["ff1"], incident="nobody-here", quiet=True,
+                    wait_for_subscribers_s=0.2)
+    assert report["messages"] > 0
+    assert report["unheard_keys"] and all(k.startswith("firetrack/nobody-here/ff1/") for k in report["unheard_keys"])
 
 
 def test_replay_keeps_the_recorded_timing(router, client, tmp_path):
@@ -172,7 +178,7 @@ def test_record_keeps_every_sample_of_a_burst(router, client, tmp_path):
     thread.start()
     assert ready.wait(TIMEOUT_S)
     pub = client().declare_publisher("firetrack/t3/ff0/imu", congestion_control=zenoh.CongestionControl.BLOCK)
-    _wait(lambda: pub.matching_status, "the recorder's subscription")
+    _wait(lambda: pub.matching_status.matching, "the recorder's subscription")
     for i in range(n):
         pub.put(i.to_bytes(4, "little"))
     thread.join(TIMEOUT_S)

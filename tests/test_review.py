@@ -70,6 +70,14 @@ def test_exercise_and_reprocess_commands(tmp_path, shared_data):
     geo = json.loads((tmp_path / "exp" / "tracks.geojson").read_text())
     assert {f["properties"]["responder"] for f in geo["features"]} == {"ff0", "ff1"}
     assert (tmp_path / "exp" / "ff0.tum").read_text().count("\n") > 50
+    import csv
+
+    import numpy as np
+
+    live = list(csv.DictReader((tmp_path / "exp" / "live.csv").open()))  # the poses as published, with covariance
+    assert {r["responder"] for r in live} == {"ff0", "ff1"}
+    cov = np.array([[float(r["cov_xx"]), float(r["cov_xy"]), float(r["cov_yy"])] for r in live])
+    assert np.all(cov[:, 0] > 0) and np.all(cov[:, 2] > 0) and np.all(cov[:, 1] ** 2 <= cov[:, 0] * cov[:, 2] * (1 + 1e-3))
 
 
 def test_bad_exercise_arguments_are_refused(tmp_path):
@@ -137,7 +145,7 @@ def test_handheld_and_boot_mounted_wearers_live_then_reprocessed_give_identical_
     svc.wait_idle(10)
     boot_tracker = svc.responders["boot"].tracker
     assert type(boot_tracker.model).__name__ == "ZuptMotionModel"  # carry="foot" chose the INS
-    assert type(svc.responders["hand"].tracker.model).__name__ == "PdrPipeline"
+    assert type(svc.responders["hand"].tracker.model).__name__ == "FleetMember"  # the handheld pipeline, in columnar rounds
     svc.close()
     recorder.close()
     session.close()
@@ -169,8 +177,10 @@ def test_replaying_an_exercise_the_service_already_has_says_what_to_do(tmp_path,
         assert wait_until(lambda: svc.frames_processed >= frames, 60)
         with pytest.raises(ValueError, match=r"already tracks r1 .*--as-incident"):
             replay(exercise, endpoint, speed=0.0, quiet=True)
-        again = replay(exercise, endpoint, speed=0.0, quiet=True, incident=f"{cfg.id}-replay")
+        again = replay(exercise, endpoint, speed=0.0, quiet=True, incident=f"{cfg.id}-replay", wait_for_subscribers_s=0.2)
         assert again["messages"] == sent["messages"]  # under a new incident id it goes out
+        assert again["unheard_keys"]  # ... and nobody serves that id here: the report says so
+        assert sent["unheard_keys"] == []
     finally:
         svc.close()
         session.close()

@@ -561,6 +561,22 @@ def test_json_schema_describes_every_kind():
     assert "little-endian" in doc["x-array-encoding"]["dtype"]
 
 
+def _described(prop: dict) -> bool:
+    """A property carries a description itself or in every non-null branch of its anyOf."""
+    if "description" in prop or "const" in prop or "$ref" in prop:
+        return True
+    branches = [b for b in prop.get("anyOf", []) if b.get("type") != "null"]
+    return bool(branches) and all(_described(b) for b in branches)
+
+
+def test_every_field_of_every_message_says_what_it_is():
+    """The integrator's contract (issue 18): each field's unit, frame or meaning is in the schema."""
+    doc = json.loads(json.dumps(json_schema()))
+    bare = [f"{name}.{field}" for name, d in doc["$defs"].items()
+            for field, prop in d.get("properties", {}).items() if field not in ("v", "kind") and not _described(prop)]
+    assert bare == []
+
+
 def test_schema_command_writes_stdout_and_file(tmp_path):
     import typer
 
@@ -589,3 +605,76 @@ def test_the_wire_module_needs_neither_gtsam_nor_zenoh():
             "bad = [m for m in ('gtsam', 'zenoh', 'numba') if m in sys.modules]; assert not bad, bad")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
+
+
+# --------------------------------------------------------------------------------------
+# The frames' fast path (issue 15): the same answers as the schema's own validation
+# --------------------------------------------------------------------------------------
+def same_answer_fast_and_schema(payload: bytes) -> None:
+    """decode(expect=ImuBatch) with the msgspec fast path and without it: the same message,
+    or the same reason and detail."""
+    def run(fast):
+        try:
+            return decode(payload, expect=ImuBatch, fast=fast), None
+        except WireError as e:
+            return None, (e.reason, e.detail)
+    fast, slow = run(True), run(False)
+    assert fast[1] == slow[1]
+    if slow[0] is not None:
+        assert fast[0] == slow[0] and type(fast[0]) is ImuBatch
+        for name in ("t", "acc", "gyr", "mag", "pressure_t", "pressure"):
+            a = getattr(fast[0], name)
+            assert a is None or (a.dtype == np.float64 and not a.flags.writeable)
+        assert fast[0].model_dump().keys() == slow[0].model_dump().keys()
+
+
+IMU_VALID = [encode(imu(n=5, mag=np.ones((5, 3)), pressure_t=[99.0], pressure=[970.0])), encode(imu(n=10)),
+             encode(imu(n=10, mag=np.ones((10, 3)), pressure_t=[100.01, 100.05], pressure=[970.0, 970.1],
+                        carry="handheld", utc_offset=1.7e9)),
+             encode(imu(n=1)), encode(imu(n=40, rate=1900.0)), encode(imu(n=12, rate=6.0))]
+
+
+@settings(max_examples=600)
+@given(st.sampled_from(IMU_VALID), st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)), min_size=1, max_size=6),
+       st.integers(0, 10**6), st.booleans())
+def test_fast_path_answers_mutated_frames_as_the_schema(payload, flips, cut, truncate):
+    data = bytearray(payload)
+    for pos, byte in flips:
+        data[pos % len(data)] = byte
+    if truncate:
+        data = data[: cut % (len(data) + 1)]
+    same_answer_fast_and_schema(bytes(data))
+
+
+@settings(max_examples=600)
+@given(st.sampled_from(IMU_VALID), st.data())
+def test_fast_path_answers_spoiled_fields_as_the_schema(payload, data):
+    d = msgpack.unpackb(payload)
+    names = [k for k in d] + ["mag", "pressure", "pressure_t", "utc_offset", "carry", "extra"]
+    for name in data.draw(st.lists(st.sampled_from(names), min_size=1, max_size=4)):
+        d[name] = data.draw(msgpack_values | st.binary(max_size=96) | st.floats() | st.sampled_from(
+            [None, True, -1, 2**64 - 1, "handheld", "sim-001", "x" * 65, "a\n", float("nan"), 0, 1, 2]))
+    same_answer_fast_and_schema(msgpack.packb(d))
+
+
+@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
+@given(imu_batches())
+def test_fast_path_decodes_every_valid_frame(b):
+    same_answer_fast_and_schema(encode(b))
+
+
+@settings(max_examples=300)
+@given(st.binary(max_size=600))
+def test_fast_path_answers_random_bytes_as_the_schema(payload):
+    same_answer_fast_and_schema(payload)
+
+
+def test_fast_path_takes_the_common_frame():
+    """The fast path is used, not just correct: a plain frame never reaches pydantic."""
+    from service.protocol.codec import _fast_imu
+
+    for p in IMU_VALID:
+        assert _fast_imu(p) is not None
+    spoiled = wire_map(imu(n=10))
+    spoiled["t"] = np.array([0.0, 0.1, 0.1, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9]).tobytes()
+    assert _fast_imu(msgpack.packb(spoiled)) is None

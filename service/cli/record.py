@@ -239,15 +239,22 @@ def replay(
                 publishers[msg.key].put(msg.payload)
                 counts[msg.key] += 1
         elapsed = time.monotonic() - began
+        unheard = sorted(_retarget(k, incident) for k, p in publishers.items()
+                         if counts[k] and not p.matching_status.matching)
     finally:
         session.close()
     result = {
         "path": str(path), "messages": sum(counts.values()), "keys": dict(sorted(counts.items())),
+        "unheard_keys": unheard,
         "seconds": elapsed, "speed": speed, "stopped": stop.is_set(),
         "truncated": reader.truncated, "unreadable_bytes": reader.unreadable_bytes,
     }
     if not quiet:
         console.print(f"replayed {result['messages']} messages from {path} in {elapsed:.1f} s", highlight=False)
+        if unheard:
+            target = incident or summary["incident"] or keys[0].split("/")[1]
+            warn(f"nobody was subscribed to {', '.join(unheard)} at the end: those messages went nowhere "
+                 f"(is `firetrack serve` running, and for incident {target!r}?)")
     return result
 
 
@@ -292,7 +299,7 @@ def _already_tracked(session, incident: str, responders: set[str], stop: threadi
 def _wait_for_subscribers(publishers: dict, timeout: float, stop: threading.Event) -> list[str]:
     deadline = time.monotonic() + timeout
     while True:
-        unmatched = [k for k, p in publishers.items() if not p.matching_status]
+        unmatched = [k for k, p in publishers.items() if not p.matching_status.matching]
         if not unmatched or time.monotonic() >= deadline or stop.wait(0.02):
             return unmatched
 
@@ -348,8 +355,10 @@ def replay_command(
     if identity is None:
         insecure("firetrack replay")
     try:
-        replay(file, connect, speed, from_s, responder or None, tuple(kind) if kind else INPUT_KINDS,
-               incident=as_incident, force=force, tls=identity)
+        result = replay(file, connect, speed, from_s, responder or None, tuple(kind) if kind else INPUT_KINDS,
+                        incident=as_incident, force=force, tls=identity)
     except (ConnectionError, ValueError, OSError) as e:
         fail(str(e))
+        raise typer.Exit(1)
+    if result["unheard_keys"]:  # said above; a script sees it in the exit code, as with `wearable`
         raise typer.Exit(1)

@@ -29,7 +29,7 @@ def reprocess_command(
     file: Path = typer.Argument(..., help="an incident recording (.mcap) from serve --record, record or exercise"),
     config: Path = typer.Option(None, "--config", help="incident config (default: the IPIN museum demo)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON"),
-    export: Path = typer.Option(None, "--export", help="write the smoothed tracks here: tracks.geojson, tracks.csv, <responder>.tum"),
+    export: Path = typer.Option(None, "--export", help="write the smoothed tracks here (tracks.geojson, tracks.csv, <responder>.tum) and the live poses with their covariance (live.csv)"),
 ):
     """Run the service pipeline offline over the recorded inputs and compare with the poses recorded live."""
     from service.review.reprocess import reprocess
@@ -50,12 +50,13 @@ def reprocess_command(
     for w in caught:  # a torn recording: one clear line, not a Python warning
         warn(str(w.message))
     tracks = rep.pop("tracks")
+    live = rep.pop("live_tracks")
     if rep["errors"]:
         fail(f"{file}: {rep['errors']} message(s) raised an error while reprocessing (see the log above); "
              "the other messages were processed")
     if export is not None:
         try:
-            _export(tracks, cfg, export)
+            _export(tracks, cfg, export, live)
         except (ValueError, OSError) as e:
             fail(f"export to {export}: {e}")
             raise typer.Exit(1)
@@ -75,7 +76,7 @@ def reprocess_command(
     out.print(table)
 
 
-def _export(tracks: dict, cfg, folder: Path) -> None:
+def _export(tracks: dict, cfg, folder: Path, live: dict | None = None) -> None:
     from pdr.floors import FloorElevations
     from service.review.export import to_csv, to_geojson, to_tum
 
@@ -86,7 +87,10 @@ def _export(tracks: dict, cfg, folder: Path) -> None:
     to_csv(tracks, folder / "tracks.csv", origin, floors)
     for rid, tr in tracks.items():
         to_tum(tr, folder / f"{rid}.tum", floors)
-    err.print(f"wrote {len(tracks)} track(s) to {folder}/ (tracks.geojson, tracks.csv, <responder>.tum)")
+    if live:  # the smoother keeps no covariance in hindsight; the live poses carry the one the console showed
+        to_csv(live, folder / "live.csv", origin, floors)
+    err.print(f"wrote {len(tracks)} smoothed track(s) to {folder}/ (tracks.geojson, tracks.csv, <responder>.tum)"
+              + (f" and {len(live)} live track(s) with covariance (live.csv)" if live else ""))
 
 
 def exercise_command(

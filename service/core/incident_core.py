@@ -76,6 +76,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pdr.events import MotionEvent, bearing_deg
+from pdr.fleet import FleetMember, PdrFleet
 from pdr.floors import FloorElevations
 from service.core import alarms
 from service.core.fix_types import FixRejected, fix_type_of
@@ -142,6 +143,7 @@ class CoreSettings:
     max_clock_lead_s: float = 60.0  # s a device clock may run ahead of the service's across a gap (beyond: a leap)
     idle_after_s: float = 2.0  # s without a message after which a responder's Status goes out less often ...
     idle_status_every_s: float = 5.0  # ... every this many s (and at once when its alarms change)
+    columnar: bool = True  # handheld pipelines run in columnar rounds (pdr.fleet); False: one responder at a time
     plausibility: PlausibilitySettings = field(default_factory=PlausibilitySettings)
 
 
@@ -170,6 +172,7 @@ class IncidentCore:
         self.recording_failed = False  # set by the shell: every Status then carries the alarm
         self._dirty: dict[str, Responder] = {}  # responders with frames waiting for the round's end
         self._out: list[Outbound] = []
+        self._pose_queue: list[tuple] = []  # poses of this round waiting for their wire form
         self._now = 0.0
         self._presence: dict[str, bool] = {}  # liveliness seen before a responder's first frame (bounded)
         self.intake = Intake(settings.intake)
@@ -177,6 +180,10 @@ class IncidentCore:
                                     settings.log_lines_per_window)
         self._expiry_checked = -math.inf
         self._early_rejects: dict[str, deque] = {}  # rejects at the intake of ids admitted but not made yet
+        pipeline = settings.tracker.pipeline
+        # the handheld pipelines of all responders, run a stage at a time over the round (pdr.fleet)
+        self.fleet = (PdrFleet(pipeline, FloorElevations(incident.elevations()))
+                      if settings.columnar and PdrFleet.supports(pipeline) and settings.tracker.motion is None else None)
         self.access = wire.Access(enforce=False)  # until an access message says otherwise: the open demo
         self._revoked: frozenset[str] = frozenset()
         self._refused_logged: set[str] = set()
@@ -193,6 +200,7 @@ class IncidentCore:
             except Exception:  # a bug must not stop the incident: log it, count it, go on
                 self._error(f"while processing {item.key[:200]}")
         self._run_dirty()
+        self._emit_poses()
         out, self._out = self._out, []
         return out
 
@@ -223,6 +231,7 @@ class IncidentCore:
                     r.last_status, r.last_alarms = now, st.alarms
             except Exception:
                 self._error(f"status of {r.id}")
+        self._emit_poses()
         out, self._out = self._out, []
         return out
 
@@ -377,7 +386,8 @@ class IncidentCore:
         cfg, s = self.incident, self.settings
         entry = (None if s.entry_sigma_m is None
                  else CheckpointFix(0.0, 0.0, 0.0, cfg.start_floor, s.entry_sigma_m, "origin (unplaced)"))
-        return ResponderTracker(rid, FloorElevations(cfg.elevations()), cfg.start_floor, s.tracker, entry=entry)
+        return ResponderTracker(rid, FloorElevations(cfg.elevations()), cfg.start_floor, s.tracker, entry=entry,
+                                fleet=self.fleet)
 
     MAX_PRESENCE = 4096  # liveliness states kept for ids with no responder (beyond, the oldest go)
 
@@ -483,10 +493,7 @@ class IncidentCore:
         r.backlog.append(b)
         r.last_t = float(b.t[-1]) + r.t_offset
         r.last_rt = self._now
-        if r.tracker.fix_waiting:  # frame by frame until the fix is applied (see fix_waiting)
-            self._run_backlog(r)
-        else:
-            self._dirty[r.id] = r
+        self._dirty[r.id] = r  # run at the round's end (frame by frame while a fix waits: see _run_backlog)
 
     def _new_stream(self, r: Responder, b: wire.ImuBatch) -> None:
         """The gate opened a stream with ``b``: the first of the responder, or a new one (a
@@ -528,29 +535,77 @@ class IncidentCore:
         r.tracker.note_gap(t_from, t_to, self.settings.gap_speed_mps * (t_to - t_from))
 
     def _run_dirty(self) -> None:
+        """The round's end: every responder's waiting frames through its tracker; those on the
+        handheld pipeline together, a stage at a time (:meth:`_run_columnar`)."""
         dirty, self._dirty = self._dirty, {}
+        columns: list[Responder] = []
         for r in dirty.values():
+            if r.backlog and isinstance(r.tracker.choose_model(r.backlog[0].carry), FleetMember):
+                columns.append(r)
+                continue
             try:
                 self._run_backlog(r)
             except Exception:
                 self.counters.errors += 1
                 log.exception("error while running the frames of %s", r.id)
+        if columns:
+            self._run_columnar(columns)
+
+    def _run_columnar(self, responders: list[Responder]) -> None:
+        """Responders on the fleet's pipeline: their frames in one columnar round, then each
+        one's events through its tracker. The events are those of one responder at a time, bit
+        for bit (:mod:`pdr.fleet`). While a fix waits for its step a responder gives one frame
+        per round (:meth:`_next_batches`), so its frames run one at a time as alone. A frame the
+        pipeline refuses takes the one-at-a-time path, which finds the culprit."""
+        while responders:
+            items = [(r, self._next_batches(r)) for r in responders]
+            try:
+                results = self.fleet.run([(r.tracker.model, frame_of(batches)) for r, batches in items])
+            except Exception:  # a bug in the round: each responder alone, so that one cannot stop the others
+                self.counters.errors += 1
+                log.exception("error in a columnar round of %d responders", len(items))
+                results = [None] * len(items)
+            for (r, batches), events in zip(items, results):
+                try:
+                    if events is None or isinstance(events, Exception):
+                        r.backlog = batches + r.backlog
+                        self._run_backlog(r)
+                        continue
+                    self._after_batches(r, batches, r.tracker.on_events(events))
+                except Exception:
+                    self.counters.errors += 1
+                    log.exception("error while running the frames of %s", r.id)
+            responders = [r for r, _ in items if r.backlog]
+
+    @staticmethod
+    def _next_batches(r: Responder) -> list:
+        """The frames a responder's tracker takes next as one batch: all it has, or one while a
+        checkpoint fix waits for its step (``ResponderTracker.fix_waiting``)."""
+        if r.tracker.fix_waiting and len(r.backlog) > 1:
+            batches, r.backlog = r.backlog[:1], r.backlog[1:]
+        else:
+            batches, r.backlog = r.backlog, []
+        return batches
 
     def _run_backlog(self, r: Responder) -> None:
-        """The responder's waiting frames through its tracker as one batch; poses out."""
-        batches, r.backlog = r.backlog, []
-        if not batches:
-            return
+        """The responder's waiting frames through its tracker, as one batch (one at a time while
+        a fix waits); poses out."""
+        while r.backlog:
+            self._run_batches(r, self._next_batches(r))
+
+    def _run_batches(self, r: Responder, batches: list) -> None:
         try:
             outputs = r.tracker.on_frame(frame_of(batches, r.t_offset), batches[0].carry)
         except ValueError as e:  # e.g. a frame the gate let through that the pipeline cannot take
             if len(batches) > 1:  # the check comes before any state changes: find the culprit alone
                 for b in batches:
-                    r.backlog = [b]
-                    self._run_backlog(r)
+                    self._run_batches(r, [b])
                 return
             self._reject(r, "pipeline", f"frame {batches[0].seq}: {e}", self._now)
             return
+        self._after_batches(r, batches, outputs)
+
+    def _after_batches(self, r: Responder, batches: list, outputs: list) -> None:
         r.seq, r.seq_oldest = batches[-1].seq, batches[0].seq
         self.counters.frames_processed += len(batches)
         self.counters.tracker_batches += 1
@@ -734,21 +789,53 @@ class IncidentCore:
 
     # ------------------------------------------------------------------ outputs
     def _answer_pose(self, r: Responder, p: PoseEstimate) -> None:
-        self._out.append(Outbound(wire.key(self.id, r.id, "pose"), self.pose_message(r, p)))
+        """A pose to answer: its place in the output is kept, its wire form is made for all the
+        round's poses at once (one geodetic conversion, :meth:`_emit_poses`)."""
+        self._pose_queue.append((len(self._out), r, p, max(r.seq, 0), self._now, r.utc_offset))
+        self._out.append(None)
         r.poses += 1
+
+    def _emit_poses(self) -> None:
+        q, self._pose_queue = self._pose_queue, []
+        if not q:
+            return
+        try:
+            lat, lon = self._geodetic(np.array([e[2].x for e in q], float), np.array([e[2].y for e in q], float))
+            lat, lon = lat.tolist(), lon.tolist()
+        except Exception:
+            self.counters.errors += 1
+            log.exception("geodetic position of %d poses", len(q))
+            lat = lon = [math.nan] * len(q)
+        for (i, r, p, seq, now, utc_offset), la, lo in zip(q, lat, lon):
+            try:
+                self._out[i] = Outbound(wire.key(self.id, r.id, "pose"), self._pose(r, p, la, lo, seq, now, utc_offset))
+            except Exception:  # a pose that is not a valid message is dropped, counted and logged
+                self.counters.errors += 1
+                log.exception("pose of %s", r.id)
+        if any(o is None for o in self._out):
+            self._out = [o for o in self._out if o is not None]
+
+    def _geodetic(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """ENU -> (lat, lon) for arrays: every pose the same bits whether converted alone or among many."""
+        lat, lon, _ = self.incident.to_geodetic(x, y, np.zeros_like(x))
+        return np.atleast_1d(lat), np.atleast_1d(lon)
 
     def pose_message(self, r: Responder, p: PoseEstimate) -> wire.Pose:
         """The wire form of a pose: geodetic position, compass bearing, symmetric covariance;
         ``published_at`` is the core's time, which the shell restamps when it publishes."""
-        lat, lon, _ = self.incident.to_geodetic(p.x, p.y)
+        lat, lon = self._geodetic(np.array([p.x], float), np.array([p.y], float))
+        return self._pose(r, p, float(lat[0]), float(lon[0]), max(r.seq, 0), self._now, r.utc_offset)
+
+    @staticmethod
+    def _pose(r: Responder, p: PoseEstimate, lat: float, lon: float, seq: int, now: float, utc_offset) -> wire.Pose:
         cov = np.asarray(p.cov, float)
         cov = 0.5 * (cov + cov.T)
         t = p.t - r.t_offset  # on the current stream's device clock, like every time on the wire
         return wire.Pose(
-            responder=r.id, t=t, x=p.x, y=p.y, floor=int(p.floor), lat=float(lat), lon=float(lon),
+            responder=r.id, t=t, x=p.x, y=p.y, floor=int(p.floor), lat=lat, lon=lon,
             heading_deg=bearing_deg(p.heading) if math.isfinite(p.heading) else 0.0, cov=cov, steps=p.steps,
-            source=p.source, seq=max(r.seq, 0), published_at=self._now,
-            utc=None if r.utc_offset is None else t + r.utc_offset,
+            source=p.source, seq=seq, published_at=now,
+            utc=None if utc_offset is None else t + utc_offset,
         )
 
     # ------------------------------------------------------------------ snapshots
@@ -760,6 +847,7 @@ class IncidentCore:
             self._run_dirty()  # between rounds nothing waits; make sure
         state = {"incident": self.id, "responders": self.responders, "unattributed": self.unattributed,
                  "counters": self.counters, "presence": self._presence, "intake": self.intake, "now": self._now,
+                 "access": self.access, "early_rejects": self._early_rejects, "fleet": self.fleet,
                  "expiry_checked": self._expiry_checked}
         return snapshots.dumps(state)
 
@@ -779,5 +867,10 @@ class IncidentCore:
         core.intake = intake
         core._now = state["now"]
         core._expiry_checked = state["expiry_checked"]
+        acc = state["access"]
+        core.access, core._revoked = acc, frozenset(acc.revoked) if acc.enforce else frozenset()
+        core._early_rejects = state["early_rejects"]
+        if state["fleet"] is not None:  # the restored handheld trackers' slots live in it: new ones join it
+            core.fleet = state["fleet"]
         return core
 

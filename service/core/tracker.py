@@ -73,9 +73,10 @@ def tracker_settings_for(incident, engine: str = "fusion") -> TrackerSettings:
 class ResponderTracker:
     def __init__(self, responder: str, floors: FloorElevations, start_floor: int = 0,
                  settings: TrackerSettings | None = None, entry: CheckpointFix | None = None,
-                 carry: str = DEFAULT_CARRY):
+                 carry: str = DEFAULT_CARRY, fleet=None):
         self.responder = responder
         self.settings = settings or TrackerSettings()
+        self._fleet = fleet  # a pdr.fleet.PdrFleet: the handheld pipeline runs in the core's columnar rounds
         self.floors = floors
         self._start_floor = start_floor
         self._carry = carry
@@ -101,7 +102,13 @@ class ResponderTracker:
         self._gap: tuple[float, float] | None = None  # (t_from, sigma_m) of a gap the next step crosses
 
     def _motion_factory(self, carry: str):
-        return self.settings.motion or motion_model_for(carry)
+        if self.settings.motion is not None:
+            return self.settings.motion
+        factory = motion_model_for(carry)
+        if self._fleet is not None and factory is motion_model_for(DEFAULT_CARRY):
+            fleet = self._fleet
+            return lambda settings, floors, start_floor: fleet.member(start_floor)  # the same pipeline, in rounds
+        return factory
 
     # ------------------------------------------------------------------ what Status reads
     @property
@@ -128,13 +135,24 @@ class ResponderTracker:
     # ------------------------------------------------------------------ inputs
     def on_frame(self, frame: ImuFrame, carry: str | None = None) -> list[PoseEstimate | MotionEvent]:
         """Consecutive samples; ``carry`` (the wire frame's) picks the motion model at the first frame."""
+        self.choose_model(carry)
+        events = self.model.update(frame)
+        return self.on_events(events)
+
+    def choose_model(self, carry: str | None) -> MotionModel:
+        """The motion model for frames of ``carry`` (chosen at the first frame)."""
         if self._frames == 0 and carry is not None and carry != self._carry and self.settings.motion is None:
             self._carry = carry
             self.model = self._motion_factory(carry)(self.settings, self.floors, self._start_floor)
             if self._anchored is not None:
                 self.model.anchor_floor(*self._anchored)
+        return self.model
+
+    def on_events(self, events) -> list[PoseEstimate | MotionEvent]:
+        """What the motion model made of one frame (``model.update(frame)``, or the core's
+        columnar round of many responders) -> poses and motion changes."""
         self._frames += 1
-        return self._consume(self.model.update(frame))
+        return self._consume(events)
 
     def finish(self) -> list[PoseEstimate | MotionEvent]:
         out = self._consume(self.model.finish())
@@ -144,6 +162,11 @@ class ResponderTracker:
             p = self._apply_fix(fix)
             if p is not None:
                 out.append(p)
+        flush = getattr(self.estimator, "flush", None)  # steps batched for the graph's next update go in now
+        p = flush() if flush is not None else None
+        if p is not None:
+            self.live = self._published(p, self.live.steps if self.live else p.steps)
+            out.append(self.live)
         return out
 
     @property

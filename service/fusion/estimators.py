@@ -21,6 +21,7 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
+from pdr.angles import wrap
 from pdr.dead_reckoning import DeadReckoning
 from pdr.events import PoseEstimate, StepEvent
 from service.fusion.fixes import CheckpointFix
@@ -92,7 +93,17 @@ class DeadReckoningEstimator:
 
 
 class FusionEstimator:
-    """The gtsam factor graph (:class:`service.fusion.graph.TrackFusion`) behind the protocol."""
+    """The gtsam factor graph (:class:`service.fusion.graph.TrackFusion`) behind the protocol,
+    its updates paid per second of walking, not per step (issue 15).
+
+    Steps wait in a batch until one is ``update_interval_s`` after the last update (or a fix,
+    a floor change or the end of the stream arrives); the batch then goes into the graph in one
+    iSAM2 update (:meth:`TrackFusion.add_steps`: the same factors as one update per step). In
+    between, the live pose is the last fused pose propagated by dead reckoning — each step
+    walked along its heading change, scaled by the graph's step-length factor — with the
+    covariance of ``(x, y, θ)`` grown by each step's noise (:func:`dr_propagate`). The batches
+    depend on the steps' device times only, so the poses are the same whatever the rounds.
+    """
 
     def __init__(self, settings=None):
         from service.fusion.graph import (
@@ -100,35 +111,129 @@ class FusionEstimator:
         )
 
         self.fusion = TrackFusion(settings)
+        self._every = self.fusion.settings.update_interval_s
         self._steps = 0
+        self._pending: list[StepEvent] = []
+        self._last_update_t = -math.inf
+        self._dr: tuple | None = None  # (t, x, y, θ, Σ as 6 floats, scale, source, floor) of the live pose
 
     def start(self, t, x, y, heading, heading_sigma, position_sigma, floor) -> None:
-        self.fusion.start(t, x, y, heading, heading_sigma, position_sigma, floor)
+        self._base(self.fusion.start(t, x, y, heading, heading_sigma, position_sigma, floor))
 
     def add_step(self, ev: StepEvent) -> PoseEstimate:
         self._steps = ev.index
-        return self._pose(self.fusion.add_step(ev))
+        self._pending.append(ev)
+        if ev.t - self._last_update_t >= self._every:
+            return self._pose(self._flush())
+        return self._propagate(ev)
+
+    def flush(self) -> PoseEstimate | None:
+        """The steps waiting for an update go into the graph now (end of the stream)."""
+        return self._pose(self._flush()) if self._pending else None
+
+    def _flush(self):
+        events, self._pending = self._pending, []
+        fp = self.fusion.add_steps(events) if events else self.fusion.live
+        self._last_update_t = fp.t
+        self._base(fp)
+        return fp
+
+    def _base(self, fp) -> None:
+        c = np.asarray(fp.cov)
+        hs = fp.heading_sigma if math.isfinite(fp.heading_sigma) else 0.0
+        scale = fp.length_scale if math.isfinite(fp.length_scale) else 1.0
+        self._dr = (fp.t, fp.x, fp.y, fp.heading, (float(c[0, 0]), float(c[0, 1]), 0.0, float(c[1, 1]), 0.0, hs * hs),
+                    scale, fp.source, fp.floor)
+
+    def _propagate(self, ev: StepEvent) -> PoseEstimate:
+        t, x, y, th, cov, scale, source, _ = self._dr
+        s = self.fusion.settings
+        turn, turn_sigma = ev.heading_change, ev.heading_change_sigma
+        if not (math.isfinite(turn) and math.isfinite(turn_sigma)):
+            turn = wrap(ev.heading - th) if math.isfinite(ev.heading) else 0.0
+            turn_sigma = s.unknown_turn_sigma_rad
+        turn_sigma = max(turn_sigma, s.turn_sigma_floor_rad)
+        length = ev.length * scale
+        x, y, th, cov = dr_propagate(x, y, th, cov, length, max(ev.length_sigma, s.length_sigma_floor_m) * scale,
+                                     turn, turn_sigma, s.lateral_sigma_m)
+        self._dr = (ev.t, x, y, th, cov, scale, source, ev.floor)
+        return self._live()
+
+    def _live(self) -> PoseEstimate:
+        t, x, y, th, c, _, source, floor = self._dr
+        cov = np.array([[c[0], c[1]], [c[1], c[3]]])
+        cov.setflags(write=False)
+        return PoseEstimate(t, x, y, wrap(th), cov, floor, self._steps, source, math.sqrt(max(c[5], 0.0)))
 
     def add_gap(self, sigma_m: float) -> None:
         self.fusion.add_gap(sigma_m)
 
     def add_fix(self, fix) -> FixOutcome:
+        self._flush()
         before = Counter(self.fusion.rejected)
         fp = self.fusion.add_fix(fix)
         if fp is None:
             reason = next(iter(Counter(self.fusion.rejected) - before), "rejected")
             return FixOutcome("rejected", reason=reason)
+        self._base(fp)
         return FixOutcome("applied", self._pose(fp))
 
     def set_floor(self, t: float, floor: int) -> PoseEstimate:
-        return self._pose(self.fusion.set_floor(t, floor))
+        self._flush()
+        fp = self.fusion.set_floor(t, floor)
+        self._base(fp)
+        return self._pose(fp)
 
     def smoothed_track(self) -> dict[str, np.ndarray]:
-        return self.fusion.smoothed_track()
+        """The graph's smoothed track, and the steps waiting for the next update as dead
+        reckoning from its newest pose (a query must not change when the graph updates)."""
+        out = self.fusion.smoothed_track()
+        if not self._pending:
+            return out
+        x, y, th = float(out["x"][-1]), float(out["y"][-1]), float(out["heading"][-1])
+        scale = self._dr[5]
+        rows = []
+        for ev in self._pending:
+            turn = ev.heading_change if math.isfinite(ev.heading_change) else 0.0
+            th = th + turn
+            x, y = x + ev.length * scale * math.cos(th), y + ev.length * scale * math.sin(th)
+            rows.append((ev.t, x, y, wrap(th), ev.floor, ev.index))
+        extra = np.array(rows, float)
+        for i, k in enumerate(("t", "x", "y", "heading", "floor", "index")):
+            out[k] = np.concatenate([out[k], extra[:, i].astype(out[k].dtype)])
+        return out
 
     def _pose(self, fp) -> PoseEstimate:
         return PoseEstimate(fp.t, fp.x, fp.y, fp.heading, np.asarray(fp.cov), fp.floor, self._steps, fp.source,
                             getattr(fp, "heading_sigma", math.nan))
+
+
+def dr_propagate(x: float, y: float, th: float, cov: tuple, length: float, length_sigma: float, turn: float,
+                 turn_sigma: float, lateral_sigma: float) -> tuple[float, float, float, tuple]:
+    """One step of dead reckoning with its covariance (first order): the heading turns by
+    ``turn``, the step of ``length`` is walked along the new heading θ' (as the graph's step
+    factor, :func:`service.fusion.noise.step_covariance`)::
+
+        x' = x + L cos θ',   y' = y + L sin θ',   θ' = θ + Δθ
+        Σ' = F (Σ + diag(0, 0, σ_Δθ²)) Fᵀ + R diag(σ_L², σ_lat²) Rᵀ,   F = [[1, 0, −L sin θ'], [0, 1, L cos θ'], [0, 0, 1]]
+
+    ``cov`` is the symmetric 3x3 of (x, y, θ) as six floats ``(xx, xy, xθ, yy, yθ, θθ)``."""
+    xx, xy, xt, yy, yt, tt = cov
+    th = th + turn
+    tt = tt + turn_sigma * turn_sigma
+    c, s = math.cos(th), math.sin(th)
+    a, b = -length * s, length * c  # ∂(x, y)/∂θ
+    # F Σ Fᵀ with F = [[1, 0, a], [0, 1, b], [0, 0, 1]]
+    nxx = xx + 2 * a * xt + a * a * tt
+    nxy = xy + a * yt + b * xt + a * b * tt
+    nyy = yy + 2 * b * yt + b * b * tt
+    nxt = xt + a * tt
+    nyt = yt + b * tt
+    la, lo = length_sigma * length_sigma, lateral_sigma * lateral_sigma
+    nxx += la * c * c + lo * s * s
+    nxy += (la - lo) * c * s
+    nyy += la * s * s + lo * c * c
+    return x + length * c, y + length * s, th, (nxx, nxy, nxt, nyy, nyt, tt)
 
 
 _ESTIMATORS: dict[str, Callable[..., TrackEstimator]] = {}

@@ -155,6 +155,7 @@ class TrackFusion:
         self._live: FusedPose | None = None
         self._live_pose = gtsam.Pose2()
         self._shown: np.ndarray | None = None  # position shown in the live pose (display filter)
+        self._shown_row = 0  # history row of the pose published last
         self._fused = False
         self._steps = 0
         self._last_index = 0
@@ -274,7 +275,23 @@ class TrackFusion:
         Raises ``ValueError`` for a step that is not after the previous pose or has non-finite
         length/time/sigmas, ``RuntimeError`` before :meth:`start`.
         """
+        return self.add_steps([ev])
+
+    def add_steps(self, events: list[StepEvent]) -> FusedPose:
+        """Several steps in one iSAM2 update (the same factors as one :meth:`add_step` each);
+        returns the live estimate of the newest pose. One update per second of walking instead of
+        one per step is what :class:`service.fusion.estimators.FusionEstimator` does (issue 15)."""
         self._require_started()
+        graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
+        try:
+            for ev in events:
+                self._stage_step(ev, graph, values, stamps)
+        finally:  # the steps staged before a bad one stay consistent with the history
+            if stamps:
+                self._smoother.update(graph, values, stamps)
+        return self._publish("step")
+
+    def _stage_step(self, ev: StepEvent, graph, values, stamps) -> None:
         s = self.settings
         prev = len(self._hist) - 1
         t_prev = float(self._hist.col("t")[prev])
@@ -304,8 +321,7 @@ class TrackFusion:
             self.events.append(FusionEvent(ev.t, "gap", "step", f"position sigma +{self._gap_sigma:.1f} m"))
             self._gap_sigma = 0.0
         row = prev + 1
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        stamps = {X(row): float(ev.t)}
+        stamps[X(row)] = float(ev.t)
         step_noise = gtsam.noiseModel.Gaussian.Covariance(cov)
         if self._scale_n >= 0:
             if ev.t - self._scale_t0 >= s.length_scale_interval_s:
@@ -317,6 +333,7 @@ class TrackFusion:
             graph.add(gtsam.BetweenFactorPose2(X(prev), X(row), gtsam.Pose2(length * math.cos(turn), length * math.sin(turn), turn), step_noise))
             walked = length
         values.insert(X(row), self._live_pose.compose(gtsam.Pose2(walked * math.cos(turn), walked * math.sin(turn), turn)))
+        self._live_pose = values.atPose2(X(row))  # the next staged step starts here
         self._chain += turn
         if (s.use_mag_heading and math.isfinite(ev.mag_heading) and math.isfinite(ev.mag_heading_sigma)
                 and ev.mag_heading_sigma > 0 and ev.t - self._last_mag_t >= s.mag_min_interval_s
@@ -326,14 +343,12 @@ class TrackFusion:
             graph.add(gtsam.PoseRotationPrior2D(X(row), gtsam.Rot2(ev.mag_heading), noise))
             self._last_mag_t = ev.t
         self._freeze_before(ev.t - s.lag_s)
-        self._smoother.update(graph, values, stamps)
         self._hist.append(t=ev.t, index=ev.index, x=math.nan, y=math.nan, heading=math.nan,
                           floor=ev.floor, pdr_floor=ev.floor, length=length,
                           duration=ev.t - t_prev)
         self._steps += 1
         self._last_index = ev.index
         self._live_floor = None
-        return self._publish("step")
 
     def _compass_agrees(self, ev: StepEvent) -> bool:
         """Does the compass turn with the gyro over the last ``mag_window_s``? The offset between
@@ -461,13 +476,15 @@ class TrackFusion:
         if how == "snap" or self._shown is None or self.settings.display_gain >= 1.0:
             self._shown = est
         elif how == "step":
-            if row - 1 >= self._window_start:
-                prev = self._smoother.calculateEstimatePose2(X(row - 1))
+            last = self._shown_row  # the pose published last: the step before, or before a batch of steps
+            if last >= self._window_start:
+                prev = self._smoother.calculateEstimatePose2(X(last))
                 prev_xy = np.array([prev.x(), prev.y()])
             else:  # a long stop: the previous pose has left the window, its last estimate is frozen
-                prev_xy = np.array([self._hist.col("x")[row - 1], self._hist.col("y")[row - 1]])
+                prev_xy = np.array([self._hist.col("x")[last], self._hist.col("y")[last]])
             moved = self._shown + (est - prev_xy)
             self._shown = moved + self.settings.display_gain * (est - moved)
+        self._shown_row = row
         marginal = self._smoother.marginalCovariance(key)
         rot = pose.rotation().matrix()
         cov = rot @ marginal[:2, :2] @ rot.T

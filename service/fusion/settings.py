@@ -79,6 +79,7 @@ class FusionSettings:
     relinearize_skip: int = 1  # iSAM2 updates between relinearisation checks
     fix_extra_updates: int = 5  # at most this many extra iSAM2 iterations after an accepted fix ...
     fix_convergence_m: float = 0.005  # m, ... stopping once the newest pose moves less than this
+    update_interval_s: float = 1.0  # s of walking per iSAM2 update (steps batched; dead reckoning between); 0: every step
     # steps
     length_sigma_floor_m: float = 0.02  # m, lower bound of the along-track sigma per step
     turn_sigma_floor_rad: float = 0.002  # rad, lower bound of the turn sigma per step
@@ -136,7 +137,7 @@ class FusionSettings:
         for name in ("relinearize_skip", "max_events", "mag_window_min_steps"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"FusionSettings.{name} must be >= 1, got {getattr(self, name)!r}")
-        for name in ("fix_extra_updates", "turn_walk", "stairs_turn_sigma_rad", "mag_min_interval_s", "gnss_min_interval_s", "fix_before_start_tolerance_s"):
+        for name in ("update_interval_s", "fix_extra_updates", "turn_walk", "stairs_turn_sigma_rad", "mag_min_interval_s", "gnss_min_interval_s", "fix_before_start_tolerance_s"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"FusionSettings.{name} must be >= 0, got {getattr(self, name)!r}")
         for name in ("mag_kernel", "gnss_kernel", "uwb_kernel"):

@@ -48,19 +48,19 @@ class OperatorAction(WireMessage):
     """
 
     KIND: ClassVar[str] = "op"
-    action: Literal["fix", "checkpoint", "ack", "par", "evacuate"]
+    action: Literal["fix", "checkpoint", "ack", "par", "evacuate"] = Field(description="what the person did")
     operator: str = Field(min_length=1, max_length=128, description="the person logged in at the console")
     utc: Finite = Field(description="s, Unix time UTC of the console's clock when the person acted")
-    responder: Id | None = None
+    responder: Id | None = Field(None, description="actions fix, ack: the responder it concerns")
     fix: bytes | None = Field(None, max_length=64 * 1024, description="action fix: an encoded Fix")
     alarm: str | None = Field(None, max_length=64, description="action ack: the alarm acknowledged")
     order: str | None = Field(None, max_length=64, description="actions par, evacuate: the order's id")
     responders: list[Id] | None = Field(None, max_length=10_000, description="actions par, evacuate: to whom")
     name: str | None = Field(None, max_length=128, description="action checkpoint: its name")
-    x: Finite | None = None
-    y: Finite | None = None
-    floor: int | None = None
-    note: str | None = Field(None, max_length=512)
+    x: Finite | None = Field(None, description="action checkpoint: m, east of the incident origin (ENU)")
+    y: Finite | None = Field(None, description="action checkpoint: m, north of the incident origin (ENU)")
+    floor: int | None = Field(None, description="action checkpoint: floor number (0 = ground, -1 = first basement)")
+    note: str | None = Field(None, max_length=512, description="free text the operator added, kept in the recording")
 
     @model_validator(mode="after")
     def _fields_of_action(self) -> OperatorAction:
@@ -87,13 +87,15 @@ class Audit(WireMessage):
     KIND: ClassVar[str] = "audit"
     actor: Id = Field(description="who published: the console/operator certificate, or the wearable")
     operator: str | None = Field(None, max_length=128, description="the person logged in, for an operator action")
-    action: Literal["fix", "checkpoint", "ack", "par", "evacuate", "device_fix"]
-    outcome: Literal["accepted", "refused", "recorded"]
-    responder: Id | None = None
+    action: Literal["fix", "checkpoint", "ack", "par", "evacuate", "device_fix"] = Field(
+        description="the operator action judged, or device_fix for a wearable's own checkpoint fix")
+    outcome: Literal["accepted", "refused", "recorded"] = Field(
+        description="accepted: goes to the track; refused: never reaches it (see reason); recorded: no track effect")
+    responder: Id | None = Field(None, description="the responder whose track it concerns")
     order: str | None = Field(None, max_length=64, description="par, evacuate: the order's id")
-    reason: str | None = Field(None, max_length=64)
-    detail: str | None = Field(None, max_length=512)
-    flags: list[str] = Field(default_factory=list)
+    reason: str | None = Field(None, max_length=64, description="refused: a short machine-readable reason")
+    detail: str | None = Field(None, max_length=512, description="a sentence for people: what and why")
+    flags: list[str] = Field(default_factory=list, description="warnings on an accepted action, e.g. implausible_jump")
     jump_m: Finite | None = Field(None, description="m, from the reference position to the fix")
     walkable_m: Finite | None = Field(None, description="m, the most a person could have covered since")
     t: Finite | None = Field(None, description="s, device clock: the fix's time")
@@ -111,9 +113,9 @@ class Access(WireMessage):
     """
 
     KIND: ClassVar[str] = "access"
-    enforce: bool
-    operators: list[Id] = Field(default_factory=list)
-    revoked: list[Id] = Field(default_factory=list)
+    enforce: bool = Field(description="false: everyone may do everything (insecure demo); true: the lists below apply")
+    operators: list[Id] = Field(default_factory=list, description="identities whose operator actions are taken")
+    revoked: list[Id] = Field(default_factory=list, description="identities from which nothing is taken")
     source: str | None = Field(None, max_length=512, description="where the policy came from (the roster file)")
 
 

@@ -1,15 +1,19 @@
 """Encoding and decoding of wire messages, the track reply, and the JSON Schema for other languages."""
 from __future__ import annotations
 
-from typing import Any
+import math
+import re
+from typing import Any, Literal
 
 import msgpack
+import msgspec
 import numpy as np
 from pydantic import ValidationError
 
 from service.protocol import actions, fixes  # noqa: F401  (register the fix sources and the action kinds before any decode)
 from service.protocol.keys import ID_PATTERN, KEY_ROOT
 from service.protocol.schema import (
+    CARRY_POSITIONS,
     MAX_PAYLOAD_BYTES,
     MAX_RATE_HZ,
     MAX_SAMPLES,
@@ -18,6 +22,7 @@ from service.protocol.schema import (
     REJECT_REASONS,
     SCHEMA_VERSION,
     WireError,
+    ImuBatch,
     WireMessage,
     fix_json_schema,
 )
@@ -60,9 +65,18 @@ def _wire_error(exc: ValidationError, kind: str) -> WireError:
     return WireError(reason, f"{kind}: " + "; ".join(parts))
 
 
-def decode(payload: bytes, expect: type | None = None, max_bytes: int = MAX_PAYLOAD_BYTES) -> WireMessage:
+def decode(payload: bytes, expect: type | None = None, max_bytes: int = MAX_PAYLOAD_BYTES,
+           fast: bool = True) -> WireMessage:
     """msgpack bytes -> a validated message; raises :class:`WireError` and nothing else on bad
-    input. ``expect`` (a message class) rejects any other kind with reason ``"kind"``."""
+    input. ``expect`` (a message class) rejects any other kind with reason ``"kind"``.
+
+    A frame (``expect=ImuBatch``) first tries :func:`_fast_imu`, which accepts only what the
+    schema certainly accepts and hands everything else to the schema's own validation, so a
+    rejected frame gets the same reason and detail either way."""
+    if fast and expect is ImuBatch and type(payload) is bytes and len(payload) <= max_bytes:
+        fast = _fast_imu(payload)
+        if fast is not None:
+            return fast
     if not isinstance(payload, (bytes, bytearray, memoryview)):
         raise WireError("msgpack", f"payload is a {type(payload).__name__}, expected bytes")
     size = payload.nbytes if isinstance(payload, memoryview) else len(payload)
@@ -91,6 +105,115 @@ def decode(payload: bytes, expect: type | None = None, max_bytes: int = MAX_PAYL
         return cls.model_validate(data, strict=True, context={"wire": True})
     except ValidationError as e:
         raise _wire_error(e, kind) from None
+
+
+# ---------------------------------------------------------------------------- the frames' fast path
+class _ImuWire(msgspec.Struct, forbid_unknown_fields=True):
+    """The msgpack layout of :class:`ImuBatch` for msgspec's compiled decoder: types only; the
+    constraints are checked in :func:`_fast_imu`. A frame with keys of its own takes the slow
+    path (the schema ignores them, but their values must still be valid msgpack for it)."""
+
+    v: int
+    kind: str
+    responder: str
+    device: str
+    seq: int
+    t: bytes
+    acc: bytes
+    gyr: bytes
+    mag: bytes | None = None
+    pressure_t: bytes | None = None
+    pressure: bytes | None = None
+    carry: Literal[CARRY_POSITIONS] = "unknown"  # type: ignore[valid-type]
+    utc_offset: float | None = None
+    boot: str | None = None
+
+
+_IMU_DECODER = msgspec.msgpack.Decoder(_ImuWire)
+_ID_FULL = re.compile(ID_PATTERN.removeprefix("^").removesuffix("$"))  # fullmatch: no trailing newline, as the schema
+_IMU_FIELDS = frozenset(ImuBatch.model_fields)
+_LO_DT, _HI_DT = 1.0 / MAX_RATE_HZ, 1.0 / MIN_RATE_HZ
+
+
+def _fast_imu(payload: bytes) -> ImuBatch | None:
+    """A frame the schema certainly accepts, as an :class:`ImuBatch`, in a few microseconds; None
+    for anything else (the caller then runs the full validation, which gives the reason).
+
+    Conservative by construction: msgspec's typed decoder checks the msgpack and the field
+    types (strict: no bool for an int, bin for every array, a known carry; a key of its own
+    sends the frame to the slow path), then every constraint of the schema is checked on the
+    common case only: every number finite, every sample interval within the rate limits (the
+    schema's median rule is needed only otherwise). A key given twice keeps its last value in both decoders.
+    The arrays are read-only views of one copy of the payload's bytes."""
+    try:
+        m = _IMU_DECODER.decode(payload)
+    except Exception:  # DecodeError, ValidationError, UnicodeDecodeError, ...: the schema will say what
+        return None
+    if (not 1 <= m.v <= SCHEMA_VERSION or m.kind != "imu" or m.seq < 0
+            or not 1 <= len(m.device) <= 128 or _ID_FULL.fullmatch(m.responder) is None):
+        return None
+    nb = len(m.t)
+    n = nb >> 3
+    if nb & 7 or not 1 <= n <= MAX_SAMPLES or len(m.acc) != 24 * n or len(m.gyr) != 24 * n:
+        return None
+    parts = [m.t, m.acc, m.gyr]
+    has_mag = m.mag is not None
+    if has_mag:
+        if len(m.mag) != 24 * n:
+            return None
+        parts.append(m.mag)
+    if (m.pressure is None) != (m.pressure_t is None):
+        return None
+    k = 0
+    if m.pressure is not None:
+        kb = len(m.pressure_t)
+        k = kb >> 3
+        if kb & 7 or len(m.pressure) != kb or k > MAX_SAMPLES:
+            return None
+        if k:
+            parts += [m.pressure_t, m.pressure]
+    if m.utc_offset is not None and not m.utc_offset - m.utc_offset == 0.0:
+        return None
+    if m.boot is not None and not 1 <= len(m.boot) <= 64:
+        return None
+    values = np.frombuffer(b"".join(parts), dtype="<f8")
+    if not np.isfinite(values).all():
+        return None
+    t = values[:n]
+    if n > 1 and not _times_plausible(t, _LO_DT, _HI_DT):
+        return None
+    at = 10 * n if has_mag else 7 * n  # t, acc, gyr[, mag], then pressure_t and pressure
+    pt = p = None
+    if k:
+        pt, p = values[at:at + k], values[at + k:at + 2 * k]
+        if k > 1 and not _times_plausible(pt, 0.0, math.inf):
+            return None
+    out = object.__new__(ImuBatch)
+    object.__setattr__(out, "__dict__", {
+        "responder": m.responder, "device": m.device, "seq": m.seq, "t": t, "acc": values[n:4 * n].reshape(n, 3),
+        "gyr": values[4 * n:7 * n].reshape(n, 3), "mag": values[7 * n:10 * n].reshape(n, 3) if has_mag else None,
+        "pressure_t": pt, "pressure": p, "carry": m.carry,
+        "utc_offset": None if m.utc_offset is None else float(m.utc_offset), "boot": m.boot,
+    })
+    object.__setattr__(out, "__pydantic_fields_set__", _IMU_FIELDS)
+    object.__setattr__(out, "__pydantic_extra__", None)
+    object.__setattr__(out, "__pydantic_private__", None)
+    return out
+
+
+def _times_plausible(t: np.ndarray, lo: float, hi: float) -> bool:
+    """Every interval of ``t`` strictly positive and within [lo, hi] (Python for a frame, numpy for more)."""
+    if t.shape[0] <= 32:
+        v = t.tolist()
+        prev = v[0]
+        for x in v[1:]:
+            d = x - prev
+            if not (d > 0.0 and lo <= d <= hi):
+                return False
+            prev = x
+        return True
+    d = t[1:] - t[:-1]
+    return bool(d.min() > 0.0 and d.min() >= lo and d.max() <= hi)
 
 
 TRACK_FIELDS = ("t", "x", "y", "floor", "heading")

@@ -14,6 +14,7 @@ recorder, the console and the wearables all build and parse keys here.
 from __future__ import annotations
 
 import re
+from functools import lru_cache
 
 KEY_KINDS = ("imu", "fix", "pose", "status", "track", "presence", "truth", "command", "ack", "op", "audit",
              "access")
@@ -46,10 +47,20 @@ def key_all(incident: str, kind: str) -> str:
     return f"{KEY_ROOT}/{check_id('incident', incident)}/*/{check_kind(kind)}"
 
 
+PARSED_KEYS_KEPT = 8192  # keys whose parse is remembered (a service sees a few per responder, every frame)
+
+
 def parse_key(k: str) -> tuple[str, str, str]:
     """``firetrack/{incident}/{responder}/{kind}`` -> ``(incident, responder, kind)``; ValueError
-    for anything else (wrong root, wrong number of chunks, bad id, unknown kind)."""
-    parts = str(k).split("/")
+    for anything else (wrong root, wrong number of chunks, bad id, unknown kind). Valid keys'
+    parses are remembered (the service parses the same few keys for every frame); a bad key
+    is checked again each time."""
+    return _parse_key(str(k))
+
+
+@lru_cache(maxsize=PARSED_KEYS_KEPT)
+def _parse_key(k: str) -> tuple[str, str, str]:
+    parts = k.split("/")
     if len(parts) != 4 or parts[0] != KEY_ROOT:
         raise ValueError(f"key {k!r} is not {KEY_ROOT}/{{incident}}/{{responder}}/{{kind}}")
     _, incident, responder, kind = parts

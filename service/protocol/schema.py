@@ -365,7 +365,7 @@ class Ack(WireMessage):
     KIND: ClassVar[str] = "ack"
     responder: Id
     id: str = Field(min_length=1, max_length=64, description="the id of the order acknowledged")
-    action: Literal["par", "evacuate"]
+    action: Literal["par", "evacuate"] = Field(description="the kind of the command answered")
     at: Finite = Field(description="s, Unix time UTC when the wearer acknowledged")
 
 

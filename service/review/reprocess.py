@@ -41,6 +41,8 @@ class ResponderReview:
     max_deviation_m: float | None = None
     unmatched: int = 0
     xy: list = field(default_factory=list)
+    live: list = field(default_factory=list)  # (t, x, y, floor, yaw, cov_xx, cov_xy, cov_yy) per published pose
+    utc_offset: float | None = None
 
 
 def reprocess(path: Path, incident_cfg, progress=None) -> dict:
@@ -73,6 +75,10 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
             r.distance_m += math.hypot(p.x - r.xy[-1][1], p.y - r.xy[-1][2])
         r.xy.append((p.t, p.x, p.y))
         mine.setdefault(rid, []).append((p.t, p.steps, p.x, p.y))
+        c = p.cov
+        r.live.append((p.t, p.x, p.y, p.floor, math.radians(90.0 - p.heading_deg), c[0, 0], c[0, 1], c[1, 1]))
+        if p.utc is not None:
+            r.utc_offset = p.utc - p.t  # the offset the service used for this pose
         r.steps = max(r.steps, p.steps)
     for rid, resp in core.responders.items():
         r = out.setdefault(rid, ResponderReview())
@@ -95,6 +101,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
             tracks[rid]["utc_offset"] = resp.utc_offset
     return {
         "tracks": tracks,
+        "live_tracks": {rid: _live_track(r.live, r.utc_offset) for rid, r in out.items() if r.live},
         "responders": {rid: {"steps": r.steps, "distance_live_m": r.distance_m,
                              "distance_smoothed_m": _walked(tracks.get(rid)), "poses": r.poses,
                              "recorded_poses": r.recorded_poses, "max_deviation_m": r.max_deviation_m,
@@ -127,6 +134,15 @@ def _compare(live: list, mine: list) -> tuple[float, int]:
         worst = max(worst, math.hypot(mine[k][2] - x, mine[k][3] - y))
         j = k + 1
     return (math.inf if unmatched else worst), unmatched
+def _live_track(rows: list, utc_offset) -> dict:
+    """The poses as the service published them, with their covariance (m², ENU), as a track."""
+    a = np.array(rows, dtype=np.float64)
+    a = a[np.concatenate(([True], np.diff(a[:, 0]) > 0))] if len(a) else a  # one pose per time: the last fix's jump
+    cols = ("t", "x", "y", "floor", "heading", "cov_xx", "cov_xy", "cov_yy")
+    track = {k: a[:, j] for j, k in enumerate(cols)}
+    track["floor"] = track["floor"].astype(np.int64)
+    track["utc_offset"] = utc_offset
+    return track
 
 
 def _walked(track: dict | None) -> float | None:

@@ -1,0 +1,216 @@
+"""The columnar pipeline (issue 15): a responder's events are the same, bit for bit, alone in a
+:class:`pdr.pipeline.PdrPipeline` or among many in a :class:`pdr.fleet.PdrFleet`, in rounds of
+any size; and the service gives the same poses with and without it."""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from pdr.events import MotionEvent
+from pdr.fleet import PdrFleet
+from pdr.floors import FloorElevations
+from pdr.pipeline import ImuFrame, PdrPipeline, PipelineSettings, frames_of
+
+IPIN = ["ipin2023/IPIN2023_T3_TrainingTrial01_repetition01.txt.gz",
+        "ipin2023/IPIN2023_T3_TrainingTrial21_repetition01.txt.gz",
+        "ipin2023/IPIN2023_T3_TrainingTrial52_repetition01.txt.gz"]
+
+
+def same_events(a, b) -> bool:
+    """Same events, every number bit for bit (NaN equals NaN)."""
+    if len(a) != len(b):
+        return False
+    for x, y in zip(a, b):
+        if type(x) is not type(y):
+            return False
+        for name in x.__dataclass_fields__:
+            u, v = getattr(x, name), getattr(y, name)
+            if isinstance(u, float):
+                if not (u == v or (math.isnan(u) and math.isnan(v))):
+                    return False
+            elif u != v:
+                return False
+    return True
+
+
+def by_kind(events):
+    """Steps and floor events in order, and motion changes in order (how the two kinds interleave
+    within one call depends on the batching, as in PdrPipeline)."""
+    return ([e for e in events if not isinstance(e, MotionEvent)], [e for e in events if isinstance(e, MotionEvent)])
+
+
+def join(frames: list[ImuFrame]) -> ImuFrame:
+    def cat(name):
+        parts = [getattr(f, name) for f in frames if getattr(f, name) is not None]
+        return np.concatenate(parts) if parts else None
+    return ImuFrame(cat("t"), cat("acc"), cat("gyr"), cat("mag"), cat("pressure_t"), cat("pressure"))
+
+
+def alone(frames, floors, start_floor, settings=None):
+    p = PdrPipeline(settings, floors, start_floor)
+    out = []
+    for f in frames:
+        out += p.update(f)
+    return out + p.finish()
+
+
+def in_fleet(walks, floors, settings=None, seed=0, max_join=3, p_take=0.7, anchors=None):
+    """Every walk's frames through one fleet: each round takes a random subset of the
+    responders, each a random number of its next frames joined (as the service joins a
+    responder's frames of a round). Returns the events, the members and the frames each
+    member was given (to give a PdrPipeline the same batches: HeadingEstimator's compass
+    sigma of a step answered while the field reference is still being learned depends on
+    the batching, a property of the pipeline itself)."""
+    rng = np.random.default_rng(seed)
+    fleet = PdrFleet(settings, floors, capacity=2)  # small: the rows grow (and the views follow) mid-run
+    members = [fleet.member(sf) for _, sf in walks]
+    out = [[] for _ in walks]
+    given = [[] for _ in walks]
+    pos = [0] * len(walks)
+    while any(pos[i] < len(w) for i, (w, _) in enumerate(walks)):
+        items = []
+        for i, (w, _) in enumerate(walks):
+            if pos[i] < len(w) and rng.random() < p_take:
+                k = int(rng.integers(1, max_join + 1))
+                items.append((i, join(w[pos[i]:pos[i] + k])))
+                given[i].append(items[-1][1])
+                pos[i] += k
+        for (i, _), events in zip(items, fleet.run([(members[i], f) for i, f in items])):
+            assert not isinstance(events, Exception), events
+            out[i] += events
+        if anchors:
+            for i, at, floor in anchors:
+                if pos[i] == at:
+                    members[i].anchor_floor(floor)
+    return [o + m.finish() for o, m in zip(out, members)], members, given
+
+
+def simulated(n, seconds, seed=3, still=()):
+    from pdr.simulation import WalkerFleet, WalkerSettings
+
+    sim = WalkerFleet(n, WalkerSettings(rate_hz=100.0), seed, responders=[f"w{i}" for i in range(n)], floors=(0, 2),
+                      start_t=1000.0, attitude=False)
+    for i, at, dur in still:
+        sim.stand_still(i, dur, at=at)
+    walks = [[] for _ in range(n)]
+    for _ in range(int(seconds * 10)):
+        for i, b in enumerate(sim.next_batches(10)):
+            has_p = len(b.pressure_t) > 0
+            walks[i].append(ImuFrame(b.t, b.acc, b.gyr, b.mag, b.pressure_t if has_p else None, b.pressure if has_p else None))
+    return walks
+
+
+@pytest.mark.bitexact
+def test_simulated_walkers_alone_and_in_a_fleet_give_the_same_events():
+    floors = FloorElevations.uniform(3.0, 0, 2)
+    walks = simulated(12, 70, still=[(0, 1000.0, 8.0), (3, 1020.0, 35.0), (5, 1010.0, 12.0)])
+    # one without a magnetometer, one of pressure-free frames: the fleet takes mixed rounds
+    walks[1] = [ImuFrame(f.t, f.acc, f.gyr, None, f.pressure_t, f.pressure) for f in walks[1]]
+    walks[2] = [ImuFrame(f.t, f.acc, f.gyr, f.mag) for f in walks[2]]
+    for seed, join_max in ((1, 1), (2, 4)):
+        got, _, given = in_fleet([(w, 0) for w in walks], floors, seed=seed, max_join=join_max)
+        ref = [alone(g, floors, 0) for g in given]
+        for i, (a, b) in enumerate(zip(ref, got)):
+            (sa, ma), (sb, mb) = by_kind(a), by_kind(b)
+            assert same_events(sa, sb), f"walker {i}: steps differ (rounds seed {seed})"
+            assert same_events(ma, mb), f"walker {i}: motion states differ (rounds seed {seed})"
+    assert sum(len(by_kind(a)[0]) for a in ref) > 600
+    assert any(e.state.value == "no_motion" for e in by_kind(ref[3])[1])  # 35 s still: the stillness windows ran
+
+
+@pytest.mark.bitexact
+@pytest.mark.recording
+def test_real_walks_alone_and_in_a_fleet_give_the_same_events(shared_data):
+    from pdr.io import load
+
+    floors = FloorElevations.uniform(3.0, -2, 0)
+    walks = []
+    for name in IPIN:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rec = load(shared_data(name))
+        imu = rec.imu_samples()
+        frames = list(frames_of(imu.t, imu.acc, imu.gyr, imu.mag, rec.pressure.t, rec.pressure.values[:, 0], per_frame=10))
+        walks.append((frames, int(rec.landmarks.floor[0])))
+    # the same walks three times in the fleet, so that rounds hold several responders at once
+    got, _, given = in_fleet(walks * 3, floors, seed=5)
+    ref = [alone(g, floors, sf) for g, (_, sf) in zip(given, walks * 3)]
+    for i, (a, b) in enumerate(zip(ref, got)):
+        assert same_events(by_kind(a)[0], by_kind(b)[0]), f"{IPIN[i % len(walks)]}: steps differ"
+        assert same_events(by_kind(a)[1], by_kind(b)[1]), f"{IPIN[i % len(walks)]}: motion states differ"
+    assert all(len(by_kind(a)[0]) > 80 for a in ref)
+    assert any(e.on_stairs for e in by_kind(ref[2])[0])  # trial 52 climbs: height, floors and stairs ran
+
+
+@pytest.mark.bitexact
+def test_a_floor_anchored_mid_walk_is_anchored_the_same_in_the_fleet():
+    floors = FloorElevations.uniform(3.0, 0, 2)
+    walks = simulated(3, 40, seed=8)
+    ref, pipes = [], []
+    for i, w in enumerate(walks):
+        p = PdrPipeline(None, floors, 0)
+        out = []
+        for k, f in enumerate(w):
+            out += p.update(f)
+            if i == 1 and k == 149:
+                p.anchor_floor(2)
+        ref.append(out + p.finish())
+        pipes.append(p)
+    # the fleet path anchors after the round that took frame 149 (one frame per round here)
+    got, members, _ = in_fleet([(w, 0) for w in walks], floors, seed=4, max_join=1, p_take=1.0, anchors=[(1, 150, 2)])
+    for a, b in zip(ref, got):
+        assert same_events(by_kind(a)[0], by_kind(b)[0])
+    assert [m.floor for m in members] == [p.floor for p in pipes]
+    assert pipes[1].floor != pipes[0].floor or any(e.floor == 2 for e in by_kind(ref[1])[0])  # the anchor moved it
+
+
+def test_the_fleet_refuses_a_frame_that_goes_back_in_time_and_keeps_its_state():
+    walks = simulated(2, 5)
+    fleet = PdrFleet()
+    a, b = fleet.member(0), fleet.member(0)
+    fleet.run([(a, walks[0][0]), (b, walks[1][0])])
+    res = fleet.run([(a, walks[0][0]), (b, walks[1][1])])
+    assert isinstance(res[0], ValueError) and "not after the previous sample" in str(res[0])
+    assert isinstance(res[1], list)
+    assert a.last_time == float(walks[0][0].t[-1])
+    p = PdrPipeline()
+    p.update(walks[0][0])
+    assert same_events(a.update(walks[0][1]), p.update(walks[0][1]))  # and it goes on as if nothing happened
+    with pytest.raises(ValueError):
+        a.update(walks[0][1])
+
+
+def test_settings_the_fleet_cannot_run_are_said_so():
+    assert PdrFleet.supports(PipelineSettings())
+    assert not PdrFleet.supports(PipelineSettings(detector="peak"))
+    with pytest.raises(ValueError, match="PdrPipeline"):
+        PdrFleet(PipelineSettings(detector="vertical"))
+
+
+@pytest.mark.bitexact
+def test_the_service_gives_the_same_poses_with_and_without_columnar_rounds():
+    from service.core.incident_core import CoreSettings, Inbound, IncidentCore
+    from service.protocol import wire
+    from tests.test_service import _simulated_messages
+
+    cfg, msgs = _simulated_messages()
+    outs = {}
+    for columnar in (False, True):
+        core = IncidentCore(cfg, CoreSettings(columnar=columnar))
+        rng = np.random.default_rng(11)
+        out, i = [], 0
+        while i < len(msgs):
+            n = int(rng.integers(1, 80))
+            out += core.feed_round([Inbound(k, key, p, 0.0) for k, key, p in msgs[i:i + n]])
+            i += n
+        assert core.counters.errors == 0
+        assert (core.fleet is not None) == columnar
+        outs[columnar] = sorted((o.message for o in out if isinstance(o.message, wire.Pose)), key=lambda p: p.responder)
+    assert len(outs[True]) == len(outs[False]) > 100
+    for p, q in zip(outs[False], outs[True]):
+        assert (p.responder, p.t, p.x, p.y, p.floor, p.steps, p.source, p.lat, p.lon) == \
+               (q.responder, q.t, q.x, q.y, q.floor, q.steps, q.source, q.lat, q.lon)
+        assert np.array_equal(p.cov, q.cov)

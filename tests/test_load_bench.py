@@ -1,0 +1,56 @@
+"""The load bench's per-stage table from a profile: sums, units and the worker's idle wait."""
+from types import SimpleNamespace
+
+from client.load_bench import STAGES, stage_table
+
+
+def _entry(cum: float, callers: dict | None = None):
+    return (1, 1, 0.0, cum, callers or {})  # cProfile's (cc, nc, tottime, cumtime, callers)
+
+
+def test_stage_table_sums_stages_per_frame_and_step_and_takes_the_idle_wait_out():
+    take_queued = ("/x/service/shell/service.py", 240, "_take_queued")
+    stats = SimpleNamespace(stats={
+        ("/x/service/shell/service.py", 260, "_run_round"): _entry(2.0),
+        take_queued: _entry(0.7),
+        ("/x/service/shell/service.py", 217, "_take_frames"): _entry(0.1),
+        # blocked in queue.get for 0.5 s when called from _take_queued; 0.25 s from elsewhere is not the worker's wait
+        ("/usr/lib/python3.11/queue.py", 154, "get"): _entry(0.75, {take_queued: (1, 1, 0.0, 0.5),
+                                                                    ("/x/other.py", 1, "f"): (1, 1, 0.0, 0.25)}),
+        ("/x/service/protocol/codec.py", 68, "decode"): _entry(0.3),
+        ("/x/pdr/fleet_kernels.py", 166, "heading_stage"): _entry(0.4),
+        ("/x/pdr/heading.py", 300, "update"): _entry(0.1),  # the one-responder path counts in the same row
+        ("/x/pdr/other.py", 1, "update"): _entry(9.0),  # same function name, another file: not a stage
+    })
+    table = stage_table(stats, frames=1000, steps=100)
+    assert set(STAGES) <= set(table)
+    assert table["decode"] == {"us_per_frame": 300.0, "us_per_step": 3000.0}
+    assert table["heading (AHRS, bias, compass, per step)"]["us_per_frame"] == 500.0
+    assert table["idle (waiting for input)"]["us_per_frame"] == 500.0
+    assert table["zenoh take"]["us_per_frame"] == 300.0  # 0.7 + 0.1 - 0.5 s
+    assert table["worker total"]["us_per_frame"] == 2300.0  # 2.0 + 0.7 + 0.1 - 0.5 s
+    assert table["status"]["us_per_frame"] == 0.0
+
+
+def test_boot_streams_give_a_share_of_wearers_boot_signals_without_magnetometer_and_continue_across_frames():
+    import numpy as np
+    import pytest
+
+    from client.simulate import BootStreams
+
+    n, rate = 6, 100.0
+    boots = BootStreams(n, 0.5, rate, 1000.0, seed=2)
+    assert boots.count == 3
+    b = SimpleNamespace(t=1000.0 + np.arange(10) / rate, acc=np.zeros((10, 3)), gyr=np.zeros((10, 3)),
+                        mag=np.ones((10, 3)), pressure_t=np.array([1000.0]), pressure=np.array([1013.0]))
+    first = boots.signals(0, b)
+    second = boots.signals(0, b)
+    assert first["carry"] == "foot" and "mag" not in first and "pressure" not in first
+    acc, _ = boots._walks[0]
+    assert np.array_equal(np.vstack((first["acc"], second["acc"])), acc[:20])  # the walk goes on, frame by frame
+    assert abs(np.linalg.norm(first["acc"][0]) - 9.81) < 0.5  # a boot at rest first: gravity only
+    hand = boots.signals(5, b)
+    assert hand["carry"] == "handheld" and hand["mag"] is b.mag and hand["pressure"] is b.pressure
+    assert BootStreams(n, 0.0, rate, 1000.0, seed=2).count == 0
+    with pytest.raises(ValueError, match="share of boot-mounted"):
+        BootStreams(n, 1.5, rate, 1000.0, seed=2)
