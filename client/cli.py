@@ -104,6 +104,9 @@ _bench, _ = _load("service.cli.bench", "app")
 _load_bench, _ = _load("client.load_bench", "bench_service_command")
 if _bench is not None and _load_bench is not None:
     _bench.callback(invoke_without_command=True)(_load_bench)
+_fault_bench, _ = _load("client.fault_bench", "bench_faults_command")
+if _bench is not None and _fault_bench is not None:
+    _bench.command("faults")(_fault_bench)
 
 
 def main() -> None:

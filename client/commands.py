@@ -40,9 +40,15 @@ def wearable_command(
     landmark_every: int = typer.Option(0, "--landmark-every", help="also send every K-th landmark as a checkpoint fix (the first is always sent)"),
     gnss: bool = typer.Option(True, "--gnss/--no-gnss", help="send the recording's GNSS fixes"),
     wait_router: float = typer.Option(30.0, "--wait-router", help="s to wait for a router that is not up yet"),
+    flush: float = typer.Option(5.0, "--flush", help="s to wait at the end (or on Ctrl-C) for the service to "
+                                                     "acknowledge the last frame"),
     tls: Path = typer.Option(None, "--tls", help=TLS_HELP + " (a wearable certificate: CN = the responder id)"),
 ):
-    """Publish a real recording as a wearable would: IMU frames (10 per second), landmarks and GNSS as fixes."""
+    """Publish a real recording as a wearable would: IMU frames (10 per second), landmarks and GNSS as fixes.
+
+    Frames are kept (the last 3000) and resent to a service that missed them (an outage, a
+    restart); at the end the wearable waits for the service's acknowledgement and says what
+    was not acknowledged."""
     from client.wearable import replay
     from pdr.io.errors import RecordingFormatError
     from service.protocol import wire
@@ -85,15 +91,22 @@ def wearable_command(
     try:
         with progress_bar(f"{responder} ← {replay_file.name}") as update:
             sent = replay(replay_file, responder, session, cfg, speed, landmark_every, gnss, stop, update,
-                          on_matching=matching, on_start=started)
+                          on_matching=matching, on_start=started, flush_s=flush)
     except (RecordingFormatError, OSError, ValueError) as e:
         fail(str(e))
         raise typer.Exit(1)
     finally:
         session.close()
     unheard = sent["unheard"]["imu"]
+    d = sent["delivery"]
     out.print(f"{responder}: sent {sent['imu']} frames and {sent['fix']} fixes"
               + (f"; {unheard} frames went out while no service was subscribed" if unheard else ""))
+    if d["unacknowledged"]:
+        warn(f"{responder}: {d['unacknowledged']} frame(s) not acknowledged by the service when the wearable left "
+             f"(newest acknowledged seq: {d['acked_seq']}); they are lost unless the service took them after")
+    elif sent["imu"]:
+        out.print(f"{responder}: every frame acknowledged by the service"
+                  + (f" ({d['service_lost']} counted lost by it)" if d["service_lost"] else ""))
     if unheard and unheard == sent["imu"]:
         raise typer.Exit(1)  # nobody heard any of it: say so in the exit code too
 

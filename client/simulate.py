@@ -34,6 +34,9 @@ def building_bounds(incident, margin: float = 5.0) -> tuple[float, float, float,
     return (-20.0, 20.0, -10.0, 10.0)
 
 
+SIM_KEEP_FRAMES = 100  # frames each simulated wearable keeps to resend (10 s at 10 frames/s: many in one process)
+
+
 class BootStreams:
     """Which simulated wearers have a boot-mounted IMU, and its signals.
 
@@ -82,7 +85,7 @@ class SimulationPublisher:
 
     def __init__(self, session: zenoh.Session, incident_id: str, n: int, rate_hz: float = 100.0, seed: int = 0,
                  bounds=None, floors=(0, 0), prefix: str = "sim", truth: bool = True, start_t: float = 1000.0,
-                 start_spread_s: float = 0.0, foot: float = 0.0):
+                 start_spread_s: float = 0.0, foot: float = 0.0, keep_frames: int = SIM_KEEP_FRAMES):
         self.session = session
         self.incident_id = incident_id
         self.rate_hz = rate_hz
@@ -95,7 +98,8 @@ class SimulationPublisher:
             waits = np.random.default_rng([seed, 0x5747]).uniform(0.0, start_spread_s, n)
             for i, w in enumerate(waits):
                 self.fleet.stand_still(i, float(w), at=start_t)
-        self.wearables = [Wearable(session, incident_id, r) for r in self.names]
+        # each keeps its last keep_frames frames to resend (10 s by default: many walkers in one process)
+        self.wearables = [Wearable(session, incident_id, r, keep_frames=keep_frames) for r in self.names]
         self.seq = np.zeros(n, dtype=np.int64)
         self.boots = BootStreams(n, foot, rate_hz, start_t, seed)
         self.truth = truth

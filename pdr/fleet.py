@@ -95,6 +95,10 @@ class FleetMember:
     def finish(self) -> list:
         return self.fleet.finish(self)
 
+    def release(self) -> None:
+        """Leave the fleet (:meth:`PdrFleet.release`): the responder is gone or changed model."""
+        self.fleet.release(self)
+
     def anchor_floor(self, floor: int, t: float | None = None) -> None:
         self.fleet.anchor_floor(self, floor, t)
 
@@ -171,6 +175,7 @@ class PdrFleet:
         self._pres = _list2(0, 2)
         self._step_times = _list1(0)
         self._floor_work: set[int] = set()  # slots with floor changes queued or steps held behind one
+        self._free: list[int] = []  # slots of released members, reused by the next new one
 
     # ------------------------------------------------------------------ slots
     @staticmethod
@@ -211,12 +216,38 @@ class PdrFleet:
         tr._state, tr._ring_t, tr._ring_z = self._fs[slot], self._ring_t[slot], self._ring_z[slot]
         tr._r, tr._known, tr._learned_in, tr._pred = self._rr[slot], self._known[slot], self._learned[slot], self._pred[slot]
 
+    # the per-slot numba typed lists (2: rows of samples, 1: a vector), as plain lists in a pickle
+    _TYPED_LISTS = {"_bias_tails": 2, "_hbufs": 2, "_mot_tails": 2, "_lms": 2, "_raws": 2, "_det_tails": 2,
+                    "_pres": 2, "_step_times": 1}
+
+    def __getstate__(self) -> dict:
+        """Picklable state (a service's snapshot): numba's typed lists become lists of arrays."""
+        d = dict(self.__dict__)
+        for k in self._TYPED_LISTS:
+            d[k] = [np.array(a) for a in d[k]]
+        return d
+
+    def __setstate__(self, d: dict) -> None:
+        for k, dim in self._TYPED_LISTS.items():
+            out = List.empty_list(types.float64[:, ::1] if dim == 2 else types.float64[::1])
+            for a in d[k]:
+                out.append(np.ascontiguousarray(a, dtype=np.float64))
+            d[k] = out
+        d.setdefault("_free", [])
+        self.__dict__.update(d)
+
     def member(self, start_floor: int = 0) -> FleetMember:
         """A new responder starting on ``start_floor``."""
-        if self._n == self._cap:
-            self._alloc(2 * self._cap)
-        slot = self._n
-        self._n += 1
+        reuse = bool(self._free)
+        if reuse:  # a released slot: its rows are set afresh (here and below), its buffers emptied
+            slot = self._free.pop()
+            for name in ("_sos", "_zi", "_zi_unit", "_swings", "_bouts"):  # as _alloc fills a new row
+                getattr(self, name)[slot] = 0.0
+        else:
+            if self._n == self._cap:
+                self._alloc(2 * self._cap)
+            slot = self._n
+            self._n += 1
         pipe = PdrPipeline(self.settings, self.floors, start_floor)
         h, tr, alt = pipe._heading, pipe._tracker, pipe._altimeter
         self._ahrs[slot] = h._ahrs._s
@@ -235,8 +266,14 @@ class PdrFleet:
         self._bind(slot, pipe)
         for lst, cols in ((self._bias_tails, 5), (self._hbufs, 5), (self._mot_tails, 3), (self._lms, 2),
                           (self._raws, 2), (self._det_tails, 2), (self._pres, 2)):
-            K.append_rows(lst, np.empty((0, cols)))
-        self._step_times.append(np.empty(0))
+            if reuse:
+                lst[slot] = np.empty((0, cols))
+            else:
+                K.append_rows(lst, np.empty((0, cols)))
+        if reuse:
+            self._step_times[slot] = np.empty(0)
+        else:
+            self._step_times.append(np.empty(0))
         self._t_first[slot] = np.nan
         m = FleetMember(self, slot, pipe)
         if pipe._detector.rate_hz is not None:  # a configured rate: the filter is designed now
@@ -244,6 +281,20 @@ class PdrFleet:
             self._design(m)
         self.members.append(m)
         return m
+
+    def release(self, m: FleetMember) -> None:
+        """``m`` leaves the fleet (an expired responder): its pipeline and buffers are freed
+        and its slot goes to the next new member, so the fleet's memory follows the responders
+        present, not every one ever seen."""
+        if m.fleet is not self or m.slot in self._free or m not in self.members:
+            raise ValueError("release: not a current member of this fleet")
+        self.members.remove(m)
+        for lst, cols in ((self._bias_tails, 5), (self._hbufs, 5), (self._mot_tails, 3), (self._lms, 2),
+                          (self._raws, 2), (self._det_tails, 2), (self._pres, 2)):
+            lst[m.slot] = np.empty((0, cols))
+        self._step_times[m.slot] = np.empty(0)
+        self._floor_work.discard(m.slot)
+        self._free.append(m.slot)
 
     # ------------------------------------------------------------------ a round
     def run(self, items: Sequence[tuple[FleetMember, ImuFrame]]) -> list:

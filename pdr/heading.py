@@ -378,9 +378,9 @@ class HeadingEstimator:
             t_prev = self._prev_step[0] if self._prev_step else -math.inf
             lo = max(t_prev, tk - s.max_step_duration)
             sel = (B["t"] > lo) & (B["t"] <= tk)
-            if not sel.any():
-                sel = B["t"] <= tk
-                sel = sel & (np.arange(len(sel)) == np.flatnonzero(sel)[-1])
+            if not sel.any():  # the sample at or before the step (after a gap in the samples: the oldest kept)
+                before = np.flatnonzero(B["t"] <= tk)
+                sel = np.arange(len(B["t"])) == (before[-1] if before.size else 0)
             psi_g = float(np.mean(B["psi"][sel]))  # unwrapped: the arithmetic mean is circular
             h = int(np.searchsorted(hist_t, tk, side="right")) - 1
             _, delta, P = self._hist[max(h, 0)]

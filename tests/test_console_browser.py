@@ -25,6 +25,7 @@ from PIL import Image
 from client.console.server import ConsoleError, start_console
 from client.wearable import Wearable
 from pdr.synthetic import static_imu
+from service.core.incident_core import CoreSettings
 from service.protocol import wire
 from service.protocol.incident import default_incident, plan_pixel_to_enu
 from service.protocol.messages import recording_messages
@@ -588,11 +589,14 @@ def test_heard_grows_while_a_wearable_is_silent(browser, stack):
     try:
         cell = "#roster tr[data-id='quiet1'] td.heard"
         page.wait(f"() => document.querySelector(\"{cell}\")")
-        time.sleep(2.0)  # the wearable is silent now; the service still publishes its Status each second
+        time.sleep(2.0)  # the wearable is silent now; the service still publishes its Status (every
+        # idle_status_every_s once it has been silent for idle_after_s, service/core/incident_core.py)
         first = page.js(f"() => window.__firetrack.snapshot().quiet1.status.received_at")
         a = page.js("() => { const r = window.__firetrack.responders.get('quiet1'); "
                     "return Date.now() / 1000 + window.__firetrack.clockOffset - r.status.last_heard; }")
-        time.sleep(2.5)
+        every = CoreSettings().idle_status_every_s
+        assert wait_until(lambda: page.js("() => window.__firetrack.snapshot().quiet1.status.received_at") > first,
+                          every + 3.0, 0.2)
         second = page.js(f"() => window.__firetrack.snapshot().quiet1.status.received_at")
         b = page.js("() => { const r = window.__firetrack.responders.get('quiet1'); "
                     "return Date.now() / 1000 + window.__firetrack.clockOffset - r.status.last_heard; }")

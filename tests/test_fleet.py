@@ -110,6 +110,31 @@ def test_simulated_walkers_alone_and_in_a_fleet_give_the_same_events():
 
 
 @pytest.mark.bitexact
+def test_a_released_slot_serves_a_new_member_as_a_fresh_pipeline():
+    """An expired responder's slot goes to the next one (bounded memory), with no trace of it."""
+    floors = FloorElevations.uniform(3.0, 0, 2)
+    walks = simulated(3, 40, seed=5)
+    fleet = PdrFleet(None, floors, capacity=2)
+    old, other = fleet.member(0), fleet.member(0)
+    for f, g in zip(walks[0][:250], walks[1][:250]):
+        fleet.run([(old, f), (other, g)])
+    slot = old.slot
+    fleet.release(old)
+    with pytest.raises(ValueError, match="not a current member"):
+        fleet.release(old)
+    new = fleet.member(0)
+    assert new.slot == slot and len(fleet.members) == 2
+    got = []
+    for f, g in zip(walks[2], walks[1][250:] + [None] * len(walks[2])):
+        res = fleet.run([(new, f)] + ([(other, g)] if g is not None else []))
+        got += res[0]
+    got += new.finish()
+    ref = alone(walks[2], floors, 0)
+    (sa, ma), (sb, mb) = by_kind(ref), by_kind(got)
+    assert len(sa) > 40 and same_events(sa, sb) and same_events(ma, mb)
+
+
+@pytest.mark.bitexact
 @pytest.mark.recording
 def test_real_walks_alone_and_in_a_fleet_give_the_same_events(shared_data):
     from pdr.io import load

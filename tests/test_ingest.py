@@ -205,12 +205,14 @@ def test_flush_releases_everything_held_in_order():
 
 
 def test_a_new_device_starts_a_new_stream():
-    gate = FrameGate()
+    gate = FrameGate(takeover_after_s=0.5)
     offer_all(gate, [0, 1, 2, 4])
-    out = gate.offer(frame(0, device="phone-B"), 0.1)
+    # while phone-A is live, phone-B's frames on its key are someone else's: turned away
+    assert gate.offer(frame(0, device="phone-B"), 0.1) == [] and gate.counts == {"other_stream": 1}
+    out = gate.offer(frame(0, device="phone-B"), 0.6)  # phone-A quiet for 0.5 s: B takes over
     assert [(b.device, b.seq) for b in out] == [("phone-A", 4), ("phone-B", 0)]
     assert gate.epoch == 1 and any(r == "restart" and "phone-B" in d for _, r, d in gate.events)
-    assert [b.seq for b in gate.offer(frame(1, device="phone-B"), 0.2)] == [1]
+    assert [b.seq for b in gate.offer(frame(1, device="phone-B"), 0.7)] == [1]
 
 
 def test_a_rebooted_wearable_after_silence_is_a_new_stream():
@@ -253,4 +255,4 @@ def test_settings_are_checked():
         FrameGate(reorder_window=-1)
     with pytest.raises(ValueError):
         FrameGate(max_gap_s=0)
-    assert set(GATE_REASONS) == {"duplicate", "late", "time_order"}
+    assert set(GATE_REASONS) == {"duplicate", "late", "time_order", "old_stream", "other_stream", "seq_jump"}

@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -114,3 +115,102 @@ def test_ctrl_c_while_starting_ends_without_a_traceback(delay):
     out, _ = proc.communicate(timeout=30)
     assert proc.returncode in (0, 130), out
     assert "Traceback" not in out, out
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--roster-only"], "--roster-only needs a roster"),  # the demo incident has none, and no --tls
+    (["--expire-after", "0"], "--expire-after must be positive"),
+    (["--admit-per-s", "0"], "IntakeSettings.admit_per_s must be positive"),
+    (["--max-responders", "0"], "max_responders and bad_after must be at least 1"),
+])
+def test_serve_refuses_bad_isolation_options_with_the_option_named(tmp_path, args, says):
+    from client.cli import app
+
+    r = CliRunner().invoke(app, ["serve", "--seconds", "0", "--no-console", *args])
+    assert r.exit_code == 2, r.output
+    assert says in " ".join(r.output.split())
+
+
+def _unit_exec_start(unit_text: str) -> list[str]:
+    """The ``ExecStart=`` command line of a systemd unit (continuation lines joined)."""
+    import shlex
+
+    text = unit_text.replace("\\\n", " ")
+    line = next(x for x in text.splitlines() if x.startswith("ExecStart="))
+    return shlex.split(line.split("=", 1)[1])
+
+
+def test_the_systemd_unit_restarts_serve_after_sigkill_on_its_fixed_recording_path(tmp_path):
+    """What systemd does with ``deploy/firetrack.service``: the unit's own command (paths and
+    endpoints mapped to this machine), SIGKILL once snapshots exist, the same command again after
+    ``RestartSec`` (it resumes, never refuses), then ``KillSignal`` and a clean exit within
+    ``TimeoutStopSec``."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    unit = (root / "deploy" / "firetrack.service").read_text()
+    settings = dict(x.split("=", 1) for x in unit.replace("\\\n", " ").splitlines() if "=" in x and not x.startswith("#"))
+    assert settings["Restart"] in ("on-failure", "always", "on-abnormal")  # SIGKILL is a failure for all three
+    assert settings["KillSignal"] == "SIGTERM"
+    argv = _unit_exec_start(unit)
+    assert argv[0].endswith("/firetrack") and argv[1] == "serve"
+    port, web = free_port(), free_port()
+    mapped = {"--tls": [],  # plain TCP on loopback here: no certificates (tests/test_security*.py cover TLS)
+              "--connect": ["--listen", f"tcp/127.0.0.1:{port}"],  # no separate router here
+              "--config": ["--config", str(root / "deploy" / "incidents" / "ipin-museum.json")],
+              "--record": ["--record", str(tmp_path / Path(argv[argv.index("--record") + 1]).name.replace("%N", "firetrack"))],
+              "--port": ["--port", str(web)]}
+    cmd = [sys.executable, "-m", "client.cli", "serve"]
+    rest = iter(argv[2:])
+    for a in rest:
+        assert a in mapped, f"an option of the unit this test does not know: {a}"
+        cmd += mapped[a]
+        next(rest)
+    record = Path(mapped["--record"][1])
+    state = record.with_name(record.name + ".state")
+    cfg_id = json.loads((root / "deploy" / "incidents" / "ipin-museum.json").read_text())["id"]
+
+    def start():
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        seen = []
+        while not seen or "serving incident" not in seen[-1]:
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, "".join(seen)
+            seen.append(line)
+        return proc, "".join(seen)
+
+    proc, _ = start()
+    session = None
+    try:
+        session = client(f"tcp/127.0.0.1:{port}")
+        w = Wearable(session, cfg_id, "alpha")
+        z = np.zeros((10, 3))
+        z[:, 2] = 9.81
+        seq = 0
+
+        def send(n):
+            nonlocal seq
+            for _ in range(n):
+                w.send("imu", wire.ImuBatch(responder="alpha", device="d", seq=seq, t=10.0 + seq * 0.1 + np.arange(10) * 0.01,
+                                            acc=z, gyr=np.zeros((10, 3))))
+                seq += 1
+                time.sleep(0.02)
+
+        send(50)
+        assert wait_until(state.exists, 30)  # a snapshot beside the recording
+        proc.kill()  # SIGKILL
+        assert proc.wait(10) == -signal.SIGKILL
+        time.sleep(float(settings["RestartSec"]))
+        proc, started = start()  # systemd: the same command line
+        assert "resumed incident" in started and "1 responder(s)" in started, started
+        send(20)
+        proc.send_signal(signal.SIGTERM)
+        rest_out, _ = proc.communicate(timeout=float(settings["TimeoutStopSec"]))
+        assert proc.returncode == 0, rest_out
+        assert record.with_name(record.stem + ".1.mcap").exists()
+        w.close(0.0)
+    finally:
+        if session is not None:
+            session.close()
+        if proc.poll() is None:
+            proc.kill()

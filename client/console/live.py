@@ -40,7 +40,8 @@ def pose_json(p: wire.Pose, received_at: float) -> dict:
 def status_json(s: wire.Status, received_at: float) -> dict:
     return {"responder": s.responder, "t": s.t, "motion": s.motion, "motion_since": s.motion_since,
             "alarms": list(s.alarms), "alarms_since": dict(s.alarms_since), "rejected": dict(s.rejected),
-            "frames": s.frames, "gaps": s.gaps, "last_heard": s.last_heard, "steps": s.steps,
+            "frames": s.frames, "gaps": s.gaps, "lost": s.lost, "gap_s": round(s.gap_s, 2), "streams": s.streams,
+            "last_heard": s.last_heard, "steps": s.steps,
             "fixes": dict(s.fixes), "last_fix": s.last_fix, "first_heard": s.first_heard, "utc_offset": s.utc_offset,
             "commands": {a: dict(o) for a, o in s.commands.items()}, "received_at": received_at}
 

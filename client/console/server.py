@@ -128,14 +128,22 @@ class _Page:
             log.info("console: a page stopped listening: %s", e)
 
 
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not a number JSON has")
+
+
 def _finite_number(body: dict, name: str, required: bool = True) -> float | None:
     v = body.get(name)
     if v is None:
         if required:
             raise _HttpError(400, f"'{name}' is required")
         return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise _HttpError(400, f"'{name}' must be a finite number, got {v!r}")
+    try:
+        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+    except OverflowError:  # an integer beyond any float
+        ok = False
+    if not ok:
+        raise _HttpError(400, f"'{name}' must be a finite number, got {str(v)[:40]}")
     return float(v)
 
 
@@ -540,12 +548,21 @@ class ConsoleServer:
 
     # ------------------------------------------------------------------ operator actions
     async def _body(self, request: web.Request) -> dict:
+        """The request's JSON object, or :class:`_HttpError` (4xx) for anything else: another
+        type, a body over :data:`POST_MAX_BYTES`, bytes that are not UTF-8 JSON, nesting too
+        deep to parse (Python's parser recurses), constants JSON does not have (NaN, Infinity)."""
         if request.content_type != "application/json":
             raise _HttpError(415, f"send the request as application/json, not {request.content_type or 'no type'}")
         try:
-            body = await request.json()
-        except (ValueError, UnicodeDecodeError) as e:
-            raise _HttpError(400, f"the body is not valid JSON: {e}") from None
+            raw = await request.read()
+        except web.HTTPRequestEntityTooLarge:
+            raise _HttpError(413, f"the body is larger than {POST_MAX_BYTES} bytes") from None
+        try:
+            body = json.loads(raw.decode("utf-8"), parse_constant=_no_constant)
+        except RecursionError:
+            raise _HttpError(400, "the body is nested too deeply to be a request") from None
+        except (ValueError, UnicodeDecodeError) as e:  # JSONDecodeError is a ValueError
+            raise _HttpError(400, f"the body is not valid JSON: {str(e)[:200]}") from None
         if not isinstance(body, dict):
             raise _HttpError(400, f"the body must be a JSON object, got {type(body).__name__}")
         return body
@@ -603,6 +620,8 @@ class ConsoleServer:
             fix = self.build_fix(await self._body(request), operator=who.user)
         except _HttpError as e:
             return _error(e.status, e.args[0])
+        except (ValueError, TypeError, RecursionError) as e:  # a field no check above foresaw (pydantic's are ValueErrors)
+            return _error(400, f"the fix cannot be made from this body: {' '.join(str(e).split())[:300]}")
         key = await self._publish_action(wire.OperatorAction(
             action="fix", operator=who.user, utc=time.time(), responder=fix.responder, fix=wire.encode(fix)))
         self.fixes_sent += 1
@@ -691,8 +710,8 @@ class ConsoleServer:
             try:
                 cp = self.cfg.add_checkpoint(name, floor=floor, x=x, y=y, note=note,
                                              **({"sigma_m": sigma} if sigma is not None else {}))
-            except ValueError as e:  # pydantic's ValidationError is one too: a bad field, an unknown floor
-                raise _HttpError(400, " ".join(str(e).split())) from None
+            except (ValueError, TypeError) as e:  # pydantic's ValidationError is a ValueError: a bad field, an unknown floor
+                raise _HttpError(400, " ".join(str(e).split())[:300]) from None
         except _HttpError as e:
             return _error(e.status, e.args[0])
         self.added_checkpoints.add(cp.name)

@@ -20,6 +20,17 @@ app = typer.Typer(help="Benchmarks: each prints JSON figures. Without a sub-comm
 app.command("fusion")(fusion_command)
 
 
+@app.command("resume")
+def bench_resume_command(
+    responders: int = typer.Option(4, "--responders", "-n", help="simulated walkers"),
+    minutes: float = typer.Option(20.0, "--minutes", help="how long they walk before the crash"),
+):
+    """What a restart costs: resume from the newest snapshot against a replay of the whole recording (JSON)."""
+    from service.review.resume import bench_resume
+
+    print_json(bench_resume(responders, minutes, log=lambda m: err.print(m)))
+
+
 def _cpu_seconds(fn) -> float:
     """CPU time of ``fn()`` on this thread (one core), robust to a busy shared machine."""
     t0 = time.thread_time()

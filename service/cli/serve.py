@@ -1,5 +1,11 @@
 """``firetrack serve``: the live service of one incident (router, service, recorder, console).
 
+``--record x.mcap`` on a recording that exists (a restart after a crash, systemd's
+``Restart=``) resumes: the incident's state is rebuilt from the newest snapshot beside it
+(``x.mcap.state``) and the messages recorded after it, and the service writes the next
+segment (``x.1.mcap``, ...); see :mod:`service.review.resume`. It never refuses to start
+over what is there.
+
 The console is the client layer's (``client/console``): the top of the house, where the
 ``firetrack`` command is assembled (``client/cli.py``), hands its starter to
 :func:`set_console_starter`, so this module never imports the client.
@@ -40,11 +46,20 @@ def serve_command(
     connect: list[str] = typer.Option(None, "--connect", help="join a standalone zenoh router instead (e.g. tcp/10.0.0.2:7447)"),
     incident_id: str = typer.Option(None, "--incident", help="incident id (default: the config's, 'demo' for the demo)"),
     config: Path = typer.Option(None, "--config", help="incident config (JSON or TOML); default: the IPIN museum demo"),
-    record: Path = typer.Option(None, "--record", help="record every message of the incident to this MCAP file"),
+    record: Path = typer.Option(None, "--record", help="record every message of the incident to this MCAP file "
+                                                       "(if it exists: resume the incident from it and write the next segment)"),
     console: bool = typer.Option(True, "--console/--no-console", help="also serve the web console"),
     port: int = typer.Option(8080, "--port", help="web console port"),
     seconds: float = typer.Option(math.inf, "--seconds", help="stop after this long (default: until Ctrl-C)"),
     workers: int = typer.Option(1, "--workers", help="worker processes sharing the responders (one per core)"),
+    max_responders: int = typer.Option(1024, "--max-responders", help="responders kept at once; new ids beyond are refused"),
+    admit_burst: float = typer.Option(256, "--admit-burst", help="new responder ids admitted at once ..."),
+    admit_per_s: float = typer.Option(2.0, "--admit-per-s", help="... and per second after that"),
+    roster_only: bool = typer.Option(False, "--roster-only", help="admit the roster's responders only (the incident "
+                                                                  "config's roster and, with --tls, the wearables of the "
+                                                                  "incident roster); they are always admitted"),
+    expire_after: float = typer.Option(1800.0, "--expire-after", help="s of silence after which a responder leaves "
+                                                                        "(its track stays in the recording)"),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log every responder, fix and reject"),
     tls: Path = typer.Option(None, "--tls", help="mutual TLS with this service identity (firetrack certs issue "
                                                  "--role service): TLS only, access control from the roster"),
@@ -56,6 +71,7 @@ def serve_command(
     security = security_or_exit(identity, roster, incident_id, router=not connect)
     cfg = incident_or_exit(config, incident_id or (security.roster.incident if security and security.roster else None))
     warn_plan_problems(cfg)
+    settings = _service_settings(cfg, security, max_responders, admit_burst, admit_per_s, roster_only, expire_after)
     if workers < 1:
         fail(f"--workers must be at least 1, got {workers}")
         raise typer.Exit(2)
@@ -65,13 +81,44 @@ def serve_command(
     if security is None:
         insecure("firetrack serve")
     stop = stop_on_signals()
-    with running_service(cfg, listen, connect, record, console, port, workers=workers, security=security) as (svc, where):
+    with running_service(cfg, listen, connect, record, console, port, settings=settings, workers=workers,
+                         security=security) as (svc, where):
         out.print(f"[bold]firetrack[/] serving incident [bold]{cfg.id}[/] ({cfg.name}) on {where}"
                   + (f" as {identity.name}, mutual TLS" if identity else ""))
         if console:
             out.print(f"console: {svc.console_url or f'http://127.0.0.1:{port}/'}")
         stop.wait(None if math.isinf(seconds) else seconds)
     out.print(f"stopped; {len(svc.responders)} responder(s), {svc.frames_processed} frames processed")
+
+
+def _service_settings(cfg, security, max_responders, admit_burst, admit_per_s, roster_only, expire_after):
+    """The service's settings from the command's isolation options (errors name the option). The
+    intake's roster: the responders of the incident config's roster and, with ``--tls`` and an
+    incident roster, its wearable identities."""
+    import dataclasses
+
+    from service.core.intake import IntakeSettings
+    from service.shell.service import ServiceSettings
+
+    ids = {m.id for m in cfg.roster}
+    if security is not None and security.roster is not None:
+        ids |= {name for name, ident in security.roster.identities.items() if ident.role == "wearable"}
+    if roster_only and not ids:
+        fail("--roster-only needs a roster: the incident config's (roster) or, with --tls, the incident roster's wearables")
+        raise typer.Exit(2)
+    try:
+        intake = IntakeSettings(max_responders=max_responders, admit_burst=admit_burst, admit_per_s=admit_per_s,
+                                roster=frozenset(ids) or None, roster_only=roster_only)
+    except ValueError as e:
+        fail(str(e))
+        raise typer.Exit(2)
+    if not expire_after > 0:
+        fail(f"--expire-after must be positive (s), got {expire_after}")
+        raise typer.Exit(2)
+    base = ServiceSettings()
+    core = dataclasses.replace(base.core, intake=intake, expire_after_s=expire_after,
+                               expire_unplaced_s=min(base.core.expire_unplaced_s, expire_after))
+    return dataclasses.replace(base, core=core)
 
 
 class Security:
@@ -148,14 +195,13 @@ class running_service:
             fail(str(e))
             raise typer.Exit(1)
         self._closers.append(session.close)
-        recorder = None
+        recorder = core = state_file = None
+        self.resumed = None
         if self.record is not None:
-            from service.review.recorder import IncidentRecorder
-
-            recorder = IncidentRecorder(self.record, self.cfg.id).__enter__()
+            recorder, core, state_file = self._recording()
             self._closers.append(lambda: recorder.__exit__(None, None, None))
-        svc = IncidentService(session, self.cfg, self.settings, recorder=recorder, shard=(0, self.workers),
-                              access=sec.access() if sec is not None else None,
+        svc = IncidentService(session, self.cfg, self.settings, recorder=recorder, shard=(0, self.workers), core=core,
+                              state_file=state_file, access=sec.access() if sec is not None else None,
                               actor=tls.name if tls is not None else "service").start()
         self._closers.append(svc.close)
         svc.console_url = None
@@ -186,6 +232,36 @@ class running_service:
         where = ", ".join(self.connect) if self.connect else ", ".join(self.listen or [default_endpoint(tls)])
         self.service = svc
         return svc, where
+
+    def _recording(self):
+        """The recorder (a new recording, or the next segment of one that exists), the core to
+        go on with (None: a new one) and the state file for snapshots."""
+        from service.review.recorder import IncidentRecorder, RecordingWriteError
+        from service.review.resume import StateFile, resume, state_path
+        from service.shell.service import ServiceSettings
+
+        settings = (self.settings or ServiceSettings()).core
+        resumed = resume(self.record, self.cfg, settings,
+                         progress=lambda n: err.print(f"resuming: {n} recorded messages replayed ...", highlight=False))
+        core = None
+        segment, path, attachment = 0, self.record, None
+        if resumed is not None:
+            self.resumed = resumed
+            for problem in resumed.problems:
+                err.print(f"[yellow]warning:[/] {problem}", highlight=False)
+            core, segment, path, attachment = resumed.core, resumed.segment, resumed.path, resumed.base.record()
+            b = resumed.base
+            err.print(f"resumed incident {self.cfg.id!r} from the {b.origin}"
+                      + (f" (segment {b.segment}, message {b.position})" if b.origin != "start" else "")
+                      + f" and {resumed.replayed} recorded messages after it in {resumed.seconds:.2f} s: "
+                      f"{len(core.responders)} responder(s); recording on in {path}", highlight=False)
+        try:
+            recorder = IncidentRecorder(path, self.cfg.id, segment=segment, resume=attachment).__enter__()
+        except RecordingWriteError as e:
+            self.__exit__(None, None, None)
+            fail(str(e))
+            raise typer.Exit(1)
+        return recorder, core, StateFile(state_path(self.record), self.cfg.id, segment)
 
     def __exit__(self, *exc):
         closers, self._closers = self._closers, []

@@ -6,11 +6,18 @@
 ``rejected_frames`` ``rejected_burst`` rejects within ``rejected_window_s``
 ``disconnected``    the wearable's liveliness token is gone
 ``recording_failed`` the incident is no longer being recorded (disk full, ...)
+``flooding``        the responder's key sent more than its budget (:mod:`service.core.intake`)
 ``par_unanswered``  a roll call (PAR) unanswered after ``command_answer_s``
 ``evacuation_unacknowledged`` an evacuation order unacknowledged after ``command_answer_s``
 ==================  ==========================================================================
+
+Man-down is judged on frames: a no-motion state whose stillness began before a gap in the
+frames (an outage, lost frames, a new stream) needs the motion model's own time of stillness
+after the gap before it is an alarm; the outage itself is ``lost_contact``, not ``man_down``.
 """
 from __future__ import annotations
+
+import math
 
 from pdr.events import MotionState
 
@@ -19,14 +26,16 @@ LOST_CONTACT = "lost_contact"
 REJECTED = "rejected_frames"
 DISCONNECTED = "disconnected"
 RECORDING = "recording_failed"
+FLOODING = "flooding"
+NO_MOTION_AFTER_S = 30.0  # s of stillness that make no motion, when the motion model does not say (the PASS rule)
 UNANSWERED = {"par": "par_unanswered", "evacuate": "evacuation_unacknowledged"}
 
 
-def of_responder(r, now: float, settings, recording_failed: bool = False) -> list[str]:
+def of_responder(r, now: float, settings, recording_failed: bool = False, flooding: bool = False) -> list[str]:
     """The alarms of responder ``r`` (:class:`service.core.responder.Responder`) at service time ``now``."""
     out = []
-    motion, _ = r.tracker.motion
-    if motion is MotionState.NO_MOTION:
+    motion, since = r.tracker.motion
+    if motion is MotionState.NO_MOTION and _still_observed(r, since):
         out.append(MAN_DOWN)
     heard = r.gate.last_heard if r.gate.last_heard is not None else r.first_heard
     if now - heard > settings.lost_contact_s:
@@ -37,7 +46,20 @@ def of_responder(r, now: float, settings, recording_failed: bool = False) -> lis
         out.append(DISCONNECTED)
     if recording_failed:
         out.append(RECORDING)
+    if flooding:
+        out.append(FLOODING)
     for action, order in r.commands.items():
         if order["acked_at"] is None and now - order["issued_at"] > settings.command_answer_s:
             out.append(UNANSWERED[action])
     return out
+
+
+def _still_observed(r, since: float) -> bool:
+    """Was the stillness seen in frames for the no-motion time? Stillness that began before the
+    latest gap counts from the gap's end only."""
+    gap_end = getattr(r, "gap_end", -math.inf)
+    if since >= gap_end:
+        return True
+    pipeline = getattr(r.tracker.settings, "pipeline", None)
+    need = getattr(pipeline, "no_motion_after_s", NO_MOTION_AFTER_S)
+    return r.tracker.device_time - gap_end >= need

@@ -28,11 +28,34 @@ Rejects (counted by reason in :attr:`FrameGate.counts`, logged in :attr:`FrameGa
 Device time between consecutive released frames that jumps by more than ``max_gap_s`` counts
 as a gap (the frame is released; the pipeline decides what a gap means to it).
 
-Restart. A different ``device`` string, or a frame that would be rejected as above after
-``restart_after_s`` of silence (a rebooted wearable, a replay started again), starts a new
-stream: held frames are released, ``next`` and the time check are forgotten, ``epoch`` grows.
-Within an epoch released times strictly increase; the pipeline recognises a restart by a
-released frame whose device differs or whose first time is not after its previous one.
+Streams. A stream is one run of seq numbers from one start of one wearable, named by
+``(device, boot)`` (:attr:`service.protocol.wire.ImuBatch.boot`, a random id per start). A new
+stream begins (``epoch`` grows, held frames are released, ``next`` and the time check are
+forgotten) when
+
+* a frame names another ``(device, boot)`` than the current stream: a restarted wearable, or
+  another device for the same responder. The stream it replaces is *retired*: its frames
+  still in flight are turned away (``old_stream``) instead of switching back;
+* a frame's seq goes back while its time goes on (``seq < next`` and its first sample after the
+  last released one): the wearable's counter restarted, whatever its ``boot`` says;
+* a frame's seq jumps ahead by more than ``max_seq_jump``: a counter that restarted elsewhere,
+  not a loss (which would otherwise count that many frames lost);
+
+but only once the current stream has been silent for ``takeover_after_s``: a wearable that
+restarts goes quiet first, while frames of another stream interleaved with a live one are
+someone else's on this responder's key. They are turned away (``other_stream``, ``seq_jump``)
+and cannot take the track over;
+* without a ``boot`` (an older wearable), a frame that would be rejected as above after
+  ``restart_after_s`` of silence (a rebooted wearable whose clock also went back).
+
+Every new stream is a gap (``gaps``); its receive-time gap adds to ``gap_s``. Within an epoch
+released times strictly increase; the incident core continues the responder's track across
+epochs (:mod:`service.core.incident_core`).
+
+Counts. ``lost`` frames (seq never released), ``gaps`` (runs of lost frames, device-time jumps
+over ``max_gap_s``, new streams) and ``gap_s`` (the seconds they span: the device-time jump
+across lost frames or a jump, the receive-time gap before a new stream) are what ``Status``
+reports, so a loss is never silent.
 """
 from __future__ import annotations
 
@@ -41,22 +64,27 @@ from collections import Counter, deque
 
 from service.protocol.wire import ImuBatch
 
-GATE_REASONS = ("duplicate", "late", "time_order")
+GATE_REASONS = ("duplicate", "late", "time_order", "old_stream", "other_stream", "seq_jump")
 
 
 class FrameGate:
     """Per-responder reorder buffer and reject counter: ``released = gate.offer(batch, now)``."""
 
     def __init__(self, reorder_window: int = 4, max_gap_s: float = 0.5, *, max_hold_s: float = 1.0,
-                 restart_after_s: float = 30.0, max_events: int = 256):
+                 restart_after_s: float = 30.0, max_events: int = 256, max_seq_jump: int = 100_000,
+                 max_retired: int = 16, takeover_after_s: float = 0.5):
         if reorder_window < 0:
             raise ValueError(f"reorder_window must be >= 0, got {reorder_window}")
         if not max_gap_s > 0 or not max_hold_s > 0 or not restart_after_s > 0:
             raise ValueError("max_gap_s, max_hold_s and restart_after_s must be positive")
+        if max_seq_jump < 1:
+            raise ValueError(f"max_seq_jump must be >= 1 frames, got {max_seq_jump}")
         self.reorder_window = int(reorder_window)
         self.max_gap_s = float(max_gap_s)
         self.max_hold_s = float(max_hold_s)
         self.restart_after_s = float(restart_after_s)
+        self.max_seq_jump = int(max_seq_jump)
+        self.takeover_after_s = float(takeover_after_s)
         self.events: deque[tuple[float, str, str]] = deque(maxlen=max_events)
         self._counts: Counter[str] = Counter()
         self.offered = 0  # frames passed to offer()
@@ -65,8 +93,12 @@ class FrameGate:
         self.gaps = 0  # discontinuities: runs of lost frames, device-time jumps > max_gap_s
         self.lost = 0  # frames declared lost
         self.epoch = 0  # restarts
+        self.gap_s = 0.0  # s spanned by the gaps (device time across a loss or jump, receive time before a new stream)
         self.last_heard: float | None = None  # receive time of the last frame (or counted reject)
-        self._device: str | None = None
+        self._stream: tuple[str, str | None] | None = None  # (device, boot) of the current stream
+        self._retired: deque[tuple[str, str]] = deque(maxlen=max_retired)  # streams replaced by a newer one
+        self._released_at: float | None = None  # receive time of the newest released frame
+        self.first_of_stream: ImuBatch | None = None  # the first frame released of the current stream
         self._held: dict[int, tuple[ImuBatch, float]] = {}
         self._reset_stream()
 
@@ -96,6 +128,24 @@ class FrameGate:
         """Device time of the last released sample."""
         return self._last_t
 
+    @property
+    def last_seq(self) -> int | None:
+        """Seq of the newest released frame of the current stream (what the wearable may count as taken)."""
+        return self._last_seq
+
+    @property
+    def device(self) -> str | None:
+        return None if self._stream is None else self._stream[0]
+
+    @property
+    def boot(self) -> str | None:
+        return None if self._stream is None else self._stream[1]
+
+    @property
+    def streams(self) -> int:
+        """Streams seen: 0 before the first frame, then 1 + the restarts."""
+        return 0 if self._stream is None else self.epoch + 1
+
     def count(self, reason: str, detail: str, receive_time: float | None = None) -> None:
         """Count a reject found elsewhere (a decode error: :data:`service.protocol.wire.REJECT_REASONS`)."""
         if receive_time is not None:
@@ -110,12 +160,38 @@ class FrameGate:
         self.offered += 1
         out = self.expire(receive_time)
         silence = receive_time - self.last_heard if self.last_heard is not None else 0.0
+        quiet = self._released_at is None or receive_time - self._released_at >= self.takeover_after_s
+        stream = (batch.device, batch.boot)
+        if self._stream is not None and stream != self._stream:
+            if batch.boot is not None and stream in self._retired:
+                self._reject(receive_time, "old_stream", f"seq {batch.seq} of device {batch.device!r} boot "
+                                                         f"{batch.boot!r}, which a newer stream replaced")
+                return out
+            if not quiet:
+                self._reject(receive_time, "other_stream", f"seq {batch.seq} of device {batch.device!r} boot "
+                                                           f"{batch.boot!r} while {self._stream} is live")
+                return out
+            old_device, old_boot = self._stream
+            why = (f"device changed from {old_device!r} to {batch.device!r}" if batch.device != old_device
+                   else f"device {batch.device!r} restarted (boot {old_boot!r} -> {batch.boot!r})")
+            if old_boot is not None:
+                self._retired.append(self._stream)
+            out += self._restart(receive_time, why)
         self.last_heard = receive_time
-        if self._device is not None and batch.device != self._device:
-            out += self._restart(receive_time, f"device changed from {self._device!r} to {batch.device!r}")
-        self._device = batch.device
+        self._stream = stream
         verdict = self._seq_verdict(batch)
-        if silence >= self.restart_after_s and (verdict or self._time_verdict(batch)):
+        if verdict is not None and quiet and self._counter_restarted(batch):
+            out += self._restart(receive_time, f"seq {batch.seq} after seq {self._last_seq} while time went on "
+                                               f"(t[0] = {float(batch.t[0])!r} s): the counter restarted")
+            verdict = None
+        elif self._next is not None and batch.seq - self._next > self.max_seq_jump:
+            if not quiet:
+                self._reject(receive_time, "seq_jump", f"seq {batch.seq} is {batch.seq - self._next} frames ahead "
+                                                       f"of the next expected ({self._next}) in a live stream")
+                return out
+            out += self._restart(receive_time, f"seq {batch.seq} is {batch.seq - self._next} frames ahead of the next "
+                                               f"expected ({self._next}): the counter restarted")
+        elif batch.boot is None and silence >= self.restart_after_s and (verdict or self._time_verdict(batch)):
             why = (verdict or self._time_verdict(batch))[0]
             out += self._restart(receive_time, f"seq {batch.seq} after {silence:.1f} s of silence ({why} "
                                                "otherwise): new stream")
@@ -165,6 +241,12 @@ class FrameGate:
             return "late", f"seq {s} arrived after release moved on: it {why}; next expected {self._next}"
         return None
 
+    def _counter_restarted(self, batch: ImuBatch) -> bool:
+        """A lower seq whose first sample comes after the newest released one: no copy or
+        straggler of this stream can be that (theirs are older), so the counter restarted."""
+        return (self._next is not None and batch.seq < self._next and self._last_t is not None
+                and batch.seq not in self._held and float(batch.t[0]) > self._last_t)
+
     def _time_verdict(self, batch: ImuBatch) -> tuple[str, str] | None:
         t0 = float(batch.t[0])
         if self._last_t is not None and not t0 > self._last_t:
@@ -181,6 +263,7 @@ class FrameGate:
         """Release ``batch`` (seq == next, or the first of a stream) unless its time goes back."""
         if self._next is None:
             self._first = batch.seq
+            self.first_of_stream = batch  # the core continues the track from here as a new stream
         self._next = batch.seq + 1
         verdict = self._time_verdict(batch)
         if verdict is not None:
@@ -189,12 +272,14 @@ class FrameGate:
         if self._last_t is not None:
             jump = float(batch.t[0]) - self._last_t
             if jump > self.max_gap_s:
+                self.gap_s += jump
                 if not gap_counted:
                     self.gaps += 1
                 self.events.append((now, "gap", f"seq {batch.seq}: {jump:.3f} s of device time since the last "
                                                f"released sample (seq {self._last_seq})"))
         self._last_t = float(batch.t[-1])
         self._last_seq = batch.seq
+        self._released_at = now
         self.accepted += 1
         out.append(batch)
 
@@ -223,5 +308,8 @@ class FrameGate:
             self._skip_to_held(now, out, "stream restarted")
         self._reset_stream()
         self.epoch += 1
+        self.gaps += 1
+        if self._released_at is not None and now > self._released_at:
+            self.gap_s += now - self._released_at
         self.events.append((now, "restart", why))
         return out

@@ -34,15 +34,41 @@ releases frames held for a missing one, so a live run whose frames waited for a 
 differ from a replay that does not send the same ticks.
 
 A message that cannot be used is counted against its responder with a reason (``Status``
-``rejected``), logged a few times per window, and dropped; nothing a wearable sends reaches
-another responder's state, and an exception in one message is counted in ``errors`` and the
-next message goes on.
+``rejected``), logged a few times per window (:mod:`service.core.rejectlog`: a few lines per
+source, then a summary per source), and dropped; nothing a wearable sends reaches another
+responder's state, and an exception in one message is counted in ``errors`` and the next
+message goes on.
+
+**Isolation.** Before a message is copied, decoded or recorded, the shell asks
+:meth:`IncidentCore.admit` (:mod:`service.core.intake`): its size, whether its responder id may
+join the incident (an admission budget), and whether its source is within its message budget.
+Responders silent for ``expire_after_s`` (``expire_unplaced_s`` for one that never had a frame
+released) leave the core, checked as the inputs' clock passes (so ``reprocess`` lets them go at
+the same moments); their track stays in the recording. Memory is bounded by the number of
+responders the intake admits and what each keeps (bounded deques, the estimator's window).
+
+**Streams and gaps.** A responder's track continues across streams (a restarted wearable, a new
+device, a counter reset: :class:`service.core.gate.FrameGate`). A new stream whose device clock
+is not the old one's continuation is put on the track's clock (``Responder.t_offset``: the
+first sample after the old stream's last one by the receive-time gap); the wire stays on the
+current device clock both ways (``Pose.t``, ``Status.t``, fixes with ``time_base="device"``).
+A gap of more than ``gap_reanchor_s`` (lost frames, an outage, a new stream) tells the tracker
+(:meth:`ResponderTracker.note_gap`): the step across it gets the position uncertainty of a
+walk of ``gap_speed_mps`` for its length, so the next checkpoint, GNSS or UWB fix re-anchors
+the track. Motionlessness is judged on frames only: no ``man_down`` from an interval with no
+frames (``alarms.of_responder``).
+
+**Snapshots.** :meth:`IncidentCore.snapshot` is the core's whole state as bytes (the
+estimators restart their graphs from their newest pose, see
+:meth:`service.fusion.graph.TrackFusion.__getstate__`); :meth:`IncidentCore.restore` makes a
+core that goes on from it (:mod:`service.review.resume`).
 """
 from __future__ import annotations
 
 import dataclasses
 import logging
 import math
+from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -54,7 +80,10 @@ from pdr.fleet import FleetMember, PdrFleet
 from pdr.floors import FloorElevations
 from service.core import alarms
 from service.core.fix_types import FixRejected, fix_type_of
+from service.core import snapshot as snapshots
 from service.core.gate import FrameGate
+from service.core.intake import OPERATORS, Intake, IntakeSettings
+from service.core.rejectlog import RejectLog
 from service.core.plausibility import PlausibilitySettings, Reference, judge, semi_major
 from service.core.responder import Responder, continues, frame_of
 from service.core.tracker import (
@@ -98,10 +127,22 @@ class CoreSettings:
     reorder_window: int = 4  # frames a late frame may be overtaken by
     entry_sigma_m: float | None = 50.0  # m: responders not yet placed by a checkpoint start at the origin
     # with this σ at their first step (None: no pose until a checkpoint places them)
-    log_rejects_per_window: int = 5  # log lines per responder and window; all are counted
+    log_rejects_per_window: int = 3  # full log lines per source and window; all are counted
+    log_lines_per_window: int = 40  # full log lines per window over all sources (then summaries)
     max_coalesce: int = 50  # frames of one responder run through its tracker as one batch, at most
     command_answer_s: float = 30.0  # s a roll call or evacuation order may go unanswered before it alarms
     fix_future_s: float = 2.0  # s: a fix this far ahead of the newest sample is from the future (a wrong clock)
+    intake: IntakeSettings = field(default_factory=IntakeSettings)  # budgets and admission (service/core/intake.py)
+    expire_after_s: float = 1800.0  # s of silence after which a responder leaves the core (its track stays recorded)
+    expire_unplaced_s: float = 120.0  # s of silence after which an id that never had a frame released leaves
+    gap_reanchor_s: float = 2.0  # s: a gap in the frames longer than this widens the position for the next fix
+    gap_speed_mps: float = 1.5  # m/s: the walk a gap may hide (a brisk pace), as position sigma per second
+    same_clock_tolerance_s: float = 5.0  # s: a new stream whose first sample is within the receive gap + this
+    # of the old stream's last is on the same device clock (the track's times stay the device's)
+    min_stream_gap_s: float = 0.01  # s between a stream's last sample and the next stream's first, at least
+    max_clock_lead_s: float = 60.0  # s a device clock may run ahead of the service's across a gap (beyond: a leap)
+    idle_after_s: float = 2.0  # s without a message after which a responder's Status goes out less often ...
+    idle_status_every_s: float = 5.0  # ... every this many s (and at once when its alarms change)
     columnar: bool = True  # handheld pipelines run in columnar rounds (pdr.fleet); False: one responder at a time
     plausibility: PlausibilitySettings = field(default_factory=PlausibilitySettings)
 
@@ -110,8 +151,9 @@ class CoreSettings:
 class CoreCounters:
     frames_processed: int = 0
     tracker_batches: int = 0  # tracker calls: frames_processed / tracker_batches frames each on average
-    errors: int = 0  # exceptions caught while processing (each logged)
+    errors: int = 0  # exceptions caught while processing (logged a few times per window)
     received: dict = field(default_factory=lambda: {"imu": 0, "fix": 0, "op": 0})  # payloads taken, good or bad
+    expired: int = 0  # responders that left after their silence
 
 
 class IncidentCore:
@@ -132,7 +174,12 @@ class IncidentCore:
         self._out: list[Outbound] = []
         self._pose_queue: list[tuple] = []  # poses of this round waiting for their wire form
         self._now = 0.0
-        self._presence: dict[str, bool] = {}  # liveliness seen before a responder's first frame
+        self._presence: dict[str, bool] = {}  # liveliness seen before a responder's first frame (bounded)
+        self.intake = Intake(settings.intake)
+        self.reject_log = RejectLog(log, settings.rejected_window_s, settings.log_rejects_per_window,
+                                    settings.log_lines_per_window)
+        self._expiry_checked = -math.inf
+        self._early_rejects: dict[str, deque] = {}  # rejects at the intake of ids admitted but not made yet
         pipeline = settings.tracker.pipeline
         # the handheld pipelines of all responders, run a stage at a time over the round (pdr.fleet)
         self.fleet = (PdrFleet(pipeline, FloorElevations(incident.elevations()))
@@ -151,8 +198,7 @@ class IncidentCore:
             try:
                 self._take(item)
             except Exception:  # a bug must not stop the incident: log it, count it, go on
-                self.counters.errors += 1
-                log.exception("error while processing %s", item.key)
+                self._error(f"while processing {item.key[:200]}")
         self._run_dirty()
         self._emit_poses()
         out, self._out = self._out, []
@@ -164,25 +210,51 @@ class IncidentCore:
 
     def tick(self, now: float) -> list[Outbound]:
         """Time passes: frames held for a missing one beyond the gate's wait are released, and
-        every responder's Status is answered."""
+        every responder's Status is answered: at every tick while it is heard, every
+        ``idle_status_every_s`` once it has been silent for ``idle_after_s`` (and at once when
+        its alarms change), so a crowd of silent ids costs little status traffic."""
         self._now = now
         for r in list(self.responders.values()):
             try:
                 for b in r.gate.expire(now):
                     self._process(r, b)
             except Exception:
-                self.counters.errors += 1
-                log.exception("error while releasing the held frames of %s", r.id)
+                self._error(f"while releasing the held frames of {r.id}")
         self._run_dirty()
+        s = self.settings
         for r in list(self.responders.values()):
             try:
-                self._out.append(Outbound(wire.key(self.id, r.id, "status"), self.status_of(r, now)))
+                st = self.status_of(r, now)
+                idle = now - r.last_input >= s.idle_after_s
+                if not idle or st.alarms != r.last_alarms or now - r.last_status >= s.idle_status_every_s:
+                    self._out.append(Outbound(wire.key(self.id, r.id, "status"), st))
+                    r.last_status, r.last_alarms = now, st.alarms
             except Exception:
-                self.counters.errors += 1
-                log.exception("status of %s", r.id)
+                self._error(f"status of {r.id}")
         self._emit_poses()
         out, self._out = self._out, []
         return out
+
+    def admit(self, kind: str, key: str, size: int, now: float) -> str | None:
+        """May a message (of ``size`` bytes, on ``key``) enter? None, or the reason it may not
+        (:data:`service.core.intake.INTAKE_REASONS`), counted and logged per source. The shell
+        asks before copying, recording or feeding it (see :mod:`service.core.intake`)."""
+        if kind == "op":  # an operator's action: its actor is no responder; operators share one budget
+            reason, source = self.intake.admit_shared(OPERATORS, size, now), OPERATORS
+        else:
+            reason, source = self.intake.admit(key, size, now, self.responders)
+        if reason is not None:
+            self.reject_log.note(source, reason, f"{kind} of {size} bytes on {key[:120]!r}", now)
+            r = self.responders.get(source)
+            if reason == "oversize" and (r is not None or source in self.intake.sources):
+                # a bad message like any other: the burst alarm hears of it (an id admitted in the same
+                # round, whose Responder the round has not made yet, gets it when it is made)
+                if r is not None:
+                    r.rejects.append(now)
+                else:
+                    self._early_rejects.setdefault(source, deque(maxlen=64)).append(now)
+                self.intake.note_reject(source, now)
+        return reason
 
     # ------------------------------------------------------------------ queries
     def status_of(self, r: Responder, now: float) -> wire.Status:
@@ -190,7 +262,8 @@ class IncidentCore:
         motion, since = r.tracker.motion
         rejected = dict(r.gate.counts)
         tr = r.tracker
-        current = alarms.of_responder(r, now, self.settings, self.recording_failed)
+        current = alarms.of_responder(r, now, self.settings, self.recording_failed,
+                                      flooding=self.intake.flooding(r.id, now))
         for kind in [k for k in r.alarm_since if k not in current]:
             del r.alarm_since[kind]
         for kind in current:
@@ -199,14 +272,22 @@ class IncidentCore:
             for reason, n in reasons.items():
                 if n:
                     rejected[f"fix_{reason}"] = rejected.get(f"fix_{reason}", 0) + n
+        for reason, n in self.intake.dropped_of(r.id).items():
+            rejected[reason] = rejected.get(reason, 0) + n
+        g = r.gate
         return wire.Status(
-            responder=r.id, t=tr.device_time, motion=motion.value, motion_since=since,
+            responder=r.id, t=tr.device_time - r.t_offset, motion=motion.value, motion_since=since - r.t_offset,
             alarms=current, alarms_since={k: r.alarm_since[k] for k in current}, rejected=rejected,
-            frames=r.gate.accepted, gaps=r.gate.gaps, last_heard=heard, steps=tr.steps,
+            frames=g.accepted, gaps=g.gaps, last_heard=heard, steps=tr.steps,
             fixes={"applied": tr.fixes_applied, "queued": tr.fixes_queued,
                    **({"flagged": r.fixes_flagged} if r.fixes_flagged else {})}, utc_offset=r.utc_offset,
             last_fix=tr.last_fix, first_heard=r.first_heard, commands={a: dict(o) for a, o in r.commands.items()},
+            lost=g.lost, gap_s=g.gap_s, streams=g.streams, device=g.device, boot=g.boot, seq=g.last_seq,
         )
+
+    def flooding_sources(self, now: float) -> list[str]:
+        """Sources throttled within the flood alarm's time: responder ids, ``<bad key>``, ``<new ids>``."""
+        return self.intake.flooding_sources(now)
 
     def track(self, rid: str) -> dict | None:
         """The responder's track so far as columns (``t, x, y, floor, heading``) and whether it
@@ -222,8 +303,11 @@ class IncidentCore:
         return {"track": cols, "smoothed": False}
 
     def frame_accounting(self) -> dict[str, int]:
-        """Over all responders: frames rejected by reason, declared lost, still held by a gate."""
+        """Over all responders: frames rejected by reason, declared lost, still held by a gate,
+        and the messages the intake refused (by reason)."""
         out: dict[str, int] = dict(self.unattributed)
+        for reason, n in self.intake.counts.items():
+            out[reason] = out.get(reason, 0) + n
         for r in self.responders.values():
             for reason, n in r.gate.counts.items():
                 out[reason] = out.get(reason, 0) + n
@@ -235,6 +319,8 @@ class IncidentCore:
     def _take(self, item: Inbound) -> None:
         kind, key, payload, now = item
         self._now = now
+        if now - self._expiry_checked >= 1.0 or now < self._expiry_checked:
+            self._expire(now)
         if kind in self.counters.received:
             self.counters.received[kind] += 1
         if kind == "imu":
@@ -257,21 +343,43 @@ class IncidentCore:
             _, rid, _ = wire.parse_key(key)
         except ValueError as e:
             self.unattributed[reason_on_fail] = self.unattributed.get(reason_on_fail, 0) + 1
-            log.warning("rejected a sample on %r: %s", key, e)
+            self.reject_log.note("<bad key>", reason_on_fail, str(e), now)
             return None
         if rid in self._revoked:
             self._refuse_revoked(rid, key)
             return None
         r = self.responders.get(rid)
-        return r if r is not None else self._new_responder(rid, now)
+        if r is None:
+            r = self._new_responder(rid, now)
+        r.last_input = now
+        return r
 
     def _new_responder(self, rid: str, now: float) -> Responder:
         s = self.settings
         r = Responder(id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=self._tracker(rid),
-                      first_heard=now, present=self._presence.get(rid))
+                      first_heard=now, present=self._presence.pop(rid, None))
+        r.rejects.extend(self._early_rejects.pop(rid, ()))
         self.responders[rid] = r
         log.info("responder %s appeared", rid)
         return r
+
+    def _expire(self, now: float) -> None:
+        """Responders silent for ``expire_after_s`` (``expire_unplaced_s`` if no frame of theirs
+        was ever released) leave: their memory goes, their track stays in the recording."""
+        self._expiry_checked = now
+        s = self.settings
+        for rid, r in list(self.responders.items()):
+            limit = s.expire_after_s if r.gate.accepted else s.expire_unplaced_s
+            if now - r.last_input > limit and now - r.first_heard > limit:
+                del self.responders[rid]
+                self._dirty.pop(rid, None)
+                self.intake.forget(rid)
+                r.tracker.release_model()  # e.g. its columnar slot goes to the next responder
+                self.counters.expired += 1
+                # a responder that walked is news; an id that never did is one of a crowd (a flood of ids)
+                (log.warning if r.tracker.steps else log.info)(
+                    "%s left the incident after %.0f s of silence (%d steps, %d poses; its track is in the recording)",
+                    rid, now - max(r.last_input, r.first_heard), r.tracker.steps, r.poses)
 
     def _tracker(self, rid: str) -> ResponderTracker:
         """A fresh tracker; not yet placed, it starts at the incident origin with a wide σ
@@ -282,6 +390,8 @@ class IncidentCore:
         return ResponderTracker(rid, FloorElevations(cfg.elevations()), cfg.start_floor, s.tracker, entry=entry,
                                 fleet=self.fleet)
 
+    MAX_PRESENCE = 4096  # liveliness states kept for ids with no responder (beyond, the oldest go)
+
     def _on_presence(self, key: str, payload: bytes) -> None:
         try:
             _, rid, _ = wire.parse_key(key)
@@ -291,10 +401,13 @@ class IncidentCore:
             self._refuse_revoked(rid, key)
             return
         alive = payload == b"1"
-        self._presence[rid] = alive
         r = self.responders.get(rid)
         if r is not None:
             r.present = alive
+        else:
+            self._presence[rid] = alive
+            while len(self._presence) > self.MAX_PRESENCE:
+                del self._presence[next(iter(self._presence))]
         log.info("wearable of %s %s", rid, "connected" if alive else "disconnected")
 
     def _on_command(self, kind: str, key: str, payload: bytes, now: float) -> None:
@@ -334,13 +447,17 @@ class IncidentCore:
         self._note_reject(r, reason, detail, now)
 
     def _note_reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
-        """Every reject feeds the burst alarm; the log gets at most a few lines per window."""
-        r.rejects.append(now)
-        while r.logged and now - r.logged[0] > self.settings.rejected_window_s:
-            r.logged.popleft()
-        if len(r.logged) < self.settings.log_rejects_per_window:
-            r.logged.append(now)
-            log.warning("%s: rejected a frame (%s): %s", r.id, reason, detail)
+        """Every reject feeds the burst alarm and the source's budget (a duplicate, which
+        retransmission makes, does neither); the log gets a few lines per window."""
+        if reason != "duplicate":
+            r.rejects.append(now)
+            self.intake.note_reject(r.id, now)
+        self.reject_log.note(r.id, reason, detail, now)
+
+    def _error(self, what: str) -> None:
+        """An exception while processing: counted; logged with its traceback a few times per window."""
+        self.counters.errors += 1
+        self.reject_log.note("<errors>", "exception", what, self._now, level=logging.ERROR, exc_info=True)
 
     def _on_imu(self, key: str, payload: bytes, now: float) -> None:
         r = self._responder_of(key, now, "bad_key")
@@ -365,15 +482,58 @@ class IncidentCore:
             self._process(r, b)
 
     def _process(self, r: Responder, b: wire.ImuBatch) -> None:
-        if r.gate.epoch != r.epoch:  # a new stream (rebooted wearable, another device): a fresh tracker
-            self._run_backlog(r)  # the old stream's last frames end the old track
-            log.warning("%s: new stream (device %s); the track restarts", r.id, b.device)
-            r.epoch = r.gate.epoch
-            r.tracker = self._tracker(r.id)
+        if b is r.gate.first_of_stream and b is not r.stream_start:
+            self._new_stream(r, b)
+        t0 = float(b.t[0]) + r.t_offset
+        if math.isfinite(r.last_t) and t0 - r.last_t > self.settings.gap_reanchor_s:
+            self._run_backlog(r)  # the frames before the gap go first
+            t0 = self._bound_leap(r, b, t0)
+            self._gap(r, r.last_t, t0)
         if r.backlog and (not continues(r.backlog[-1], b) or len(r.backlog) >= self.settings.max_coalesce):
             self._run_backlog(r)
         r.backlog.append(b)
+        r.last_t = float(b.t[-1]) + r.t_offset
+        r.last_rt = self._now
         self._dirty[r.id] = r  # run at the round's end (frame by frame while a fix waits: see _run_backlog)
+
+    def _new_stream(self, r: Responder, b: wire.ImuBatch) -> None:
+        """The gate opened a stream with ``b``: the first of the responder, or a new one (a
+        restarted wearable, another device, a counter reset) that continues the same track.
+        Its device clock is the track's if its first sample follows the last one within the
+        receive-time gap; otherwise it is put on the track's clock after that gap."""
+        self._run_backlog(r)  # the old stream's last frames end at the old clock
+        r.stream_start = b
+        if not math.isfinite(r.last_t):
+            return
+        s = self.settings
+        gap = max(self._now - r.last_rt, 0.0) if r.last_rt is not None else 0.0
+        t0 = float(b.t[0])
+        ahead = t0 - (r.last_t - r.t_offset)
+        if not 0.0 < ahead <= gap + s.same_clock_tolerance_s:
+            r.t_offset = r.last_t + max(gap, s.min_stream_gap_s) - t0
+        log.warning("%s: new stream (device %s, boot %s) after %.1f s; the track continues%s", r.id, b.device,
+                    b.boot, gap, "" if r.t_offset == 0.0 else f" (its clock is {r.t_offset:+.3f} s from the track's)")
+
+    def _bound_leap(self, r: Responder, b: wire.ImuBatch, t0: float) -> float:
+        """A device clock that leaps further ahead than the service's clock went (by more than
+        ``max_clock_lead_s``) is put back on the track's clock after the receive-time gap:
+        a broken or hostile clock must not make the motion model walk through hours of
+        nothing (its state grid would grow with them). Returns the frame's new track time."""
+        s = self.settings
+        rgap = max(self._now - r.last_rt, 0.0) if r.last_rt is not None else 0.0
+        if t0 - r.last_t <= rgap + s.max_clock_lead_s:
+            return t0
+        leap = t0 - r.last_t
+        r.t_offset -= leap - max(rgap, s.min_stream_gap_s)
+        self.reject_log.note(r.id, "clock_leap", f"frame {b.seq}: device time leapt {leap:.1f} s in {rgap:.1f} s; "
+                                                 "the track goes on after the receive-time gap", self._now)
+        return float(b.t[0]) + r.t_offset
+
+    def _gap(self, r: Responder, t_from: float, t_to: float) -> None:
+        """No frames between ``t_from`` and ``t_to`` (track clock): the tracker widens the step
+        across it, and the motionlessness before it no longer counts towards man-down."""
+        r.gap_end = t_to
+        r.tracker.note_gap(t_from, t_to, self.settings.gap_speed_mps * (t_to - t_from))
 
     def _run_dirty(self) -> None:
         """The round's end: every responder's waiting frames through its tracker; those on the
@@ -436,7 +596,7 @@ class IncidentCore:
 
     def _run_batches(self, r: Responder, batches: list) -> None:
         try:
-            outputs = r.tracker.on_frame(frame_of(batches), batches[0].carry)
+            outputs = r.tracker.on_frame(frame_of(batches, r.t_offset), batches[0].carry)
         except ValueError as e:  # e.g. a frame the gate let through that the pipeline cannot take
             if len(batches) > 1:  # the check comes before any state changes: find the culprit alone
                 for b in batches:
@@ -601,6 +761,8 @@ class IncidentCore:
                 raise FixRejected("clock_unknown", f"{fix.source} fix in UTC, but the wearable of {r.id} has not "
                                                    "said its clock offset yet (ImuBatch.utc_offset)")
             fix = fix.model_copy(update={"t": fix.t - r.utc_offset, "time_base": "device"})
+        if r.t_offset:  # the current stream's device clock -> the track's
+            fix = fix.model_copy(update={"t": fix.t + r.t_offset})
         tr = r.tracker
         if math.isfinite(tr.model.last_time):  # judged against the samples taken so far
             ahead = fix.t - tr.device_time
@@ -621,7 +783,10 @@ class IncidentCore:
 
     def _count_fix_reject(self, r: Responder, reason: str, detail: str) -> None:
         r.fixes_rejected[reason] = r.fixes_rejected.get(reason, 0) + 1
-        log.warning("%s: fix rejected (%s): %s", r.id, reason, detail)
+        if reason in wire.REJECT_REASONS:  # not a fix at all: the source's budget hears of it
+            r.rejects.append(self._now)
+            self.intake.note_reject(r.id, self._now)
+        self.reject_log.note(r.id, f"fix_{reason}", detail, self._now)
 
     # ------------------------------------------------------------------ outputs
     def _answer_pose(self, r: Responder, p: PoseEstimate) -> None:
@@ -666,10 +831,47 @@ class IncidentCore:
     def _pose(r: Responder, p: PoseEstimate, lat: float, lon: float, seq: int, now: float, utc_offset) -> wire.Pose:
         cov = np.asarray(p.cov, float)
         cov = 0.5 * (cov + cov.T)
+        t = p.t - r.t_offset  # on the current stream's device clock, like every time on the wire
         return wire.Pose(
-            responder=r.id, t=p.t, x=p.x, y=p.y, floor=int(p.floor), lat=lat, lon=lon,
+            responder=r.id, t=t, x=p.x, y=p.y, floor=int(p.floor), lat=lat, lon=lon,
             heading_deg=bearing_deg(p.heading) if math.isfinite(p.heading) else 0.0, cov=cov, steps=p.steps,
             source=p.source, seq=seq, published_at=now,
-            utc=None if utc_offset is None else p.t + utc_offset,
+            utc=None if utc_offset is None else t + utc_offset,
         )
+
+    # ------------------------------------------------------------------ snapshots
+    def snapshot(self) -> bytes:
+        """The core's state as bytes (between rounds): every responder (gate, motion model,
+        estimator, counters), the intake's budgets and the counters. Not the incident config or
+        the settings: :meth:`restore` takes those from the caller."""
+        if self._dirty or any(r.backlog for r in self.responders.values()):
+            self._run_dirty()  # between rounds nothing waits; make sure
+        state = {"incident": self.id, "responders": self.responders, "unattributed": self.unattributed,
+                 "counters": self.counters, "presence": self._presence, "intake": self.intake, "now": self._now,
+                 "access": self.access, "early_rejects": self._early_rejects, "fleet": self.fleet,
+                 "expiry_checked": self._expiry_checked}
+        return snapshots.dumps(state)
+
+    @classmethod
+    def restore(cls, blob: bytes, incident: IncidentConfig, settings: CoreSettings | None = None) -> IncidentCore:
+        """A core that goes on from :meth:`snapshot`'s bytes (taken by a core of the same incident)."""
+        core = cls(incident, settings)
+        state = snapshots.loads(blob)
+        if state.get("incident") != core.id:
+            raise ValueError(f"the snapshot is of incident {state.get('incident')!r}, not {core.id!r}")
+        core.responders = state["responders"]
+        core.unattributed = state["unattributed"]
+        core.counters = state["counters"]
+        core._presence = state["presence"]
+        intake = state["intake"]
+        intake.settings = core.settings.intake  # today's budgets over yesterday's counts
+        core.intake = intake
+        core._now = state["now"]
+        core._expiry_checked = state["expiry_checked"]
+        acc = state["access"]
+        core.access, core._revoked = acc, frozenset(acc.revoked) if acc.enforce else frozenset()
+        core._early_rejects = state["early_rejects"]
+        if state["fleet"] is not None:  # the restored handheld trackers' slots live in it: new ones join it
+            core.fleet = state["fleet"]
+        return core
 

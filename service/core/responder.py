@@ -1,6 +1,7 @@
 """One responder's state inside the incident core, and how its frames are joined for the tracker."""
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -30,6 +31,14 @@ class Responder:
     fixes_rejected: dict = field(default_factory=dict)
     present: bool | None = None  # liveliness: None unknown, True token alive, False token gone
     utc_offset: float | None = None  # s, UTC minus the device clock, as the wearable last said
+    t_offset: float = 0.0  # s, the track's clock minus the current stream's device clock (0 for the first stream)
+    last_t: float = math.nan  # s, track clock: the newest sample the tracker has been given
+    last_rt: float | None = None  # service time the newest frame was released at
+    stream_start: object = None  # the gate's first frame of the stream the tracker follows now
+    gap_end: float = -math.inf  # s, track clock: the first sample after the latest gap
+    last_input: float = -math.inf  # service time of the newest message of any kind (expiry)
+    last_status: float = -math.inf  # service time of the newest Status answered
+    last_alarms: list = field(default_factory=list)  # the alarms it carried
     alarm_since: dict = field(default_factory=dict)  # alarm -> the service time it began (as ticks saw it)
     commands: dict = field(default_factory=dict)
     early_acks: dict = field(default_factory=dict)  # (action, id) -> ack time, for an order not yet arrived  # action -> the newest order: id, issued_at, issued_by, acked_at
@@ -43,8 +52,11 @@ def continues(prev: wire.ImuBatch, b: wire.ImuBatch) -> bool:
     return (prev.mag is None) == (b.mag is None) and len(b.t) > 0 and len(prev.t) > 0 and b.t[0] > prev.t[-1]
 
 
-def frame_of(batches: list[wire.ImuBatch]) -> ImuFrame:
-    """One pipeline frame of consecutive wire frames (see :func:`continues`)."""
+def frame_of(batches: list[wire.ImuBatch], offset: float = 0.0) -> ImuFrame:
+    """One pipeline frame of consecutive wire frames (see :func:`continues`); ``offset`` (s) is
+    added to every time (the track's clock for a stream whose device clock differs)."""
+    if offset:
+        return _shifted(frame_of(batches), offset)
     if len(batches) == 1:
         b = batches[0]
         return ImuFrame(b.t, b.acc, b.gyr, b.mag, b.pressure_t, b.pressure)
@@ -57,3 +69,8 @@ def frame_of(batches: list[wire.ImuBatch]) -> ImuFrame:
     pv = [b.pressure for b in batches if b.pressure_t is not None and b.pressure is not None]
     return ImuFrame(cat("t"), cat("acc"), cat("gyr"), cat("mag"),
                     np.concatenate(pt) if pt else None, np.concatenate(pv) if pv else None)
+
+
+def _shifted(f: ImuFrame, offset: float) -> ImuFrame:
+    return ImuFrame(f.t + offset, f.acc, f.gyr, f.mag, None if f.pressure_t is None else f.pressure_t + offset,
+                    f.pressure)

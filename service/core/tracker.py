@@ -99,6 +99,7 @@ class ResponderTracker:
         self.fixes_unused = 0  # nothing to apply them to (see _apply_fix)
         self.last_fix: dict | None = None  # the last fix applied: source and device time
         self._first_step_after_placement = True
+        self._gap: tuple[float, float] | None = None  # (t_from, sigma_m) of a gap the next step crosses
 
     def _motion_factory(self, carry: str):
         if self.settings.motion is not None:
@@ -142,10 +143,18 @@ class ResponderTracker:
         """The motion model for frames of ``carry`` (chosen at the first frame)."""
         if self._frames == 0 and carry is not None and carry != self._carry and self.settings.motion is None:
             self._carry = carry
+            self.release_model()  # the default model made at construction gives way (a fleet slot back)
             self.model = self._motion_factory(carry)(self.settings, self.floors, self._start_floor)
             if self._anchored is not None:
                 self.model.anchor_floor(*self._anchored)
         return self.model
+
+    def release_model(self) -> None:
+        """Hand back what the motion model holds outside this tracker (a columnar fleet's
+        slot), when the responder leaves or the model is replaced; models without any ignore it."""
+        release = getattr(self.model, "release", None)
+        if release is not None:
+            release()
 
     def on_events(self, events) -> list[PoseEstimate | MotionEvent]:
         """What the motion model made of one frame (``model.update(frame)``, or the core's
@@ -193,6 +202,14 @@ class ResponderTracker:
         if self._placed_at is None and self._entry is not None and self._entry.floor is not None:
             return True
         return any(isinstance(f, CheckpointFix) for _, _, f in self._pending_fixes)
+
+    def note_gap(self, t_from: float, t_to: float, sigma_m: float) -> None:
+        """No samples between ``t_from`` and ``t_to``: the first step after ``t_from`` gets a
+        position sigma of ``sigma_m`` more (the walk the gap may hide), so the next fix
+        re-anchors the track (:meth:`service.fusion.estimators.TrackEstimator.add_gap`)."""
+        if self._gap is not None:
+            t_from, sigma_m = min(t_from, self._gap[0]), math.hypot(sigma_m, self._gap[1])
+        self._gap = (t_from, sigma_m)
 
     def on_fix(self, fix) -> PoseEstimate | None:
         """Apply a fix now if its time is covered by the steps so far, else when a step passes it."""
@@ -255,6 +272,11 @@ class ResponderTracker:
             self.estimator = make_estimator(self.settings.engine, self.settings.fusion)
             self.estimator.start(p0.t, p0.x, p0.y, ev.heading, ev.heading_sigma, p0.sigma,
                                  p0.floor if p0.floor is not None else ev.floor)
+        if self._gap is not None and ev.t > self._gap[0]:
+            add_gap = getattr(self.estimator, "add_gap", None)  # an estimator of one's own may not have it
+            if add_gap is not None:
+                add_gap(self._gap[1])
+            self._gap = None
         self.live = self._published(self.estimator.add_step(ev), ev.index)
         return self.live
 

@@ -47,6 +47,11 @@ class TrackEstimator(Protocol):
 
     def add_fix(self, fix) -> FixOutcome: ...
 
+    def add_gap(self, sigma_m: float) -> None:
+        """No samples for a while before the next step: widen that step's position by
+        ``sigma_m`` (m), so a fix after the gap re-anchors the track."""
+        ...
+
     def set_floor(self, t: float, floor: int) -> PoseEstimate:
         """The responder changed floor at ``t`` without a step (a lift): the newest pose again,
         on ``floor``."""
@@ -69,6 +74,9 @@ class DeadReckoningEstimator:
 
     def add_step(self, ev: StepEvent) -> PoseEstimate:
         return self._dr.add_step(ev)
+
+    def add_gap(self, sigma_m: float) -> None:
+        """Dead reckoning keeps no uncertainty to widen: a checkpoint moves it whatever it is."""
 
     def add_fix(self, fix) -> FixOutcome:
         if isinstance(fix, CheckpointFix):
@@ -156,6 +164,9 @@ class FusionEstimator:
         cov = np.array([[c[0], c[1]], [c[1], c[3]]])
         cov.setflags(write=False)
         return PoseEstimate(t, x, y, wrap(th), cov, floor, self._steps, source, math.sqrt(max(c[5], 0.0)))
+
+    def add_gap(self, sigma_m: float) -> None:
+        self.fusion.add_gap(sigma_m)
 
     def add_fix(self, fix) -> FixOutcome:
         self._flush()

@@ -48,6 +48,10 @@ without a step (a lift).
 **Published pose** (:mod:`service.fusion.published`): the graph's estimate of the newest pose
 through a display filter that moves with each step and closes part of the gap to the graph, so
 corrections do not make the marker zig-zag; its covariance rotated into ENU.
+
+**Gaps** (:meth:`TrackFusion.add_gap`: an outage, lost frames, a new stream): the next step
+gets an isotropic position sigma more, so the next fix re-anchors the track. **Snapshots**
+(pickling, for restart recovery): :mod:`service.fusion.snapshot`.
 """
 from __future__ import annotations
 
@@ -62,12 +66,19 @@ from pdr.events import StepEvent
 from service.fusion.fix_timing import slip, step_share
 from service.fusion.fixes import FixContext
 from service.fusion.heading_evidence import HeadingEvidence
-from service.fusion.history import PoseHistory
+from service.fusion.history import PoseHistory, smoothed_columns
 from service.fusion.keys import A, S, X
 from service.fusion.noise import step_covariance, step_turn
-from service.fusion.published import DisplayFilter, FusedPose, FusionEvent, enu_covariance
+from service.fusion.published import (
+    DisplayFilter,
+    FusedPose,
+    FusionEvent,
+    enu_covariance,
+)
 from service.fusion.scaled_step import scaled_step_factor
 from service.fusion.settings import FusionSettings
+from service.fusion.smoother import new_smoother
+from service.fusion.snapshot import fusion_state, restore_fusion
 
 __all__ = ["FusedPose", "FusionEvent", "FusionSettings", "TrackFusion"]
 
@@ -98,6 +109,11 @@ class TrackFusion:
         self._scale_n = -1  # index of the current step-length scale variable (-1: not estimated)
         self._scale_t0 = -math.inf  # s, when the current scale variable was opened
         self._scale = 1.0  # its latest estimate
+        self._gap_sigma = 0.0  # m, position sigma the next step adds for a gap before it (add_gap)
+
+    # pickling (restart recovery): everything but the smoother, which restarts from the newest pose
+    __getstate__ = fusion_state
+    __setstate__ = restore_fusion
 
     # ---------------------------------------------------------------- inputs
 
@@ -113,16 +129,7 @@ class TrackFusion:
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"TrackFusion.start: {name} must be finite and > 0, got {v!r}")
         s = self.settings
-        params = gtsam.ISAM2Params()
-        thresholds = gtsam.ISAM2ThresholdMap()
-        thresholds.insert(("x", np.array([s.relinearize_position_m, s.relinearize_position_m, s.relinearize_heading_rad])))
-        thresholds.insert(("a", np.array([s.relinearize_position_m, s.relinearize_position_m])))
-        thresholds.insert(("s", np.array([s.relinearize_scale])))
-        thresholds.insert(("c", np.array([s.relinearize_heading_rad])))
-        params.setRelinearizeThreshold(thresholds)
-        params.relinearizeSkip = int(s.relinearize_skip)
-        params.findUnusedFactorSlots = True  # reuse slots of marginalised factors: bounded memory
-        self._smoother = gtsam.IncrementalFixedLagSmoother(s.lag_s, params)
+        self._smoother = new_smoother(s)
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         pose = gtsam.Pose2(x, y, heading)
         graph.add(gtsam.PriorFactorPose2(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(
@@ -138,6 +145,13 @@ class TrackFusion:
         self._hist.append(t=t, index=0, x=math.nan, y=math.nan, heading=math.nan, floor=floor, pdr_floor=floor,
                           length=0.0, duration=0.0)
         return self._publish("snap")
+
+    def add_gap(self, sigma_m: float) -> None:
+        """No samples for a while before the next step: that step adds an isotropic position
+        sigma of ``sigma_m`` (m; the walk the gap may hide), so the next fix can re-anchor."""
+        if not (math.isfinite(sigma_m) and sigma_m >= 0):
+            raise ValueError(f"add_gap: sigma_m must be finite and >= 0, got {sigma_m!r}")
+        self._gap_sigma = math.hypot(self._gap_sigma, sigma_m)
 
     def add_step(self, ev: StepEvent) -> FusedPose:
         """Add one step; returns the live estimate of the new pose (what the service publishes).
@@ -178,6 +192,10 @@ class TrackFusion:
         turn, turn_sigma = step_turn(ev, ev.t - t_prev, self._live_pose.theta(), s)
         length = ev.length
         cov = step_covariance(length, max(ev.length_sigma, s.length_sigma_floor_m), turn_sigma, s.lateral_sigma_m)
+        if self._gap_sigma > 0:  # a gap before this step: the position may have moved anywhere near (add_gap)
+            cov = cov + np.diag([self._gap_sigma ** 2, self._gap_sigma ** 2, 0.0])
+            self.events.append(FusionEvent(ev.t, "gap", "step", f"position sigma +{self._gap_sigma:.1f} m"))
+            self._gap_sigma = 0.0
         row = prev + 1
         stamps[X(row)] = float(ev.t)
         step_noise = gtsam.noiseModel.Gaussian.Covariance(cov)
@@ -269,24 +287,9 @@ class TrackFusion:
         return self._live
 
     def smoothed_track(self) -> dict[str, np.ndarray]:
-        """Best estimate in hindsight of every pose so far: ``t, x, y, heading, floor, index``.
-
-        Poses in the window come from the smoother now; older ones were frozen when they left it.
-        """
+        """Best estimate in hindsight of every pose so far (:func:`service.fusion.history.smoothed_columns`)."""
         self._require_started()
-        out = {k: self._hist.col(k).copy() for k in ("t", "x", "y", "heading", "floor", "index")}
-        est = self._smoother.calculateEstimate()
-        for row in range(self._window_start, len(self._hist)):
-            p = est.atPose2(X(row))
-            out["x"][row], out["y"][row], out["heading"][row] = p.x(), p.y(), p.theta()
-        if self._floor_marks:  # a floor change without a step: the pose before it again, on the new floor
-            rows = np.array([m[1] for m in self._floor_marks])
-            at = np.searchsorted(np.arange(len(self._hist)), rows, side="right")
-            for k in ("x", "y", "heading", "index"):
-                out[k] = np.insert(out[k], at, out[k][rows])
-            out["t"] = np.insert(out["t"], at, [max(m[0], out["t"][r]) for m, r in zip(self._floor_marks, rows)])
-            out["floor"] = np.insert(out["floor"], at, [m[2] for m in self._floor_marks])
-        return out
+        return smoothed_columns(self._hist, self._smoother.calculateEstimate(), self._window_start, self._floor_marks)
 
     @property
     def window_variables(self) -> int:

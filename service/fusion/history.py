@@ -28,6 +28,10 @@ class PoseHistory:
     def __len__(self) -> int:
         return self._n
 
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return tuple(COLUMNS)
+
     def append(self, **values) -> int:
         """Add one pose (every column named); returns its row."""
         if self._n == len(self._cols["t"]):
@@ -54,3 +58,29 @@ class PoseHistory:
         if i == self._n:
             return self._n - 1
         return i if ts[i] - t < t - ts[i - 1] else i - 1
+
+
+def smoothed_columns(hist: PoseHistory, estimate, window_start: int, floor_marks: list) -> dict[str, np.ndarray]:
+    """Every pose so far in hindsight: ``t, x, y, heading, floor, index``.
+
+    Rows from ``window_start`` on come from the smoother's ``estimate`` (gtsam Values with a
+    Pose2 at ``X(row)``); older ones were frozen in ``hist`` when they left the window. A floor
+    change without a step (``floor_marks``: ``(t, row, floor)``, a lift) repeats the pose
+    before it on the new floor.
+    """
+    from service.fusion.keys import (
+        X,  # gtsam symbols: only where the smoother's estimate is read
+    )
+
+    out = {k: hist.col(k).copy() for k in ("t", "x", "y", "heading", "floor", "index")}
+    for row in range(window_start, len(hist)):
+        p = estimate.atPose2(X(row))
+        out["x"][row], out["y"][row], out["heading"][row] = p.x(), p.y(), p.theta()
+    if floor_marks:
+        rows = np.array([m[1] for m in floor_marks])
+        at = np.searchsorted(np.arange(len(hist)), rows, side="right")
+        for k in ("x", "y", "heading", "index"):
+            out[k] = np.insert(out[k], at, out[k][rows])
+        out["t"] = np.insert(out["t"], at, [max(m[0], out["t"][r]) for m, r in zip(floor_marks, rows)])
+        out["floor"] = np.insert(out["floor"], at, [m[2] for m in floor_marks])
+    return out

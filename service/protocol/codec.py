@@ -126,6 +126,7 @@ class _ImuWire(msgspec.Struct, forbid_unknown_fields=True):
     pressure: bytes | None = None
     carry: Literal[CARRY_POSITIONS] = "unknown"  # type: ignore[valid-type]
     utc_offset: float | None = None
+    boot: str | None = None
 
 
 _IMU_DECODER = msgspec.msgpack.Decoder(_ImuWire)
@@ -173,6 +174,8 @@ def _fast_imu(payload: bytes) -> ImuBatch | None:
             parts += [m.pressure_t, m.pressure]
     if m.utc_offset is not None and not m.utc_offset - m.utc_offset == 0.0:
         return None
+    if m.boot is not None and not 1 <= len(m.boot) <= 64:
+        return None
     values = np.frombuffer(b"".join(parts), dtype="<f8")
     if not np.isfinite(values).all():
         return None
@@ -190,7 +193,7 @@ def _fast_imu(payload: bytes) -> ImuBatch | None:
         "responder": m.responder, "device": m.device, "seq": m.seq, "t": t, "acc": values[n:4 * n].reshape(n, 3),
         "gyr": values[4 * n:7 * n].reshape(n, 3), "mag": values[7 * n:10 * n].reshape(n, 3) if has_mag else None,
         "pressure_t": pt, "pressure": p, "carry": m.carry,
-        "utc_offset": None if m.utc_offset is None else float(m.utc_offset),
+        "utc_offset": None if m.utc_offset is None else float(m.utc_offset), "boot": m.boot,
     })
     object.__setattr__(out, "__pydantic_fields_set__", _IMU_FIELDS)
     object.__setattr__(out, "__pydantic_extra__", None)

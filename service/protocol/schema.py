@@ -80,7 +80,11 @@ class ImuBatch(WireMessage):
     """A frame of raw IMU samples from one device of one responder (wearable -> service).
 
     ``seq`` counts frames per device from the publisher's start (the service's
-    :class:`service.core.gate.FrameGate` re-orders and detects loss with it). Pressure samples,
+    :class:`service.core.gate.FrameGate` re-orders and detects loss with it). ``boot`` names
+    that start: a wearable that restarts, or a second device for the same responder, sends a
+    new one, and the service continues the responder's track as a new stream of it (without
+    ``boot``, a new stream is recognised by a changed ``device``, a sequence number that goes
+    back while time goes on, or a long silence). Pressure samples,
     on the same device clock, travel with the batch whose time span contains them, so their
     times may precede ``t[0]`` (they belong after the previous batch's end).
     """
@@ -89,6 +93,9 @@ class ImuBatch(WireMessage):
     responder: Id
     device: str = Field(min_length=1, max_length=128, description="the sensor's id (one clock, one seq counter)")
     seq: int = Field(ge=0, description="frame number per device, +1 per frame")
+    boot: str | None = Field(None, min_length=1, max_length=64, description=(
+        "names the publisher's start (a random id per start of the wearable): (device, boot) is one stream "
+        "of seq numbers; a new boot continues the responder's track as a new stream"))
     t: Seconds
     acc: Acc
     gyr: Gyr
@@ -296,8 +303,11 @@ class Status(WireMessage):
     """Health of one responder's stream and pipeline (service -> console), about once a second.
 
     ``t`` is the device time of the last sample, ``last_heard`` the service's wall clock (unix
-    s) of the last frame; ``frames`` accepted frames, ``gaps`` discontinuities (lost frames or
-    time jumps), ``rejected`` counts per reject reason.
+    s) of the last frame; ``frames`` accepted frames, ``gaps`` discontinuities (lost frames,
+    time jumps, new streams), ``lost`` the frames known lost in them and ``gap_s`` the seconds
+    they span, ``rejected`` counts per reject reason. ``device``, ``boot`` and ``seq`` say what
+    the service has taken of the current stream (the newest frame it released): a wearable
+    reads them as its acknowledgement.
     """
 
     KIND: ClassVar[str] = "status"
@@ -318,6 +328,13 @@ class Status(WireMessage):
     fixes: dict[str, int] = Field(default_factory=dict, description="fixes applied and queued (waiting for a step); "
                                                                     "the rejected ones are in rejected")
     utc_offset: Finite | None = Field(None, description="s: UTC minus the device clock, as the wearable last said")
+    lost: int = Field(0, ge=0, description="frames known lost (sequence numbers that never arrived)")
+    gap_s: Finite = Field(0.0, ge=0.0, description="s of the responder's time not covered by frames, over all gaps")
+    streams: int = Field(1, ge=0, description="streams (wearable starts, devices) the track has taken so far")
+    device: str | None = Field(None, max_length=128, description="device of the current stream")
+    boot: str | None = Field(None, max_length=64, description="boot id of the current stream (ImuBatch.boot)")
+    seq: int | None = Field(None, ge=0, description="seq of the newest frame the service released from the current "
+                                                    "stream: everything up to it is taken or counted in lost")
     last_fix: dict | None = Field(None, description="the last fix applied: source, and t (device s) it was for")
     first_heard: Finite | None = Field(None, description="s, Unix time UTC when the service first heard of the "
                                                          "responder (time in the building counts from here)")
@@ -356,7 +373,8 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {m.KIND: m for m in (ImuBatch, Fix
 
 
 def imu_batches_from_arrays(responder: str, device: str, t, acc, gyr, mag=None, pressure_t=None, pressure=None,
-                            carry: str = "unknown", per_batch: int = 10, seq0: int = 0) -> Iterator[ImuBatch]:
+                            carry: str = "unknown", per_batch: int = 10, seq0: int = 0,
+                            boot: str | None = None) -> Iterator[ImuBatch]:
     """Cut a recording into frames of ``per_batch`` samples, seq ``seq0, seq0+1, ...``.
 
     Pressure sample ``p`` goes with the batch ``k`` whose span contains it:
@@ -395,4 +413,4 @@ def imu_batches_from_arrays(responder: str, device: str, t, acc, gyr, mag=None, 
             lo, hi = p_lo[k], p_hi[k]
             if hi > lo:
                 kw["pressure_t"], kw["pressure"] = pt[lo:hi], p[lo:hi]
-        yield ImuBatch(responder=responder, device=device, seq=seq0 + k, t=t[a:b], carry=carry, **kw)
+        yield ImuBatch(responder=responder, device=device, seq=seq0 + k, t=t[a:b], carry=carry, boot=boot, **kw)

@@ -35,6 +35,14 @@ kernel had not written out yet, unless ``fsync=True``: each finished chunk is th
 ``fsync``-ed, which cost ~7 ms per chunk on the development VM's ext4 against ~0.1 ms without
 (so at the default one chunk per second, under 1 % of a core's time either way).
 
+Segments. A recording may be several files: ``x.mcap``, then ``x.1.mcap``, ``x.2.mcap``, ...
+(:func:`segment_paths`), one per run of the service: a service restarted on the same recording
+path (after a crash, or by systemd) writes the next segment instead of refusing to start or
+touching what is there. Each segment is a complete MCAP file on its own; its metadata names
+its number, and a segment written by a resumed service starts with a ``firetrack.resume``
+attachment saying what the service resumed from (:mod:`service.review.resume`), so
+``reprocess`` of the whole recording takes the same path as the live service did.
+
 Measured on the development VM (one core, 246-byte msgpack IMU payloads, zstd): ~200 000
 messages/s written, ~190 000/s read back, 117 bytes/message on disk.
 """
@@ -52,11 +60,14 @@ from service.protocol.keys import KEY_ROOT, check_id, parse_key  # noqa: F401  (
 from service.review.recording_reader import (  # noqa: F401  (read back where it is written)
     RECORDING_FORMAT,
     RECORDING_METADATA,
+    RESUME_ATTACHMENT,
     RecordedMessage,
     RecordingReader,
     TruncatedRecordingWarning,
+    next_segment_path,
     read_recording,
     recording_summary,
+    segment_paths,
 )
 
 INPUT_KINDS = ("imu", "fix", "command", "ack", "op")  # what wearables, anchors, operators and consoles publish: a replay feeds it back
@@ -140,6 +151,8 @@ class IncidentRecorder:
         fsync: bool = False,
         compression: str = "zstd",
         overwrite: bool = False,
+        segment: int = 0,
+        resume: bytes | None = None,
     ):
         self.path = Path(path)
         self.incident = check_id("incident", incident)
@@ -178,7 +191,10 @@ class IncidentRecorder:
                     "chunk_size": str(self.chunk_size),
                     "flush_interval_s": repr(self.flush_interval_s),
                     "compression": compression,
+                    "segment": str(int(segment)),
                 })
+                if resume is not None:  # what this segment's service resumed from (service.review.resume)
+                    self._writer.add_attachment(0, 0, RESUME_ATTACHMENT, "application/msgpack", bytes(resume))
                 self._file.flush()
         except RecordingWriteError:
             self.close()  # no file descriptor left behind by a recorder that never started
@@ -326,6 +342,6 @@ def _to_ns(t: float, what: str, key: str) -> int:
 
 
 __all__ = [
-    "INPUT_KINDS", "IncidentRecorder", "RecordedMessage", "RecordingReader",
-    "RecordingWriteError", "TruncatedRecordingWarning", "parse_key", "read_recording", "recording_summary",
+    "INPUT_KINDS", "IncidentRecorder", "RecordedMessage", "RecordingReader", "RecordingWriteError",
+    "TruncatedRecordingWarning", "next_segment_path", "parse_key", "read_recording", "recording_summary", "segment_paths",
 ]

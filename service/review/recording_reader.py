@@ -1,5 +1,10 @@
 """Reading a recording back: messages in the order they were written, a torn file up to its
-last complete chunk, and a summary (keys, counts, duration) without decoding the payloads."""
+last complete chunk, and a summary (keys, counts, duration) without decoding the payloads.
+
+A recording may be segments (``x.mcap``, ``x.1.mcap``, ...; :func:`segment_paths`, see
+:mod:`service.review.recorder`): :func:`read_recording` of the first reads them all, one
+after the other; ``segments=False`` reads one file.
+"""
 from __future__ import annotations
 
 import dataclasses
@@ -14,7 +19,7 @@ from pathlib import Path
 import zstandard
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Channel, Chunk, Message, Metadata
+from mcap.records import Attachment, Channel, Chunk, Message, Metadata
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import MCAP0_MAGIC
 
@@ -22,6 +27,31 @@ from service.protocol.keys import parse_key
 
 RECORDING_FORMAT = "firetrack-recording/1"
 RECORDING_METADATA = "firetrack.recording"
+RESUME_ATTACHMENT = "firetrack.resume"
+
+
+def segment_paths(path) -> list[Path]:
+    """The files of a recording in order: ``path`` itself, then ``stem.1.suffix``,
+    ``stem.2.suffix``, ... as long as they exist (an empty list when ``path`` does not)."""
+    path = Path(path)
+    out = []
+    k = 0
+    while True:
+        p = _segment(path, k)
+        if not p.is_file():
+            return out
+        out.append(p)
+        k += 1
+
+
+def next_segment_path(path) -> tuple[int, Path]:
+    """The number and file of the segment a new run of the service writes."""
+    k = len(segment_paths(path))
+    return k, _segment(Path(path), k)
+
+
+def _segment(path: Path, k: int) -> Path:
+    return path if k == 0 else path.with_name(f"{path.stem}.{k}{path.suffix}")
 
 
 class TruncatedRecordingWarning(UserWarning):
@@ -51,8 +81,10 @@ class RecordingReader:
     read, and ``stop_reason`` why reading stopped.
     """
 
-    def __init__(self, path, kinds=None, responders=None, start=None):
+    def __init__(self, path, kinds=None, responders=None, start=None, ordered: bool = True):
         self.path = Path(path)
+        self.ordered = ordered  # False: in the order written (file order), without the receive-time merge
+        self.resume: bytes | None = None  # the segment's resume attachment, once read
         self.kinds = None if kinds is None else frozenset(kinds)
         self.responders = None if responders is None else frozenset(responders)
         self.start = start
@@ -97,6 +129,8 @@ class RecordingReader:
                 channels[rec.id] = (rec.topic, parse_key(rec.topic))
             elif isinstance(rec, Metadata) and rec.name == RECORDING_METADATA:
                 self.incident = rec.metadata.get("incident")
+            elif isinstance(rec, Attachment) and rec.name == RESUME_ATTACHMENT:
+                self.resume = rec.data
             elif isinstance(rec, Chunk):
                 if chunk_i >= len(starts):
                     break  # pass 1 found this chunk cut off
@@ -111,9 +145,9 @@ class RecordingReader:
                     elif isinstance(item, Message):
                         msg = self._message(item, channels, start_ns)
                         if msg is not None:
-                            heapq.heappush(heap, (item.log_time, order, msg))
+                            heapq.heappush(heap, ((item.log_time if self.ordered else 0), order, msg))
                             order += 1
-                threshold = later_min[chunk_i]
+                threshold = later_min[chunk_i] if self.ordered else 2**64
                 chunk_i += 1
                 while heap and heap[0][0] <= threshold:
                     yield heapq.heappop(heap)[2]
@@ -180,15 +214,61 @@ def _walk(path: Path, report: RecordingReader | None) -> Iterator[tuple[object, 
 
 
 def read_recording(path, kinds: Iterable[str] | None = None, responders: Iterable[str] | None = None,
-                   start: float | None = None) -> RecordingReader:
+                   start: float | None = None, segments: bool = True) -> Iterator[RecordedMessage]:
     """Messages of a recording in receive-time order, optionally only some kinds/responders and
     only from ``start`` seconds after the recording's first message.
 
     Works on a file cut off by a crash: it reads up to the last complete chunk and then stops,
     issuing a :class:`TruncatedRecordingWarning`; the returned reader's ``truncated`` and
-    ``unreadable_bytes`` say so too (after iteration).
+    ``unreadable_bytes`` say so too (after iteration). With ``segments`` (the default) a
+    recording of several segments is read one segment after the other (each in receive-time
+    order; a cut-off segment warns and the next one follows).
     """
-    return RecordingReader(path, kinds, responders, start)
+    segs = segment_paths(path) if segments else []
+    if len(segs) <= 1:
+        return RecordingReader(path, kinds, responders, start)
+    return SegmentedReader(segs, kinds, responders, start)
+
+
+class SegmentedReader:
+    """The messages of every segment in turn (see :func:`read_recording`); ``truncated`` and
+    ``unreadable_bytes`` add up the segments', ``incident`` is the first's."""
+
+    def __init__(self, paths, kinds=None, responders=None, start=None):
+        self.paths = list(paths)
+        self.readers = [RecordingReader(p, kinds, responders, None) for p in self.paths]
+        self.start = start
+        self._gen = None
+
+    @property
+    def truncated(self) -> bool:
+        return any(r.truncated for r in self.readers)
+
+    @property
+    def unreadable_bytes(self) -> int:
+        return sum(r.unreadable_bytes for r in self.readers)
+
+    @property
+    def incident(self) -> str | None:
+        return next((r.incident for r in self.readers if r.incident), None)
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> RecordedMessage:
+        if self._gen is None:
+            self._gen = self._messages()
+        return next(self._gen)
+
+    def _messages(self):
+        first = None
+        for r in self.readers:
+            for m in r:
+                if self.start is not None:
+                    first = m.receive_time if first is None else first
+                    if m.receive_time < first + self.start:
+                        continue
+                yield m
 
 
 def recording_summary(path) -> dict:
@@ -200,6 +280,23 @@ def recording_summary(path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"recording {path} does not exist or is not a file")
+    segs = segment_paths(path)
+    if len(segs) > 1:  # a recording of segments: their summaries added up
+        parts = [_file_summary(p) for p in segs]
+        per_key: Counter[str] = Counter()
+        for part in parts:
+            per_key.update(part["keys"])
+        starts = [p["start_time"] for p in parts if p["start_time"] is not None]
+        ends = [p["end_time"] for p in parts if p["end_time"] is not None]
+        out = _summary_dict(path, parts[0]["incident"], dict(per_key), round(min(starts) * 1e9) if starts else None,
+                            round(max(ends) * 1e9) if ends else None, truncated=any(p["truncated"] for p in parts),
+                            unreadable=sum(p["unreadable_bytes"] for p in parts))
+        out["segments"] = [str(p) for p in segs]
+        return out
+    return _file_summary(path)
+
+
+def _file_summary(path: Path) -> dict:
     summary = meta = None
     try:
         with open(path, "rb") as f:
@@ -217,7 +314,7 @@ def recording_summary(path) -> dict:
         first, last = (stats.message_start_time, stats.message_end_time) if stats.message_count else (None, None)
         return _summary_dict(path, meta.metadata.get("incident") if meta else None, per_key, first, last,
                              truncated=False, unreadable=0)
-    reader = read_recording(path)
+    reader = read_recording(path, segments=False)
     per_key: Counter[str] = Counter()
     first = last = None
     with warnings.catch_warnings():

@@ -7,6 +7,13 @@ compares the poses it publishes with the poses recorded live, pose by pose. Fram
 the reorder gate are released on the recorded receive times, as live; a live run whose
 frames waited for the once-a-second timer (a frame lost for good) may differ there.
 
+A recording of several segments (a service that restarted, :mod:`service.review.resume`) is
+reprocessed the way the live services went (:class:`service.review.resume.SegmentReplay`):
+each resumed segment from the snapshot its service resumed from. Live poses are matched to
+reprocessed ones by responder, time and step count; poses computed live whose record was lost
+in a crash (the unfinished chunk) only exist in the reprocessed run, and are counted, not
+compared.
+
 ``exercise`` turns single-person recordings (IPIN logs, PyShoe walks, ...) into one
 multi-person exercise: each becomes a responder's messages, their start times aligned.
 """
@@ -19,9 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from service.core.incident_core import INBOUND_KINDS, Inbound, IncidentCore
+from service.core.incident_core import INBOUND_KINDS
 from service.protocol import wire
-from service.review.recorder import IncidentRecorder, read_recording
+from service.review.recorder import IncidentRecorder
+from service.review.resume import SegmentReplay
 
 
 @dataclass
@@ -31,6 +39,7 @@ class ResponderReview:
     poses: int = 0
     recorded_poses: int = 0
     max_deviation_m: float | None = None
+    unmatched: int = 0
     xy: list = field(default_factory=list)
     live: list = field(default_factory=list)  # (t, x, y, floor, yaw, cov_xx, cov_xy, cov_yy) per published pose
     utc_offset: float | None = None
@@ -38,29 +47,24 @@ class ResponderReview:
 
 def reprocess(path: Path, incident_cfg, progress=None) -> dict:
     check_is_recording(path)
-    core = IncidentCore(incident_cfg)
+    replay = SegmentReplay(path, incident_cfg)
     published: list = []
-    recorded: dict[str, list[tuple[float, float, float]]] = {}
+    recorded: dict[str, list[tuple[float, int, float, float]]] = {}
     n_inputs = 0
     cpu0 = time.process_time()
-    pending: list = []
-    for m in read_recording(path):
-        if m.incident != core.id:
-            _feed(core, pending, published)
-            core = _retarget(core, incident_cfg, m.incident)
+    for m, answers in replay:
         if m.kind in INBOUND_KINDS:
-            pending.append(Inbound(m.kind, m.key, m.payload, m.receive_time))
             n_inputs += 1
-            if len(pending) >= ROUND:
-                _feed(core, pending, published)
             if progress is not None and n_inputs % 2000 == 0:
                 progress(n_inputs)
         elif m.kind == "pose":
             p = wire.decode(m.payload, expect=wire.Pose)
-            recorded.setdefault(p.responder, []).append((p.t, p.x, p.y))
-    _feed(core, pending, published)
+            recorded.setdefault(p.responder, []).append((p.t, p.steps, p.x, p.y))
+        published += answers
+    core = replay.core
     cpu = time.process_time() - cpu0
     out: dict[str, ResponderReview] = {}
+    mine: dict[str, list[tuple[float, int, float, float]]] = {}
     for o in published:
         p = o.message
         if not isinstance(p, wire.Pose):
@@ -70,6 +74,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         if r.xy:
             r.distance_m += math.hypot(p.x - r.xy[-1][1], p.y - r.xy[-1][2])
         r.xy.append((p.t, p.x, p.y))
+        mine.setdefault(rid, []).append((p.t, p.steps, p.x, p.y))
         c = p.cov
         r.live.append((p.t, p.x, p.y, p.floor, math.radians(90.0 - p.heading_deg), c[0, 0], c[0, 1], c[1, 1]))
         if p.utc is not None:
@@ -85,11 +90,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         if live is None:
             continue
         r.recorded_poses = len(live)
-        if len(live) != len(r.xy):
-            r.max_deviation_m = math.inf
-        else:
-            a, b = np.array(live), np.array(r.xy)
-            r.max_deviation_m = float(np.max(np.hypot(a[:, 1] - b[:, 1], a[:, 2] - b[:, 2]))) if len(a) else 0.0
+        r.max_deviation_m, r.unmatched = _compare(live, mine.get(rid, []))
         worst = r.max_deviation_m if worst is None else max(worst, r.max_deviation_m)
     duration = _duration(path)
     tracks = {}
@@ -103,7 +104,8 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         "live_tracks": {rid: _live_track(r.live, r.utc_offset) for rid, r in out.items() if r.live},
         "responders": {rid: {"steps": r.steps, "distance_live_m": r.distance_m,
                              "distance_smoothed_m": _walked(tracks.get(rid)), "poses": r.poses,
-                             "recorded_poses": r.recorded_poses, "max_deviation_m": r.max_deviation_m}
+                             "recorded_poses": r.recorded_poses, "max_deviation_m": r.max_deviation_m,
+                             "unmatched_live_poses": r.unmatched}
                        for rid, r in sorted(out.items())},
         "max_deviation_m": worst,
         "audits": [o.message.model_dump() for o in published if isinstance(o.message, wire.Audit)],  # who did what
@@ -112,9 +114,26 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         "cpu_s": cpu,
         "recording_s": duration,
         "realtime_factor": duration / cpu if cpu > 0 and duration else None,
+        "segments": len(replay.segments),
+        "resumed_segments": [k for k, _ in replay.resumes],
     }
 
 
+def _compare(live: list, mine: list) -> tuple[float, int]:
+    """Each live pose against the reprocessed pose of the same time and step count, in order:
+    the largest distance (m) and how many live poses had none (inf when any had none). Extra
+    reprocessed poses (their live record lost with a crashed chunk) are skipped."""
+    worst, unmatched, j = 0.0, 0, 0
+    for t, steps, x, y in live:
+        k = j
+        while k < len(mine) and (mine[k][0], mine[k][1]) != (t, steps):
+            k += 1
+        if k == len(mine):
+            unmatched += 1
+            continue
+        worst = max(worst, math.hypot(mine[k][2] - x, mine[k][3] - y))
+        j = k + 1
+    return (math.inf if unmatched else worst), unmatched
 def _live_track(rows: list, utc_offset) -> dict:
     """The poses as the service published them, with their covariance (m², ENU), as a track."""
     a = np.array(rows, dtype=np.float64)
@@ -144,30 +163,10 @@ def check_is_recording(path: Path) -> None:
                          "magic bytes); record one with `firetrack serve --record` or `firetrack record`")
 
 
-ROUND = 500  # recorded messages fed together: what the live worker does when it has a backlog
-
-
-def _feed(core: IncidentCore, pending: list, published: list) -> None:
-    """The messages read so far through the core in one round, as the live worker does with a
-    backlog: each responder's frames go through its pipeline as one batch, with the same
-    poses, bit for bit, as one message at a time (tests/test_service.py), at a fraction of
-    the cost."""
-    if pending:
-        published += core.feed_round(pending)
-        pending.clear()
-
-
 def _duration(path: Path) -> float | None:
     from service.review.recorder import recording_summary
 
     return recording_summary(path)["duration"]
-
-
-def _retarget(core: IncidentCore, cfg, incident: str) -> IncidentCore:
-    """A recording of another incident id: serve it under that id (same building config)."""
-    if core.responders:
-        raise ValueError(f"the recording mixes incidents ({cfg.id!r} and {incident!r})")
-    return IncidentCore(cfg.model_copy(update={"id": incident}))
 
 
 def build_exercise(members: list[tuple[str, Path]], out: Path, incident_cfg, start: float | None = None,

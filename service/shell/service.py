@@ -3,20 +3,35 @@
 Everything an incident decides happens in :class:`service.core.incident_core.IncidentCore`;
 this shell only moves messages between zenoh and the core, and stamps the time::
 
-    firetrack/{incident}/*/imu       FIFO channel ─┐
-    firetrack/{incident}/*/fix       callback ─────┤  worker thread: rounds ─► IncidentCore ─► .../pose
-    firetrack/{incident}/*/presence  liveliness ───┤                                        ├► .../status
-    firetrack/{incident}/*/op        callback ─────┤                                        └► .../audit
+    firetrack/{incident}/*/imu       FIFO channel ─┐  (advanced subscribers: a wearable's kept frames
+    firetrack/{incident}/*/fix       FIFO channel ─┤   are fetched on detection and after a miss)
+    firetrack/{incident}/*/presence  liveliness ───┤  worker thread: intake ─► record ─► IncidentCore ─► .../pose
+    firetrack/{incident}/*/command   callback ─────┤                                                  ├► .../status
+    firetrack/{incident}/*/ack       callback ─────┤                                                  └► .../audit
+    firetrack/{incident}/*/op        callback ─────┤
     access policy (roster) ── inject ──────────────┤
     status timer (1 Hz) ── tick ───────────────────┘
     firetrack/{incident}/*/track     queryable: the core's track of the responder
 
-Threads. Frames wait in zenoh's own FIFO channel until the worker takes them (no Python
-callback per frame, so frames never queue for the GIL behind the worker); fixes, presence and
-the once-a-second tick come by callback through a queue. The worker stamps each message with
-the service clock as it takes it, records it (the order a recording is read back in is the
-order the core saw), feeds the core a round at a time and publishes what the core answers.
-Track queries read the core between rounds.
+Threads. Frames and fixes wait in zenoh's own FIFO channels until the worker takes them (no
+Python callback per message, so a flood of them never queues for the GIL behind the worker);
+presence and the once-a-second tick come by callback through a queue. The worker asks the
+core's intake about each message by its key and size before copying its payload
+(:meth:`IncidentCore.admit`: size, admission of new ids, per-source budget), stamps what it
+takes with the service clock, records it (the order a recording is read back in is the order
+the core saw), feeds the core a round at a time and publishes what the core answers. Track
+queries read the core between rounds.
+
+Delivery. Both subscribers are zenoh's *advanced* subscribers (``zenoh.ext``): a wearable's
+advanced publisher keeps its last frames (:mod:`client.wearable`), and the subscriber fetches
+them when it detects the publisher (a service that starts or restarts after the wearable) and
+whenever the publisher's heartbeat shows samples it missed (an outage, a router restart), in
+order. What could not be fetched any more is a gap in the seq numbers, counted by the frame
+gate (``Status.lost``); zenoh's own miss reports are counted in ``missed``.
+
+Snapshots. With a recorder and a state file (:class:`service.review.resume.StateFile`), the
+worker writes the core's snapshot beside the recording every ``snapshot_every_s`` after a
+round, once what the core has seen is safely in the recording; ``serve`` resumes from it.
 """
 from __future__ import annotations
 
@@ -30,6 +45,7 @@ from dataclasses import dataclass, field
 
 import msgpack
 import zenoh
+import zenoh.ext as zext
 
 from service.core.incident_core import CoreSettings, Inbound, IncidentCore, Outbound
 from service.protocol import wire
@@ -43,9 +59,12 @@ log = logging.getLogger("firetrack.service")
 class ServiceSettings:
     core: CoreSettings = field(default_factory=CoreSettings)
     status_period_s: float = 1.0  # s between Status messages
-    max_queue: int = 200_000  # callback messages waiting for the worker (beyond: the callbacks block)
+    max_queue: int = 100_000  # presence changes and ticks waiting for the worker (beyond: the oldest presence goes)
     max_round: int = 5000  # messages the worker takes before it runs the core
     imu_channel: int = 20_000  # frames zenoh may hold for the worker (beyond: back-pressure to the router)
+    fix_channel: int = 5_000  # fixes zenoh may hold for the worker
+    history_frames: int = 3000  # frames asked of a wearable's keep when it is detected or missed some
+    snapshot_every_s: float = 5.0  # s between snapshots of the core beside the recording (with a state file)
     idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
     warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
 
@@ -54,13 +73,22 @@ class IncidentService:
     """The service of one incident on an open zenoh session: ``start()``, ``close()``."""
 
     def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
-                 recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1), access: wire.Access | None = None,
-                 actor: str = "service"):
+                 recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1), core: IncidentCore | None = None,
+                 state_file=None, access: wire.Access | None = None, actor: str = "service"):
         if session is None:
             raise ValueError("IncidentService needs an open zenoh session; offline, use service.core.IncidentCore")
         self.session = session
         self.settings = settings or ServiceSettings()
-        self.core = IncidentCore(incident, self.settings.core)
+        self.core = core if core is not None else IncidentCore(incident, self.settings.core)
+        self.state_file = state_file  # service.review.resume.StateFile: snapshots beside the recording
+        self.missed = 0  # samples zenoh reported missed (its sample-miss detection)
+        self.snapshots = 0
+        self.snapshot_error: str | None = None
+        self._last_snapshot = -math.inf
+        self._snapshot_writer: threading.Thread | None = None  # writes (and fsyncs) the newest snapshot's bytes
+        self.snapshots_skipped = 0  # snapshots not written because the previous one was still being written
+        self._expired_seen = 0
+        self.queue_dropped = 0  # callbacks' messages dropped because the worker's queue was full
         self.incident = incident
         self.id = incident.id
         self.shard = shard  # (k, K): this worker serves the responders with in_shard(id, k, K)
@@ -79,6 +107,7 @@ class IncidentService:
         self._decl: list = []
         self._publishers: dict[str, object] = {}
         self._imu = None  # the frames' subscriber (a zenoh FIFO channel), once started
+        self._fix = None  # the fixes' subscriber
         self.access = access  # the policy fed to the core before any input (None: the open demo)
         self._looks = 0  # times the worker looked for input ...
         self._last_busy_look = 0  # ... and the last time it found some (wait_idle)
@@ -119,10 +148,19 @@ class IncidentService:
         if self.access is not None:  # the policy is the core's (and the recording's) first input
             self._run_round([Inbound("access", self._access_key(), wire.encode(self.access), self.clock())], 0)
         s = self.session
-        self._imu = s.declare_subscriber(wire.key_all(self.id, "imu"),
-                                         zenoh.handlers.FifoChannel(self.settings.imu_channel))
+        st = self.settings
+        self._imu = zext.declare_advanced_subscriber(
+            s, wire.key_all(self.id, "imu"), zenoh.handlers.FifoChannel(st.imu_channel),
+            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=st.history_frames),
+            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
+        # fixes: recovered after a miss, but never fetched again on detection (a fix applied
+        # before a restart must not be applied twice; frames have seq numbers, fixes do not)
+        self._fix = zext.declare_advanced_subscriber(
+            s, wire.key_all(self.id, "fix"), zenoh.handlers.FifoChannel(st.fix_channel),
+            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
         self._decl += [
-            s.declare_subscriber(wire.key_all(self.id, "fix"), self._enqueue),
+            self._imu.sample_miss_listener(self._on_miss),
+            self._fix.sample_miss_listener(self._on_miss),
             s.declare_subscriber(wire.key_all(self.id, "command"), self._enqueue),
             s.declare_subscriber(wire.key_all(self.id, "ack"), self._enqueue),
             s.declare_subscriber(wire.key_all(self.id, "op"), self._enqueue_op),
@@ -154,12 +192,15 @@ class IncidentService:
         for th in self._threads:
             th.join(timeout)
         self._threads.clear()
-        if self._imu is not None:
-            try:
-                self._imu.undeclare()
-            except Exception:
-                pass
-            self._imu = None
+        if self._snapshot_writer is not None:
+            self._snapshot_writer.join(timeout)
+        for sub in (self._imu, self._fix):
+            if sub is not None:
+                try:
+                    sub.undeclare()
+                except Exception:
+                    pass
+        self._imu = self._fix = None
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
         """Block until everything received so far is processed (tests, benchmarks): the worker
@@ -180,7 +221,19 @@ class IncidentService:
         """Fixes, orders and acknowledgements: few, so they come by callback (kind from the key)."""
         key = str(sample.key_expr)
         if self._mine(key):
-            self._queue.put((key.rsplit("/", 1)[-1], key, sample.payload.to_bytes()))
+            self._put_nowait((key.rsplit("/", 1)[-1], key, sample.payload.to_bytes()))
+
+    def _put_nowait(self, item) -> None:
+        """A callback's message to the worker's queue; a storm of them must not block zenoh's
+        threads (and everyone's frames behind them): beyond the queue's bound it is dropped,
+        counted and logged (the intake judges the rest when the worker takes them)."""
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            self.queue_dropped += 1
+            if self.queue_dropped in (1, 10, 100) or self.queue_dropped % 10_000 == 0:
+                log.warning("%d message(s) dropped (%s on %s): the worker's queue is full", self.queue_dropped,
+                            item[0], item[1][:120])
 
     def _enqueue_op(self, sample: zenoh.Sample) -> None:
         """An operator action: the worker of the responder it is about takes it (an action
@@ -194,7 +247,7 @@ class IncidentService:
             mine = in_shard(about, *self.shard) if isinstance(about, str) else self.shard[0] == 0
             if not mine:
                 return
-        self._queue.put(("op", key, payload))
+        self._put_nowait(("op", key, payload))
 
     def update_access(self, access: wire.Access) -> None:
         """A new access policy (the roster changed): the core enforces it from the next round on."""
@@ -207,7 +260,15 @@ class IncidentService:
     def _on_presence(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         if self._mine(key):
-            self._queue.put(("presence", key, b"1" if sample.kind == zenoh.SampleKind.PUT else b"0"))
+            try:
+                self._queue.put_nowait(("presence", key, b"1" if sample.kind == zenoh.SampleKind.PUT else b"0"))
+            except queue.Full:  # a storm of liveliness tokens must not block zenoh's threads
+                log.warning("presence of %s dropped: the worker's queue is full", key[:120])
+
+    def _on_miss(self, miss) -> None:
+        self.missed += miss.nb
+        log.warning("zenoh reports %d sample(s) missed from publisher %s (not recoverable from its keep; the gate "
+                    "counts the frames as lost)", miss.nb, miss.source)
 
     def _tick_loop(self) -> None:
         while not self._stop.wait(self.settings.status_period_s):
@@ -249,21 +310,31 @@ class IncidentService:
                 return
 
     def _take_frames(self, limit: int | None) -> list[Inbound]:
-        """Frames waiting in zenoh's channel for this worker's responders, stamped as taken."""
+        """Frames, then fixes, waiting in zenoh's channels for this worker's responders, each
+        through the intake (by key and size, before its payload is copied) and stamped as taken."""
         out: list[Inbound] = []
-        if self._imu is None:
-            return out
+        for kind, sub in (("imu", self._imu), ("fix", self._fix)):
+            if sub is None:
+                continue
+            self._take_from(kind, sub, out, limit)
+        return out
+
+    def _take_from(self, kind: str, sub, out: list[Inbound], limit: int | None) -> None:
+        admit, clock, mine = self.core.admit, self.clock, self._mine
         while limit is None or len(out) < limit:
             try:
-                sample = self._imu.try_recv()
+                sample = sub.try_recv()
             except zenoh.ZError:  # undeclared (closing)
                 break
             if sample is None:
                 break
             key = str(sample.key_expr)
-            if self._mine(key):
-                out.append(Inbound("imu", key, sample.payload.to_bytes(), self.clock()))
-        return out
+            if not mine(key):
+                continue
+            payload = sample.payload
+            now = clock()
+            if admit(kind, key, len(payload), now) is None:
+                out.append(Inbound(kind, key, payload.to_bytes(), now))
 
     def _take_queued(self, items: list[Inbound], wait: float) -> tuple[int, int, bool]:
         """Append what the callbacks queued to ``items``, waiting up to ``wait`` s for the
@@ -285,7 +356,11 @@ class IncidentService:
                 continue
             if p[0] == "tick":
                 ticks += 1
-            else:
+            elif p[0] in ("command", "ack", "op"):  # from the network: through the intake like frames
+                now = self.clock()
+                if self.core.admit(p[0], p[1], len(p[2]), now) is None:
+                    items.append(Inbound(*p, now))
+            else:  # presence (liveliness), access (this process's own policy)
                 items.append(Inbound(*p, self.clock()))
         if stop:
             items += self._take_frames(None)
@@ -302,8 +377,63 @@ class IncidentService:
                 if ticks:
                     out += self.core.tick(self.clock())
             self._publish(out)
+            if ticks:
+                self._forget_publishers()
+                if self.core.counters.expired != self._expired_seen:
+                    self._expired_seen = self.core.counters.expired
+                    _return_memory()
+            self._snapshot_if_due()
         finally:
             self.busy_s += time.perf_counter() - started
+
+    def _forget_publishers(self) -> None:
+        """Publishers of responders the core let go (expired) are undeclared: bounded state."""
+        gone = [k for k in self._publishers if k.split("/")[2] not in self.core.responders]
+        for k in gone:
+            try:
+                self._publishers.pop(k).undeclare()
+            except Exception:
+                pass
+
+    def _snapshot_if_due(self) -> None:
+        """The core's snapshot into the state file beside the recording, every ``snapshot_every_s``,
+        once the recording holds everything the core has seen (a failure is logged once and
+        the service goes on: the recording alone still lets ``serve`` resume)."""
+        sf = self.state_file
+        now = time.monotonic()
+        if sf is None or self.recorder is None or self.recorder_error is not None or self.snapshot_error is not None \
+                or now - self._last_snapshot < self.settings.snapshot_every_s:
+            return
+        if self._snapshot_writer is not None and self._snapshot_writer.is_alive():
+            self.snapshots_skipped += 1  # the disk is slower than the snapshots: the next one will do
+            return
+        self._last_snapshot = now
+        try:
+            with self._rec_lock:
+                self.recorder.flush()  # everything fed so far is in the file before the snapshot says so
+                position = self.recorder.message_count
+            with self._core_lock:
+                blob = self.core.snapshot()
+        except Exception as e:
+            self._snapshot_failed(sf, e)
+            return
+        # writing and fsyncing megabytes is the disk's time, not the worker's: a thread of its own
+        # (the state file is replaced whole, so a crash meanwhile leaves the previous snapshot)
+        self._snapshot_writer = threading.Thread(target=self._write_snapshot, args=(sf, blob, position, self.clock()),
+                                                 daemon=True, name="snapshot-writer")
+        self._snapshot_writer.start()
+
+    def _write_snapshot(self, sf, blob: bytes, position: int, now: float) -> None:
+        try:
+            sf.write(blob, position, now)
+            self.snapshots += 1
+        except Exception as e:
+            self._snapshot_failed(sf, e)
+
+    def _snapshot_failed(self, sf, e: Exception) -> None:
+        self.snapshot_error = str(e)
+        log.error("writing the snapshot %s failed; no more snapshots (a restart replays the recording): %s",
+                  getattr(sf, "path", sf), e)
 
     # ------------------------------------------------------------------ output
     def _publish(self, out: list[Outbound]) -> None:
@@ -348,6 +478,19 @@ class IncidentService:
         except Exception as e:  # a full disk must be loud, not silent
             self.recorder_error = str(e)
             log.error("recording failed, the incident is no longer being recorded: %s", e)
+
+
+def _return_memory() -> None:
+    """After responders left: collect their cycles and hand the freed heap back to the operating
+    system (glibc keeps freed small blocks otherwise, and the process would look as big as at
+    its peak). A no-op where there is no glibc."""
+    gc.collect()
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 decode_track = wire.decode_track  # the reply format lives with the wire format

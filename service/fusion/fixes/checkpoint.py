@@ -13,7 +13,13 @@ import math
 import numbers
 from dataclasses import dataclass
 
-from service.fusion.fixes.base import FixContext, FixRejected, finite, position_factor, positive
+from service.fusion.fixes.base import (
+    FixContext,
+    FixRejected,
+    finite,
+    position_factor,
+    positive,
+)
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
-/* Alarms: what each responder's Status carries (man_down, lost_contact, par_unanswered, ...),
-   plus lost_contact when the console itself has heard nothing of a responder for
+/* Alarms: what each responder's Status carries (man_down, lost_contact, par_unanswered,
+   flooding, ...), plus lost_contact when the console itself has heard nothing of a responder for
    lost_contact_s (the service could be the one that is gone).
 
    One compact row per responder, with all of that responder's alarms, most severe first;
@@ -17,10 +17,10 @@ import {select} from "./actions.js";
 import {postJSON} from "./api.js";
 
 const SEVERITY = ["man_down", "evacuation_unacknowledged", "par_unanswered", "lost_contact", "disconnected",
-                  "rejected_frames", "recording_failed"];
+                  "rejected_frames", "flooding", "recording_failed"];
 const LABELS = {man_down: "MAN DOWN", lost_contact: "LOST CONTACT", rejected_frames: "BAD DATA",
                 disconnected: "WEARABLE OFF", par_unanswered: "NO PAR", evacuation_unacknowledged: "NOT EVACUATING",
-                recording_failed: "NOT RECORDING"};
+                flooding: "FLOODING", recording_failed: "NOT RECORDING"};
 const rank = (kind) => { const i = SEVERITY.indexOf(kind); return i < 0 ? SEVERITY.length : i; };
 
 /** The alarms each responder has now, by "id|kind", with when they began (service clock). */

@@ -17,6 +17,9 @@ import {parText, parValue} from "./par.js";
 const STALE_S = 5;  // HEARD turns red after this long
 
 const steps = (r) => Math.max(r.pose ? r.pose.steps : 0, r.status ? r.status.steps : 0);
+// gaps in the responder's frames: seconds not covered and frames known lost (Status.gap_s, .lost)
+const gapText = (r) => (!r.status || !r.status.gaps ? "—"
+  : `${r.status.gap_s.toFixed(1)} s` + (r.status.lost ? ` / ${r.status.lost} lost` : ""));
 /** m: the 1-sigma radius of the position in its worst direction (the larger eigenvalue of cov). */
 function sigma(r) {
   if (!r.pose) return NaN;
@@ -48,6 +51,7 @@ const COLUMNS = [
   {key: "fix", label: "LAST FIX", value: (r, now) => lastFix(r, now).age, text: (r, now) => lastFix(r, now).text},
   {key: "inside", label: "IN BLDG", value: (r, now) => inside(r, now) || -1, text: (r, now) => ago(inside(r, now))},
   {key: "steps", label: "STEPS", value: steps, text: (r) => String(steps(r))},
+  {key: "gaps", label: "GAPS", value: (r) => (r.status ? r.status.gap_s || 0 : 0), text: gapText},
   {key: "par", label: "PAR", value: parValue, text: parText},
 ];
 

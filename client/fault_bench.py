@@ -1,0 +1,510 @@
+"""``firetrack bench faults``: the service under a flood and a storm of new ids, in figures (JSON).
+
+The service runs as ``firetrack serve`` in its own process (its memory and log are its own);
+an honest and a bystander wearable walk (simulated walkers, :class:`WalkerWearable`); an
+attacker process publishes hostile messages (:func:`hostile_messages`). Three phases of
+``phase_s`` each: before (the baseline of the same session), during the attack, after. Figures:
+
+* the bystanders' pose rate and the p99 of their latency (pose received here minus the frame's
+  send time; and the service's part: the pose's ``published_at`` minus the send time), pooled
+  over ``--bystanders`` walkers, in each phase, and the ratios during/before;
+* the service's RSS (``/proc/PID/status``) before, at its peak and after; its log's growth;
+* what the service refused and why (its Status of the flooded responder; the log's summaries);
+* ``--ids N``: N fresh responder ids instead of the flood: how many were admitted, the
+  status messages per second, memory, and how many left by ``--expire-after``;
+* the in-process cost of a hostile message (intake and core, µs per message) over the mix.
+
+Also the helpers of the fault-injection tests (``tests/test_faults.py``): a TCP link that can be
+cut (:class:`TcpProxy`) and a walker wearable in a thread.
+"""
+from __future__ import annotations
+
+import math
+import os
+import select
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import typer
+import zenoh
+
+from client.wearable import Wearable
+from service.protocol import wire
+from service.protocol.session import client_config, free_local_port
+from service.protocol.terminal import err, print_json
+
+
+# ------------------------------------------------------------------------------------------
+# Faults on loopback
+# ------------------------------------------------------------------------------------------
+class TcpProxy:
+    """Forwards ``127.0.0.1:port`` to a target port. :meth:`cut` closes every connection and
+    refuses new ones (a Wi-Fi outage: a wearable's zenoh session loses its router);
+    :meth:`restore` lets connections through again."""
+
+    def __init__(self, target_port: int):
+        self.target = ("127.0.0.1", target_port)
+        self._l = socket.socket()
+        self._l.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._l.bind(("127.0.0.1", 0))
+        self._l.listen(16)
+        self.port = self._l.getsockname()[1]
+        self.up = True
+        self._conns: list[tuple[socket.socket, socket.socket]] = []
+        self._lock = threading.Lock()
+        self._closed = False
+        threading.Thread(target=self._accept, daemon=True, name="proxy-accept").start()
+
+    @property
+    def endpoint(self) -> str:
+        return f"tcp/127.0.0.1:{self.port}"
+
+    def _accept(self) -> None:
+        while not self._closed:
+            try:
+                c, _ = self._l.accept()
+            except OSError:
+                return
+            if not self.up:
+                c.close()
+                continue
+            try:
+                s = socket.create_connection(self.target, timeout=2.0)
+            except OSError:
+                c.close()
+                continue
+            with self._lock:
+                self._conns.append((c, s))
+            threading.Thread(target=self._pump, args=(c, s), daemon=True, name="proxy-pump").start()
+
+    @staticmethod
+    def _pump(a: socket.socket, b: socket.socket) -> None:
+        try:
+            while True:
+                ready, _, _ = select.select([a, b], [], [], 0.2)
+                for x in ready:
+                    data = x.recv(65536)
+                    if not data:
+                        raise OSError("closed")
+                    (b if x is a else a).sendall(data)
+        except OSError:
+            pass
+        finally:
+            for x in (a, b):
+                try:
+                    x.close()
+                except OSError:
+                    pass
+
+    def cut(self) -> None:
+        self.up = False
+        with self._lock:
+            for pair in self._conns:
+                for x in pair:
+                    try:
+                        x.shutdown(socket.SHUT_RDWR)
+                    except OSError:
+                        pass
+            self._conns.clear()
+
+    def restore(self) -> None:
+        self.up = True
+
+    def close(self) -> None:
+        self._closed = True
+        self.cut()
+        self._l.close()
+
+
+def walker_frames(responder: str, seconds: float, seed: int, t0: float = 1000.0, rate_hz: float = 100.0,
+                  bounds=(-30.0, 30.0, -20.0, 20.0)) -> list[wire.ImuBatch]:
+    """``seconds`` of a simulated walker (a random route in ``bounds``) as 10 frames/s."""
+    from pdr.simulation import SimulatedWalker, WalkerSettings
+
+    w = SimulatedWalker(responder, None, WalkerSettings(rate_hz=rate_hz), seed, start_t=t0, bounds=bounds,
+                        floors=(0, 0), attitude=False)
+    b = w.next_batch(int(round(seconds * rate_hz)))
+    return list(wire.imu_batches_from_arrays(responder, "phone-1", b.t, b.acc, b.gyr, b.mag, b.pressure_t,
+                                             b.pressure, carry="handheld", per_batch=int(round(rate_hz / 10))))
+
+
+class WalkerWearable:
+    """Frames published by a :class:`client.wearable.Wearable` on its own zenoh session at
+    ``speed`` times real time, in a thread. ``sent_at[seq]`` is when frame ``seq`` left."""
+
+    def __init__(self, endpoint: str, incident: str, responder: str, frames: list, speed: float = 1.0,
+                 boot: str | None = None):
+        self.responder, self.frames, self.speed = responder, frames, speed
+        self.sent_at: dict[int, float] = {}
+        self.report: dict | None = None
+        self.stop = threading.Event()
+        self.done = threading.Event()
+        self.session = zenoh.open(client_config(endpoint))
+        self.wearable = Wearable(self.session, incident, responder, boot=boot)
+        self._thread = threading.Thread(target=self._run, daemon=True, name=f"walker-{responder}")
+
+    def start(self) -> WalkerWearable:
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        period = 0.1 / self.speed
+        t0 = time.monotonic()
+        for k, f in enumerate(self.frames):
+            if self.stop.is_set():
+                break
+            wait = t0 + k * period - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            self.sent_at[f.seq] = time.time()
+            self.wearable.send("imu", f)
+        self.done.set()
+
+    def sent(self) -> int:
+        return len(self.sent_at)
+
+    def close(self, flush_s: float = 10.0) -> dict:
+        self.stop.set()
+        self._thread.join(30)
+        self.report = self.wearable.close(flush_s)
+        self.session.close()
+        return self.report
+
+
+def hostile_messages(n: int, incident: str, honest: str, seed: int = 0) -> list[tuple[str, bytes]]:
+    """``n`` hostile (key, payload) pairs, ten kinds in turn: random bytes, wrong types, NaN,
+    repeated and backwards frames (one in a hundred a map nested 100 k deep, one in a thousand
+    over the size limit), bad fixes — on the honest responder's key —, a 2,000-character id, a
+    fresh id every time, a list for a map, fixes of random bytes from 50 other ids, a schema
+    version from the future."""
+    rng = np.random.default_rng(seed)
+    z = np.zeros((10, 3))
+    nan = wire.ImuBatch(responder=honest, device="evil", seq=1, t=np.arange(10) * 0.01, acc=z, gyr=z).to_wire()
+    acc = np.frombuffer(nan["acc"], "<f8").copy()
+    acc[3] = np.nan
+    nan["acc"] = acc.tobytes()
+    nan_payload = msgpack.packb(nan, use_bin_type=True)
+    deep = b"\x81\xa1a" * 100_000 + b"\xc0"
+    big = b"\x00" * (wire.MAX_PAYLOAD_BYTES + 10)
+    dup = wire.encode(wire.ImuBatch(responder=honest, device="phone", seq=0, t=np.arange(10) * 0.01, acc=z, gyr=z))
+    badfix = msgpack.packb({"v": 1, "kind": "fix", "responder": honest, "t": "soon", "source": "gnss", "lat": 91})
+    future = msgpack.packb({"v": 99, "kind": "imu"})
+
+    def k(rid, kind="imu"):
+        return f"firetrack/{incident}/{rid}/{kind}"
+
+    out = []
+    for i in range(n):
+        c = i % 10
+        if c == 0:
+            out.append((k(honest), rng.bytes(64)))
+        elif c == 1:
+            out.append((k(honest), msgpack.packb({"v": 1, "kind": "imu", "responder": honest, "seq": "x", "t": [1]})))
+        elif c == 2:
+            out.append((k(honest), nan_payload))
+        elif c == 3:
+            out.append((k(honest), big if i % 1000 == 3 else deep if i % 100 == 3 else dup))
+        elif c == 4:
+            out.append((k(honest, "fix"), badfix))
+        elif c == 5:
+            out.append((k("x" * 2000), dup))
+        elif c == 6:
+            out.append((k(f"fresh{i}"), dup))
+        elif c == 7:
+            out.append((k(honest), msgpack.packb(list(range(50)))))
+        elif c == 8:
+            out.append((k(f"r{i % 50}", "fix"), rng.bytes(32)))
+        else:
+            out.append((k(honest), future))
+    return out
+
+
+def fresh_id_messages(n: int, incident: str) -> list[tuple[str, bytes]]:
+    """One valid frame from each of ``n`` new responder ids."""
+    z = np.zeros((10, 3))
+    z[:, 2] = 9.81
+    out = []
+    for i in range(n):
+        rid = f"new{i:05d}"
+        b = wire.ImuBatch(responder=rid, device="d", seq=0, t=np.arange(10) * 0.01, acc=z, gyr=np.zeros((10, 3)))
+        out.append((f"firetrack/{incident}/{rid}/imu", wire.encode(b)))
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# The benchmark
+# ------------------------------------------------------------------------------------------
+def _attacker(endpoint: str, incident: str, mode: str, n: int, seconds: float) -> None:  # pragma: no cover - child
+    session = zenoh.open(client_config(endpoint))
+    msgs = fresh_id_messages(n, incident) if mode == "ids" else hostile_messages(n, incident, "honest")
+    print("ready", flush=True)
+    sys.stdin.readline()
+    t0 = time.monotonic()
+    for i, (key, payload) in enumerate(msgs):
+        session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+        if i % 100 == 99:
+            time.sleep(max(0.0, t0 + (i + 1) * seconds / n - time.monotonic()))
+    print(f"sent {len(msgs)} {time.monotonic() - t0:.2f}", flush=True)
+    session.close()
+
+
+def _rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return math.nan
+
+
+def _percentile(values, q) -> float | None:
+    return float(np.percentile(values, q)) if len(values) else None
+
+
+class _Poses:
+    """The bystander's poses as received here, with their latency from the frame's send."""
+
+    def __init__(self, session, incident: str, walkers: dict[str, WalkerWearable]):
+        self.walkers = walkers
+        self.rows: list[tuple[str, float, float, float]] = []  # (responder, received, latency s, service latency s)
+        self.status: dict[str, wire.Status] = {}
+        self.status_times: list[float] = []
+        self._lock = threading.Lock()
+        self._subs = [session.declare_subscriber(wire.key_all(incident, "pose"), self._pose),
+                      session.declare_subscriber(wire.key_all(incident, "status"), self._status)]
+
+    def _pose(self, sample) -> None:
+        now = time.time()
+        p = wire.decode(sample.payload.to_bytes(), expect=wire.Pose)
+        w = self.walkers.get(p.responder)
+        if w is not None and p.seq in w.sent_at:
+            with self._lock:
+                self.rows.append((p.responder, now, now - w.sent_at[p.seq], p.published_at - w.sent_at[p.seq]))
+
+    def _status(self, sample) -> None:
+        st = wire.decode(sample.payload.to_bytes(), expect=wire.Status)
+        with self._lock:
+            self.status[st.responder] = st
+            self.status_times.append(time.time())
+
+    def phase(self, responders: list[str], t0: float, t1: float) -> dict:
+        """Pose rate per responder (poses/s) and latency percentiles, pooled over ``responders``."""
+        with self._lock:
+            rows = [r for r in self.rows if r[0] in responders and t0 <= r[1] < t1]
+        lat, svc = [r[2] for r in rows], [r[3] for r in rows]
+        return {"poses_per_s": round(len(lat) / (t1 - t0) / len(responders), 3),
+                "latency_p50_ms": _ms(_percentile(lat, 50)), "latency_p99_ms": _ms(_percentile(lat, 99)),
+                "service_latency_p50_ms": _ms(_percentile(svc, 50)),
+                "service_latency_p99_ms": _ms(_percentile(svc, 99)), "poses": len(lat)}
+
+    def status_rate(self, t0: float, t1: float) -> float:
+        with self._lock:
+            return round(sum(1 for t in self.status_times if t0 <= t < t1) / (t1 - t0), 1)
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+
+
+def _ms(v):
+    return None if v is None else round(v * 1e3, 1)
+
+
+def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float = 30.0, phase_s: float = 30.0,
+                 expire_after: float = 60.0, bystanders: int = 4, log=print) -> dict:
+    from service.protocol.incident import default_incident
+
+    cfg = default_incident()
+    ep = f"tcp/127.0.0.1:{free_local_port()}"
+    with tempfile.TemporaryDirectory(prefix="firetrack-faults-") as tmp:
+        logpath = Path(tmp) / "serve.log"
+        logf = open(logpath, "w")
+        serve = subprocess.Popen([sys.executable, "-m", "client.entry", "serve", "--listen", ep, "--no-console",
+                                  "--record", str(Path(tmp) / "incident.mcap"), "--expire-after", str(expire_after)],
+                                 stdout=logf, stderr=logf)
+        walkers: dict[str, WalkerWearable] = {}
+        attacker = None
+        session = None
+        try:
+            deadline = time.monotonic() + 60
+            while True:
+                try:
+                    session = zenoh.open(client_config(ep))
+                    break
+                except Exception:
+                    if time.monotonic() > deadline or serve.poll() is not None:
+                        raise RuntimeError(f"the service did not start: {logpath.read_text()[-2000:]}")
+                    time.sleep(0.3)
+            time.sleep(3.0)  # warm-up and subscriptions
+            total = 2 * phase_s + attack_s + expire_after + 30.0
+            names = ["honest"] + [f"bystander{j}" for j in range(bystanders)]
+            for i, r in enumerate(names):
+                walkers[r] = WalkerWearable(ep, cfg.id, r, walker_frames(r, total, seed=i + 1))
+            poses = _Poses(session, cfg.id, walkers)
+            # the attacker is another machine at an incident; here it shares this one's cores, so it
+            # runs at the lowest priority, not to take the service's CPU time (what is measured)
+            attacker = subprocess.Popen(["nice", "-n", "19", sys.executable, "-m", "client.fault_bench", "attacker", ep,
+                                         cfg.id, mode, str(messages), str(attack_s)], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE, text=True)
+            if attacker.stdout.readline().strip() != "ready":
+                raise RuntimeError("the attacker process did not start")
+            for w in walkers.values():
+                w.start()
+            time.sleep(5.0)  # the walkers' first frames: trackers built
+            log(f"phase 1: {phase_s:.0f} s without an attack ...")
+            t_before = time.time()
+            time.sleep(phase_s)
+            rss_before, log_before = _rss_mb(serve.pid), logpath.stat().st_size
+            log(f"phase 2: {mode}: {messages} messages in {attack_s:.0f} s ...")
+            t_attack = time.time()
+            attacker.stdin.write("go\n")
+            attacker.stdin.flush()
+            peak = rss_before
+            while attacker.poll() is None:
+                peak = max(peak, _rss_mb(serve.pid))
+                time.sleep(0.25)
+            sent_line = attacker.stdout.read().strip()
+            t_attack_end = time.time()
+            log_after_attack = logpath.stat().st_size
+            log(f"phase 3: {phase_s:.0f} s after ...")
+            t_after0 = time.time()
+            rss_samples = []
+            while time.time() < t_after0 + max(phase_s, expire_after + 10.0):  # the ids the attack brought leave
+                rss_samples.append(_rss_mb(serve.pid))
+                peak = max(peak, rss_samples[-1])
+                time.sleep(0.5)
+            t_after1 = time.time()
+            by = names[1:]
+            before = poses.phase(by, t_before, t_before + phase_s)
+            during = poses.phase(by, t_attack, t_attack_end)
+            after = poses.phase(by, t_after0, t_after0 + phase_s)
+            honest = poses.status.get("honest")
+            result = {
+                "mode": mode, "messages": messages, "attack_s": round(t_attack_end - t_attack, 2), "attacker": sent_line,
+                "bystanders": {"count": len(by), "before": before, "during": during, "after": after},
+                "pose_rate_during_over_before": _ratio(during["poses_per_s"], before["poses_per_s"]),
+                "latency_p99_during_over_before": _ratio(during["latency_p99_ms"], before["latency_p99_ms"]),
+                "service_latency_p99_during_over_before": _ratio(during["service_latency_p99_ms"],
+                                                                 before["service_latency_p99_ms"]),
+                "rss_mb": {"before": round(rss_before, 1), "peak": round(peak, 1),
+                           "after": round(rss_samples[-1], 1) if rss_samples else None},
+                "rss_growth_mb": round(peak - rss_before, 1),
+                "rss_kept_after_mb": round(rss_samples[-1] - rss_before, 1) if rss_samples else None,
+                "log_growth_bytes": log_after_attack - log_before,
+                "status_per_s": {"before": poses.status_rate(t_before, t_attack),
+                                 "during": poses.status_rate(t_attack, t_attack_end),
+                                 "end_of_after": poses.status_rate(t_after1 - 5.0, t_after1)},
+                "honest_status": None if honest is None else {"alarms": honest.alarms, "rejected": honest.rejected,
+                                                               "lost": honest.lost},
+            }
+            if mode == "ids":
+                result["ids_with_a_status"] = len(poses.status) - len(names)  # admitted (each had a Status)
+            poses.close()
+            return result
+        finally:
+            for w in walkers.values():
+                if w.report is None:
+                    w.close(0.0)
+            if attacker is not None and attacker.poll() is None:
+                attacker.kill()
+            if session is not None:
+                session.close()
+            serve.send_signal(2)
+            try:
+                serve.wait(30)
+            except subprocess.TimeoutExpired:
+                serve.kill()
+            logf.close()
+
+
+def _ratio(a, b):
+    return None if a is None or not b else round(a / b, 3)
+
+
+def reject_cost_us(messages: int = 100_000, incident=None) -> dict:
+    """In-process cost of the hostile mix (:func:`hostile_messages`) through the intake and the
+    core, with an honest walker's frames among them (µs per hostile message), and of each kind
+    refused at the intake or rejected by the decoder (µs per message)."""
+    import logging
+
+    from service.core.incident_core import Inbound, IncidentCore
+    from service.protocol.incident import default_incident
+
+    cfg = incident or default_incident()
+    msgs = hostile_messages(messages, cfg.id, "honest")
+    honest = walker_frames("honest", 60.0, seed=1)
+    logging.getLogger("firetrack.service").setLevel(logging.ERROR)  # the log's cost is the reject log's own
+    try:
+        core = IncidentCore(cfg)
+        k = wire.key(cfg.id, "honest", "imu")
+        core.feed_round([Inbound("imu", k, wire.encode(f), 1000.0 + i * 0.1) for i, f in enumerate(honest[:100])])
+        t0 = time.perf_counter()
+        now = 1010.0
+        for i, (key, payload) in enumerate(msgs):
+            now = 1010.0 + i * (30.0 / messages)
+            kind = key.rsplit("/", 1)[1]
+            if core.admit(kind, key, len(payload), now) is None:
+                core.feed_round([Inbound(kind, key, payload, now)])
+        per = (time.perf_counter() - t0) / messages * 1e6
+        # each kind on its own, every message decoded (no budget): the decoder's price
+        kinds = {}
+        for c, name in enumerate(("random_bytes", "wrong_types", "nan", "duplicates_deep_oversize", "bad_fix",
+                                  "long_id", "fresh_ids", "list_for_map", "random_fix", "future_version")):
+            sample = msgs[c::10][:2000]
+            fresh = IncidentCore(cfg)
+            fresh.feed_round([Inbound("imu", k, wire.encode(f), 1000.0 + i * 0.1) for i, f in enumerate(honest[:20])])
+            t0 = time.perf_counter()
+            for j, (key, payload) in enumerate(sample):
+                kind = key.rsplit("/", 1)[1]
+                fresh.feed_round([Inbound(kind, key, payload, 1003.0 + j * 1e-4)])
+            kinds[name] = round((time.perf_counter() - t0) / len(sample) * 1e6, 1)
+        intake = {}
+        for reason, (key, size) in {"throttled": (f"firetrack/{cfg.id}/honest/imu", 100),
+                                    "bad_key": (f"firetrack/{cfg.id}/{'x' * 2000}/imu", 100),
+                                    "not_admitted": (None, 100), "oversize": (f"firetrack/{cfg.id}/honest/imu", 1 << 21)}.items():
+            it = IncidentCore(cfg)
+            it.intake.settings = type(it.intake.settings)(max_responders=1, source_rate=1.0, source_burst=1.0)
+            it.intake.admit(f"firetrack/{cfg.id}/honest/imu", 10, 0.0)
+            t0 = time.perf_counter()
+            for j in range(20_000):
+                it.admit("imu", key or f"firetrack/{cfg.id}/n{j}/imu", size, 1.0 + j * 1e-6)
+            intake[reason] = round((time.perf_counter() - t0) / 20_000 * 1e6, 2)
+    finally:
+        logging.getLogger("firetrack.service").setLevel(logging.NOTSET)
+    return {"hostile_mix_us_per_message": round(per, 2), "refused_at_intake_us": intake,
+            "decoded_and_rejected_us": kinds, "accounting": core.frame_accounting()}
+
+
+def bench_faults_command(
+    mode: str = typer.Option("flood", "--mode", help="flood: hostile messages; ids: one valid frame from each of N new ids"),
+    messages: int = typer.Option(100_000, "--messages", "-n", help="messages the attacker sends"),
+    attack_s: float = typer.Option(30.0, "--attack-s", help="s the attack lasts"),
+    phase_s: float = typer.Option(30.0, "--phase-s", help="s of each measured phase (before, after)"),
+    expire_after: float = typer.Option(60.0, "--expire-after", help="the service's --expire-after (ids mode: waits for it)"),
+    bystanders: int = typer.Option(4, "--bystanders", help="bystander wearables (their figures are pooled)"),
+    cost: bool = typer.Option(True, "--cost/--no-cost", help="also measure the in-process cost of the hostile mix"),
+):
+    """The service beside an honest and a bystander wearable under a flood (or a storm of new ids): JSON figures."""
+    if mode not in ("flood", "ids"):
+        err.print(f"--mode must be flood or ids, got {mode!r}")
+        raise typer.Exit(2)
+    result = bench_faults(mode, messages, attack_s, phase_s, expire_after, bystanders, log=lambda m: err.print(m))
+    if cost and mode == "flood":
+        err.print("the in-process cost of the hostile mix ...")
+        result["cost"] = reject_cost_us(messages)
+    print_json(result)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    if len(sys.argv) > 1 and sys.argv[1] == "attacker":
+        _attacker(sys.argv[2], sys.argv[3], sys.argv[4], int(sys.argv[5]), float(sys.argv[6]))
+    else:
+        os._exit(2)

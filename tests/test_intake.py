@@ -1,0 +1,214 @@
+"""Isolation (issue 20, part 1): the intake's size check, admission budget and per-source
+budgets; the rate-limited reject log; responders that leave; memory bounded under any input."""
+from __future__ import annotations
+
+import gc
+import io
+import logging
+import os
+import tracemalloc
+
+import msgpack
+import numpy as np
+import pytest
+
+from service.core.incident_core import CoreSettings, Inbound, IncidentCore
+from service.core.intake import BAD_KEY, NEW_IDS, Intake, IntakeSettings
+from service.core.rejectlog import RejectLog
+from service.protocol import wire
+from service.protocol.incident import default_incident
+from tests.walkers import walk
+
+CFG = default_incident()
+
+
+def key(rid, kind="imu"):
+    return f"firetrack/{CFG.id}/{rid}/{kind}"
+
+
+# --------------------------------------------------------------------------------------
+# The intake on its own
+# --------------------------------------------------------------------------------------
+def test_size_and_keys_are_judged_before_anything_else():
+    it = Intake()
+    assert it.admit(key("ff1"), wire.MAX_PAYLOAD_BYTES + 1, 0.0) == ("oversize", "ff1")
+    assert it.admit(key("x" * 10_000), 10, 0.0) == ("bad_key", BAD_KEY)
+    assert it.admit(key("a b"), 10, 0.0) == ("bad_key", BAD_KEY)
+    assert it.admit(key("ff1"), 100, 0.0) == (None, "ff1")
+    assert it.counts == {"oversize": 1, "bad_key": 2}
+
+
+def test_new_ids_are_admitted_within_the_budget_and_the_cap():
+    it = Intake(IntakeSettings(admit_burst=10, admit_per_s=2.0, max_responders=15))
+    verdicts = [it.admit(key(f"r{i}"), 100, 0.0)[0] for i in range(50)]
+    assert verdicts.count(None) == 10 and verdicts.count("not_admitted") == 40
+    assert it.admit(key("r0"), 100, 0.1) == (None, "r0")  # an admitted id stays admitted
+    later = [it.admit(key(f"s{i}"), 100, 2.0)[0] for i in range(10)]  # 2 s at 2 ids/s
+    assert later.count(None) == 4
+    much_later = [it.admit(key(f"t{i}"), 100, 100.0)[0] for i in range(10)]
+    assert much_later.count(None) == 1 and it.responders == 15  # the cap
+    it.forget("r1")  # a responder that left frees its place
+    assert it.admit(key("u0"), 100, 100.0)[0] is None
+
+
+def test_the_roster_is_always_admitted_and_roster_only_admits_nobody_else():
+    it = Intake(IntakeSettings(admit_burst=1, roster=frozenset({"alpha", "bravo"}), roster_only=True))
+    assert it.admit(key("alpha"), 1, 0.0)[0] is None and it.admit(key("bravo"), 1, 0.0)[0] is None
+    assert it.admit(key("mallory"), 1, 0.0) == ("not_admitted", NEW_IDS)
+
+
+def test_a_flooding_source_is_throttled_named_and_the_others_are_not():
+    it = Intake(IntakeSettings(source_rate=100.0, source_burst=200.0, flood_alarm_s=30.0))
+    t = np.arange(30_000) * 1e-3  # 1000 messages/s for 30 s from one source ...
+    flood = [it.admit(key("evil"), 200, float(x))[0] for x in t]
+    honest = [it.admit(key("ff1"), 800, float(x))[0] for x in t[::100]]  # ... and 10/s from another
+    assert flood.count(None) == pytest.approx(200 + 100 * 30, abs=2) and flood.count("throttled") > 26_000
+    assert honest.count(None) == len(honest)
+    assert it.flooding("evil", 30.0) and not it.flooding("ff1", 30.0)
+    assert it.flooding_sources(30.0) == ["evil"] and not it.flooding("evil", 61.0)
+
+
+def test_a_sender_of_garbage_gets_the_small_budget_until_it_behaves():
+    s = IntakeSettings(source_rate=100.0, source_burst=100.0, bad_after=5, bad_window_s=10.0, bad_rate=2.0, bad_burst=2.0)
+    it = Intake(s)
+    for i in range(5):
+        assert it.admit(key("noisy"), 10, i * 0.01)[0] is None
+        it.note_reject("noisy", i * 0.01)
+    taken = [it.admit(key("noisy"), 10, 0.1 + i * 0.01)[0] for i in range(100)]
+    assert taken.count(None) <= 3  # 2 at once, then 2/s
+    # quiet and clean for the window: the ordinary budget again
+    assert [it.admit(key("noisy"), 10, 30.0 + i * 0.001)[0] for i in range(50)].count(None) == 50
+
+
+# --------------------------------------------------------------------------------------
+# The log
+# --------------------------------------------------------------------------------------
+def test_the_log_of_a_flood_is_a_few_lines_per_source_and_a_summary():
+    stream = io.StringIO()
+    logger = logging.getLogger("firetrack.test.rejectlog")
+    logger.handlers[:] = [logging.StreamHandler(stream)]
+    logger.propagate = False
+    logger.setLevel(logging.WARNING)
+    rl = RejectLog(logger, window_s=10.0, lines_per_source=3, lines_per_window=40, max_sources=50)
+    for i in range(100_000):  # 100 k rejects in 30 s from 1000 sources, with long details
+        rl.note(f"src{i % 1000}", ("msgpack", "schema")[i % 2], "x" * 5000, i * 3e-4)
+    rl.flush(30.0)
+    text = stream.getvalue()
+    assert rl.lines <= 3 * (40 + 51)  # per window: full lines + a summary per source (+ others)
+    assert len(text) < 60_000 and "more messages rejected in the last" in text and "<other sources>" in text
+    assert max(len(line) for line in text.splitlines()) < 600
+
+
+# --------------------------------------------------------------------------------------
+# The core: 5,000 new ids, expiry, bounded memory and status
+# --------------------------------------------------------------------------------------
+def frame_payload(rid, seq, t0):
+    z = np.zeros((10, 3))
+    z[:, 2] = 9.81
+    return wire.encode(wire.ImuBatch(responder=rid, device="d", seq=seq, t=t0 + np.arange(10) * 0.01, acc=z,
+                                     gyr=np.zeros((10, 3))))
+
+
+def test_five_thousand_new_ids_are_bounded_by_the_budget_and_expire():
+    s = CoreSettings(intake=IntakeSettings(admit_burst=50, admit_per_s=2.0, max_responders=100),
+                     expire_after_s=60.0, expire_unplaced_s=20.0)
+    core = IncidentCore(CFG, s)
+    taken = 0
+    for i in range(5000):  # 5,000 ids, one valid frame each, over 25 s
+        now = 1000.0 + i * 0.005
+        k = key(f"id{i}")
+        p = frame_payload(f"id{i}", 0, 10.0)
+        if core.admit("imu", k, len(p), now) is None:
+            core.feed(Inbound("imu", k, p, now))
+            taken += 1
+    assert taken == len(core.responders) == pytest.approx(50 + 2 * 25, abs=2)
+    status = [o for o in core.tick(1025.0) if isinstance(o.message, wire.Status)]
+    assert len(status) == len(core.responders) <= 100  # status traffic follows the responders kept
+    assert core.frame_accounting()["not_admitted"] == 5000 - taken
+    # silence: each leaves 60 s after its last message (its track would be in the recording)
+    core.feed(Inbound("imu", key("id0"), frame_payload("id0", 1, 10.1), 1050.0))
+    core.feed(Inbound("imu", key("id0"), frame_payload("id0", 2, 10.2), 1084.0))
+    assert len(core.responders) > 1  # the ids admitted last were heard less than 60 s ago
+    core.feed(Inbound("imu", key("id0"), frame_payload("id0", 3, 10.3), 1086.0))
+    assert set(core.responders) == {"id0"} and core.counters.expired == taken - 1
+    # an id whose messages were all garbage (no frame ever released) leaves after 20 s
+    assert core.admit("imu", key("junk"), 3, 1090.0) is None
+    core.feed(Inbound("imu", key("junk"), b"\xc1\xc1\xc1", 1090.0))
+    core.feed(Inbound("presence", key("id0", "presence"), b"1", 1111.0))
+    assert set(core.responders) == {"id0"}
+    core.feed(Inbound("presence", key("id0", "presence"), b"0", 1147.0))
+    assert core.responders == {} and core.intake.responders == 0
+
+
+def test_memory_is_bounded_under_a_stream_of_hostile_input():
+    """Garbage of every kind on valid and invalid keys: what the core keeps stops growing."""
+    s = CoreSettings(intake=IntakeSettings(admit_burst=20, admit_per_s=1.0, max_responders=50),
+                     expire_unplaced_s=10.0)
+    core = IncidentCore(CFG, s)
+    rng = np.random.default_rng(0)
+    deep = b"\x81\xa1a" * 2000 + b"\xc0"
+
+    def payload(i):
+        kind = i % 5
+        if kind == 0:
+            return rng.bytes(int(rng.integers(1, 300)))
+        if kind == 1:
+            return msgpack.packb({"v": 1, "kind": "imu", "responder": f"r{i % 97}", "seq": -i, "t": "no"})
+        if kind == 2:
+            return deep
+        if kind == 3:
+            return frame_payload(f"r{i % 97}", int(rng.integers(0, 10**6)), float(rng.uniform(0, 1e6)))
+        return msgpack.packb([i] * 10)
+
+    def burst(start, n):
+        for i in range(start, start + n):
+            now = 2000.0 + i * 0.002
+            rid = f"r{i % 97}" if i % 3 else f"{os.urandom(4).hex()}"
+            k = key(rid, "imu" if i % 4 else "fix")
+            p = payload(i)
+            if core.admit(k.rsplit("/", 1)[1], k, len(p), now) is None:
+                core.feed(Inbound(k.rsplit("/", 1)[1], k, p, now))
+
+    logging.getLogger("firetrack.service").setLevel(logging.CRITICAL)
+    try:
+        burst(0, 3000)
+        gc.collect()
+        tracemalloc.start()
+        burst(3000, 6000)
+        gc.collect()
+        mid, _ = tracemalloc.get_traced_memory()
+        burst(9000, 12000)
+        gc.collect()
+        end, _ = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+    finally:
+        logging.getLogger("firetrack.service").setLevel(logging.NOTSET)
+    assert len(core.responders) <= 50 and len(core._presence) <= core.MAX_PRESENCE
+    assert end - mid < 2_000_000  # twice the messages, no more than noise in what is kept
+    assert core.counters.errors == 0
+
+
+def test_silent_ids_cost_little_status_traffic_and_an_alarm_goes_out_at_once():
+    """A responder heard in the last ``idle_after_s`` gets a Status every tick; a silent one every
+    ``idle_status_every_s``, and at once when its alarms change."""
+    from service.protocol.schema import LOST_CONTACT_S
+
+    s = CoreSettings(idle_after_s=2.0, idle_status_every_s=5.0)
+    core = IncidentCore(CFG, s)
+    for rid in ("talk", "quiet"):
+        core.feed(Inbound("imu", key(rid), frame_payload(rid, 0, 10.0), 1000.0))
+    sent = {"talk": [], "quiet": []}  # (time, alarms) of every Status answered
+    for k in range(1, 41):  # 40 ticks, 1 s apart; "talk" sends a frame before each, "quiet" never again
+        now = 1000.0 + k
+        core.feed(Inbound("imu", key("talk"), frame_payload("talk", k, 10.0 + 0.1 * k), now - 0.5))
+        for o in core.tick(now):
+            if isinstance(o.message, wire.Status):
+                sent[o.message.responder].append((now, tuple(o.message.alarms)))
+    assert len(sent["talk"]) == 40
+    quiet = sent["quiet"]
+    assert len(quiet) < 40 / 3  # instead of 40
+    for (t0, a0), (t1, a1) in zip(quiet, quiet[1:]):
+        if t0 >= 1000.0 + s.idle_after_s:
+            assert t1 - t0 >= s.idle_status_every_s or a1 != a0, (t0, t1, a0, a1)
+    first = next(t for t, a in quiet if "lost_contact" in a)  # the alarm went out the tick it was raised
+    assert first <= 1000.0 + LOST_CONTACT_S + 1.0

@@ -1,0 +1,221 @@
+"""Restart recovery (issue 20, part 4): snapshots of the core, a state file beside the recording,
+segments, resume after a crash and reprocess of the segmented recording."""
+from __future__ import annotations
+
+import math
+import os
+import pickle
+import subprocess
+import sys
+import time
+
+import msgpack
+import pytest
+
+from service.core import snapshot as snapshots
+from service.core.incident_core import Inbound, IncidentCore
+from service.protocol import wire
+from service.protocol.incident import default_incident
+from service.review.recorder import IncidentRecorder, segment_paths
+from service.review.reprocess import reprocess
+from service.review.resume import Base, StateFile, resume, state_path
+from tests.walkers import walk
+
+CFG = default_incident()
+
+
+def inputs_of(w, rid="ff1", rt0=100.0, fix=True):
+    """A walker's frames as the shell takes them (receive time 10 frames/s), after a checkpoint
+    at its start."""
+    out = []
+    if fix:
+        cp = wire.Fix.checkpoint(rid, float(w.t[0]), x=float(w.x[0]), y=float(w.y[0]), floor=0, sigma=0.3)
+        out.append(Inbound("fix", wire.key(CFG.id, rid, "fix"), wire.encode(cp), rt0 - 0.05))
+    out += [Inbound("imu", wire.key(CFG.id, rid, "imu"), wire.encode(f), rt0 + k * 0.1) for k, f in enumerate(w.frames)]
+    return out
+
+
+def poses(out):
+    return [o.message for o in out if isinstance(o.message, wire.Pose)]
+
+
+# --------------------------------------------------------------------------------------
+# Snapshots
+# --------------------------------------------------------------------------------------
+def test_a_restored_core_goes_on_like_the_uninterrupted_one():
+    items = inputs_of(walk(seconds=90.0, seed=11)) + inputs_of(walk("ff2", seconds=90.0, seed=12), "ff2")
+    items.sort(key=lambda i: i.received)
+    cut = len(items) // 2
+    core = IncidentCore(CFG)
+    for i in range(0, cut, 200):
+        core.feed_round(items[i:min(i + 200, cut)])
+    blob = core.snapshot()
+    twin = IncidentCore.restore(blob, CFG)
+    assert core.snapshot() == blob  # taking a snapshot changes nothing
+    a, b = [], []
+    for i in range(cut, len(items), 200):
+        a += poses(core.feed_round(items[i:i + 200]))
+        b += poses(twin.feed_round(items[i:i + 200]))
+    assert len(a) == len(b) > 100
+    assert [p.steps for p in a] == [p.steps for p in b]  # the same step counts
+    worst = max(math.hypot(p.x - q.x, p.y - q.y) for p, q in zip(a, b))
+    assert worst < 0.5  # the graph restarted from the newest pose: its window's correlations are gone
+    for rid in ("ff1", "ff2"):
+        r, t = core.responders[rid], twin.responders[rid]
+        assert (r.gate.accepted, r.gate.next_seq, r.tracker.steps) == (t.gate.accepted, t.gate.next_seq, t.tracker.steps)
+
+
+def test_a_snapshot_names_nothing_but_the_projects_classes():
+    class Evil:
+        def __reduce__(self):
+            return (os.system, ("echo pwned",))
+
+    with pytest.raises(snapshots.SnapshotError, match="may not name"):
+        snapshots.loads(snapshots.MAGIC + pickle.dumps(Evil()))
+    # a function of the project (not a class) is refused too
+    from service.review import resume as resume_module  # noqa: F401  (a module with side effects)
+
+    class Sneaky:
+        def __reduce__(self):
+            from pdr.io import load
+            return (load, ("/etc/passwd",))
+
+    with pytest.raises(snapshots.SnapshotError, match="classes only"):
+        snapshots.loads(snapshots.MAGIC + pickle.dumps(Sneaky()))
+    with pytest.raises(snapshots.SnapshotError, match="not a firetrack core snapshot"):
+        snapshots.loads(b"garbage")
+    with pytest.raises(snapshots.SnapshotError, match="cannot be read"):
+        snapshots.loads(snapshots.MAGIC + b"\x80\x05garbage")
+
+
+def test_the_state_file_is_replaced_whole_and_checked_on_reading(tmp_path):
+    sf = StateFile(tmp_path / "x.mcap.state", "demo", 2)
+    sf.write(b"abc", 17, 123.0)
+    d = StateFile.read(sf.path)
+    assert (d["incident"], d["segment"], d["position"], d["snapshot"]) == ("demo", 2, 17, b"abc")
+    assert not (tmp_path / "x.mcap.state.tmp").exists()
+    sf.path.write_bytes(b"\x00\x01 not msgpack")
+    with pytest.raises(ValueError, match="x.mcap.state"):
+        StateFile.read(sf.path)
+    sf.path.write_bytes(msgpack.packb({"format": "firetrack-state/1", "incident": "demo"}))
+    with pytest.raises(ValueError, match="'segment' is missing"):
+        StateFile.read(sf.path)
+
+
+# --------------------------------------------------------------------------------------
+# A service's recording life, without the network: rounds recorded, snapshots, a crash, a resume
+# --------------------------------------------------------------------------------------
+class MiniShell:
+    """What :class:`service.shell.service.IncidentService` does with a recording, in rounds:
+    inputs recorded, fed, poses recorded; a snapshot into the state file every ``every`` rounds."""
+
+    def __init__(self, path, core, segment=0, resume_record=None, every=20):
+        self.rec = IncidentRecorder(path, CFG.id, segment=segment, resume=resume_record)
+        self.core = core
+        self.state = StateFile(state_path(segment_paths(path)[0] if segment else path), CFG.id, segment)
+        self.every, self.rounds, self.published = every, 0, []
+
+    def round(self, items):
+        for m in items:
+            self.rec.write(m.key, m.payload, m.received)
+        out = self.core.feed_round(items)
+        for o in out:
+            self.rec.write(o.key, wire.encode(o.message), items[-1].received)
+            self.published.append(o.message)
+        self.rounds += 1
+        if self.rounds % self.every == 0:
+            self.rec.flush()
+            self.state.write(self.core.snapshot(), self.rec.message_count, items[-1].received)
+
+
+def _crash(rec: IncidentRecorder) -> None:
+    """The process dies: the pending chunk never reaches the file, nor does the summary."""
+    os.close(rec._file.fd)
+    rec._closed = True
+
+
+@pytest.mark.parametrize("state_file", ["kept", "missing", "damaged"])
+def test_a_crashed_service_resumes_and_reprocess_equals_the_live_poses(tmp_path, state_file):
+    items = inputs_of(walk(seconds=80.0, seed=21))
+    path = tmp_path / "inc.mcap"
+    live = MiniShell(path, IncidentCore(CFG))
+    crash_at = 500
+    for i in range(0, crash_at, 10):
+        live.round(items[i:i + 10])
+    steps_at_crash = live.core.responders["ff1"].tracker.steps
+    _crash(live.rec)  # up to the last snapshot and the chunks after it are in the file
+    if state_file == "missing":
+        state_path(path).unlink()
+    elif state_file == "damaged":
+        state_path(path).write_bytes(b"\x93garbage")
+    res = resume(path, CFG)
+    assert res.segment == 1 and res.path == tmp_path / "inc.1.mcap"
+    assert res.base.origin == ("state file" if state_file == "kept" else "start")
+    assert (state_file == "damaged") == any("cannot be read" in p for p in res.problems)
+    r = res.core.responders["ff1"]
+    # what the file held is back: every frame released before the last complete chunk
+    assert 0 <= steps_at_crash - r.tracker.steps < 15 and r.gate.next_seq <= live.core.responders["ff1"].gate.next_seq
+    # the wearable's kept frames come again: those taken already are duplicates, the rest go on
+    first = r.gate.next_seq - 30
+    second = MiniShell(res.path, res.core, segment=1, resume_record=res.base.record())
+    rest = items[1 + first:]
+    for i in range(0, len(rest), 10):
+        second.round(rest[i:i + 10])
+    second.rec.close()
+    assert second.core.responders["ff1"].gate.counts == {"duplicate": 30}
+    # the same as an uninterrupted run of every frame, step for step, within centimetres
+    ref = IncidentCore(CFG)
+    ref_poses = poses(ref.feed_round(items))
+    assert second.core.responders["ff1"].tracker.steps == ref.responders["ff1"].tracker.steps
+    last = [p for p in second.published if isinstance(p, wire.Pose)][-1]
+    same = [p for p in ref_poses if p.t == last.t][-1]
+    assert math.hypot(last.x - same.x, last.y - same.y) < 1.0
+    # reprocess of the segmented recording takes the same path and gives the poses published live
+    rp = reprocess(path, CFG)
+    assert rp["segments"] == 2 and rp["resumed_segments"] == [1]
+    assert rp["max_deviation_m"] == 0.0 and rp["responders"]["ff1"]["unmatched_live_poses"] == 0
+    assert rp["responders"]["ff1"]["steps"] == ref.responders["ff1"].tracker.steps
+
+
+def test_resume_never_refuses_and_starts_afresh_on_a_file_that_is_no_recording(tmp_path):
+    path = tmp_path / "inc.mcap"
+    path.write_bytes(b"this is not an MCAP file")
+    res = resume(path, CFG)
+    assert res is not None and res.core.responders == {} and res.path == tmp_path / "inc.1.mcap"
+    assert resume(tmp_path / "none.mcap", CFG) is None  # nothing there: a fresh start
+
+
+def test_a_resume_base_round_trips_through_its_attachment():
+    b = Base(3, 1234, b"snap", "state file")
+    assert Base.from_record(b.record()) == b
+
+
+def test_serve_on_an_existing_recording_resumes_instead_of_refusing(tmp_path):
+    """The command itself, twice on one recording path (what systemd does after a crash)."""
+    from service.protocol.session import free_local_port
+
+    path = tmp_path / "inc.mcap"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    exe = [sys.executable, "-m", "client.entry"]
+    for run in range(2):
+        ep = f"tcp/127.0.0.1:{free_local_port()}"
+        p = subprocess.run([*exe, "serve", "--listen", ep, "--record", str(path), "--no-console", "--seconds", "1"],
+                           capture_output=True, text=True, timeout=120, env=env)
+        assert p.returncode == 0, p.stderr[-2000:]
+        if run == 1:
+            assert "resumed incident" in p.stderr and "inc.1.mcap" in p.stderr
+    assert [q.name for q in segment_paths(path)] == ["inc.mcap", "inc.1.mcap"]
+    time.sleep(0)
+
+
+def test_bench_resume_resumes_from_the_snapshot_to_the_same_core_as_a_whole_replay(tmp_path):
+    """``firetrack bench resume`` at a toy size: the snapshot's way replays only what came after
+    it, and both ways give the steps of the live core and about the same last poses (not bit for
+    bit: a resumed estimator restarts its graph from the snapshot's newest pose and marginal)."""
+    from service.review.resume import bench_resume
+
+    r = bench_resume(responders=2, minutes=0.5, workdir=tmp_path, log=lambda m: None)
+    assert r["replayed_after_snapshot"] < r["replayed_from_start"] == r["frames"]
+    assert all(a == b == c for a, b, c in r["steps_equal"].values())
+    assert all(a > 0 for a, _, _ in r["steps_equal"].values())
+    assert r["resumed_cores_apart_m"] < 0.01 and r["snapshot_bytes"]["last"] > 0

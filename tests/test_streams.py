@@ -1,0 +1,221 @@
+"""Stream continuity and gaps: a restarted wearable, a new device, a counter reset or an outage
+continue the same responder's track; every gap is counted in frames and seconds; fixes
+re-anchor after a gap; no man-down from an outage (issue 20, parts 2 and 3)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pdr.simulation import SimulatedWalker, WalkerSettings
+from service.core.gate import FrameGate
+from service.core.incident_core import CoreSettings, Inbound, IncidentCore
+from service.protocol import wire
+from service.protocol.incident import default_incident
+from tests.walkers import PER_FRAME, RATE_HZ, restamped, walk
+
+N = 5
+DT = 0.01
+
+
+def frame(seq, t0=None, device="phone-A", boot=None):
+    start = seq * N * DT if t0 is None else t0
+    z = np.zeros((N, 3))
+    return wire.ImuBatch(responder="ff1", device=device, boot=boot, seq=seq, t=start + np.arange(N) * DT, acc=z, gyr=z)
+
+
+# --------------------------------------------------------------------------------------
+# The gate: streams by (device, boot, seq)
+# --------------------------------------------------------------------------------------
+def test_frames_of_another_stream_cannot_take_a_live_stream_over():
+    gate = FrameGate(takeover_after_s=0.5)
+    released = []
+    for s in range(100):  # an honest stream at 20 frames/s, an injected one between its frames
+        released += [(b.device, b.seq) for b in gate.offer(frame(s, boot="honest"), s * 0.05)]
+        released += [(b.device, b.seq) for b in gate.offer(frame(s % 3, t0=1e6 + s, device="evil"), s * 0.05 + 0.01)]
+        released += [(b.device, b.seq) for b in gate.offer(frame(s, t0=1e6 + s, boot="honest"), s * 0.05 + 0.02)]
+    assert released == [("phone-A", s) for s in range(100)] and gate.epoch == 0
+    assert gate.counts == {"other_stream": 100, "duplicate": 100}
+
+
+def test_a_new_boot_is_a_new_stream_at_once_and_the_old_one_is_retired():
+    gate = FrameGate()
+    for s in range(50):
+        gate.offer(frame(s, boot="A"), s * 0.05)
+    # the wearable restarted 2 s later: seq from 0 again, its clock restarted too
+    out = gate.offer(frame(0, t0=0.0, boot="B"), 4.5)
+    assert [b.seq for b in out] == [0] and gate.epoch == 1 and gate.streams == 2
+    assert gate.boot == "B" and gate.last_seq == 0
+    assert gate.gaps == 1 and gate.gap_s == pytest.approx(4.5 - 49 * 0.05)
+    # a frame of the old start still in flight is turned away, not switched back to
+    assert gate.offer(frame(50, boot="A"), 4.6) == [] and gate.counts == {"old_stream": 1}
+    assert [b.seq for b in gate.offer(frame(1, t0=N * DT, boot="B"), 4.7)] == [1]
+
+
+def test_a_counter_that_restarts_while_time_goes_on_is_a_new_stream_without_a_boot():
+    gate = FrameGate()
+    for s in range(20):
+        gate.offer(frame(s), s * 0.05)
+    # seq 0 again, but its samples come after the newest released: not a copy of an old frame
+    out = gate.offer(frame(0, t0=20 * N * DT + 1.0), 2.0)
+    assert [b.seq for b in out] == [0] and gate.epoch == 1 and gate.counts == {}
+    # while a real copy (old seq, old time) is still a duplicate
+    assert gate.offer(frame(0, t0=20 * N * DT + 1.0), 2.1) == [] and gate.counts == {"duplicate": 1}
+
+
+def test_a_seq_far_ahead_is_a_restarted_counter_not_a_loss():
+    gate = FrameGate(reorder_window=0, max_seq_jump=1000)
+    gate.offer(frame(0), 0.0)
+    assert gate.offer(frame(10**9, t0=1.0), 0.1) == [] and gate.counts == {"seq_jump": 1}  # in a live stream
+    out = gate.offer(frame(10**9, t0=1.0), 1.0)  # after a silence: the counter restarted
+    assert [b.seq for b in out] == [10**9] and gate.lost == 0 and gate.epoch == 1
+    gate2 = FrameGate(reorder_window=0, max_seq_jump=1000)
+    gate2.offer(frame(0), 0.0)
+    gate2.offer(frame(500, t0=500 * N * DT), 0.1)  # within the jump: 499 frames lost, counted
+    assert gate2.lost == 499 and gate2.gaps == 1 and gate2.gap_s == pytest.approx(500 * N * DT - (N - 1) * DT)
+
+
+# --------------------------------------------------------------------------------------
+# The core: one track across streams and gaps
+# --------------------------------------------------------------------------------------
+CFG = default_incident()
+KEY = wire.key(CFG.id, "ff1", "imu")
+
+
+def run(core, frames_at, tick_every=1.0, fixes=()):
+    """Feed ``(frame, receive time)`` in order with a tick every ``tick_every`` s of receive time;
+    ``fixes`` are ``(receive time, Fix)`` fed when their time comes. Returns poses and every
+    Status the ticks answered."""
+    poses, statuses = [], []
+    last_tick = -math.inf
+    pending = sorted(fixes, key=lambda f: f[0])
+    for f, rt in frames_at:
+        while pending and pending[0][0] <= rt:
+            frt, fix = pending.pop(0)
+            poses += _poses(core.feed(Inbound("fix", wire.key(CFG.id, "ff1", "fix"), wire.encode(fix), frt)))
+        poses += _poses(core.feed(Inbound("imu", KEY, wire.encode(f), rt)))
+        if rt - last_tick >= tick_every:
+            last_tick = rt
+            statuses += [o.message for o in core.tick(rt) if isinstance(o.message, wire.Status)]
+    return poses, statuses
+
+
+def _poses(out):
+    return [o.message for o in out if isinstance(o.message, wire.Pose)]
+
+
+def at_rate(frames, rt0):
+    return [(f, rt0 + k * PER_FRAME / RATE_HZ) for k, f in enumerate(frames)]
+
+
+def test_a_restarted_wearable_continues_the_track_on_its_new_clock():
+    w = walk(seconds=90.0, seed=3)
+    core = IncidentCore(CFG)
+    before, st1 = run(core, at_rate(w.frames[:400], 5000.0))
+    steps_before = core.responders["ff1"].tracker.steps
+    assert steps_before > 40
+    # it restarts 10 s later: a new boot, seq from 0, its sensor clock from 5 s
+    second = restamped(w.frames[500:], dt=5.0 - float(w.frames[500].t[0]), seq0=0, boot="b2")
+    after, st2 = run(core, at_rate(second, 5000.0 + 50.0))
+    r = core.responders["ff1"]
+    steps = [p.steps for p in before + after]
+    assert steps == sorted(steps) and r.tracker.steps > steps_before + 40  # the same count, going on
+    jumps = [math.hypot(b.x - a.x, b.y - a.y) for a, b in zip(before + after, (before + after)[1:])]
+    assert max(jumps) < 2.0  # no restart at the origin: the track goes on from where it was
+    st = core.status_of(r, 5000.0 + 50.0 + 40.0)
+    assert st.streams == 2 and st.boot == "b2" and st.gaps == 1 and st.gap_s == pytest.approx(10.1, abs=0.15)
+    assert st.seq == len(second) - 1  # the acknowledgement is of the new stream
+    assert after[-1].t == pytest.approx(float(second[-1].t[-1]), abs=1.0)  # poses on the wearable's new clock
+    assert st.t == pytest.approx(float(second[-1].t[-1]), abs=1e-9)
+    assert "man_down" not in {a for s in st1 + st2 for a in s.alarms}
+
+
+def test_a_new_device_for_the_same_responder_continues_the_track():
+    w = walk(seconds=60.0, seed=4)
+    core = IncidentCore(CFG)
+    run(core, at_rate(w.frames[:300], 100.0))
+    steps = core.responders["ff1"].tracker.steps
+    other = restamped(w.frames[320:], dt=123456.0, device="spare-phone", boot="x", seq0=7)
+    run(core, at_rate(other, 100.0 + 32.0))
+    r = core.responders["ff1"]
+    assert r.tracker.steps > steps and r.gate.device == "spare-phone" and r.gate.streams == 2
+
+
+def test_an_outage_is_counted_in_frames_and_seconds_and_raises_no_man_down():
+    w = walk(seconds=120.0, seed=5)
+    core = IncidentCore(CFG)
+    kept = [(f, 7000.0 + k * 0.1) for k, f in enumerate(w.frames) if not 500 <= k < 900]  # 40 s never arrive
+    poses, statuses = run(core, kept)
+    st = core.status_of(core.responders["ff1"], kept[-1][1])
+    assert st.lost == 400 and st.gaps == 1 and st.gap_s == pytest.approx(40.0, abs=0.02)
+    assert not any("man_down" in s.alarms for s in statuses)
+    assert core.counters.errors == 0
+
+
+def test_stillness_across_an_outage_is_no_man_down_until_seen_for_the_no_motion_time():
+    settings = WalkerSettings(rate_hz=RATE_HZ)
+    w = SimulatedWalker("ff1", None, settings, 6, start_t=0.0, floors=(0, 0), attitude=False)
+    w.stand_still(math.inf, at=30.0)  # stops at 30 s for good: still, upright, only sensor noise
+    b = w.next_batch(int(150 * RATE_HZ))
+    frames = list(wire.imu_batches_from_arrays("ff1", "p", b.t, b.acc, b.gyr, b.mag, b.pressure_t, b.pressure,
+                                               carry="handheld", per_batch=PER_FRAME, boot="b"))
+    # frames 35 s .. 75 s are lost: the stillness before the outage is not seen through it
+    kept = [(f, 100.0 + k * 0.1) for k, f in enumerate(frames) if not 350 <= k < 750]
+    core = IncidentCore(CFG)
+    _, statuses = run(core, kept)
+    down = [s.last_heard - 100.0 for s in statuses if "man_down" in s.alarms]
+    # only after 30 s of stillness seen in frames after the outage (75 s + 30 s), not at 60 s
+    assert down and min(down) >= 105.0 - 0.5
+    # without the outage the same stillness raises it 30 s after it began (the reference)
+    core2 = IncidentCore(CFG)
+    _, st2 = run(core2, [(f, 100.0 + k * 0.1) for k, f in enumerate(frames)])
+    down2 = [s.last_heard - 100.0 for s in st2 if "man_down" in s.alarms]
+    assert down2 and min(down2) < 70.0
+
+
+def _gnss_at(core, x, y, t, accuracy=3.0):
+    lat, lon, _ = core.incident.to_geodetic(x, y)
+    return wire.Fix.gnss("ff1", t, lat=float(lat), lon=float(lon), accuracy=accuracy)
+
+
+@pytest.mark.parametrize("gap_reanchor_s", [2.0, math.inf])
+def test_a_fix_after_a_gap_re_anchors_the_track(gap_reanchor_s):
+    """After 40 s without frames the walker can be anywhere within a brisk walk: a GNSS fix 25 m
+    from the dead-reckoned position is taken (and moves the track) when the gap widens the
+    position, and gated away as an outlier when gaps are ignored (the control)."""
+    w = walk(seconds=110.0, seed=7)
+    core = IncidentCore(CFG, CoreSettings(gap_reanchor_s=gap_reanchor_s))
+    start = wire.Fix.checkpoint("ff1", float(w.t[0]), x=float(w.x[0]), y=float(w.y[0]), floor=0, sigma=0.3)
+    kept = [(f, 100.0 + k * 0.1) for k, f in enumerate(w.frames) if not 400 <= k < 800]
+    head, tail = kept[:450], kept[450:]  # 5 s of walking after the gap, then the fix
+    poses, _ = run(core, head, fixes=[(99.0, start)])
+    last = poses[-1]
+    fix = _gnss_at(core, last.x + 25.0, last.y, last.t)
+    out = _poses(core.feed(Inbound("fix", wire.key(CFG.id, "ff1", "fix"), wire.encode(fix), head[-1][1] + 0.01)))
+    tr = core.responders["ff1"].tracker
+    if math.isfinite(gap_reanchor_s):
+        assert last.cov[0, 0] > 1000.0  # the gap: the position is anyone's guess within a brisk walk
+        assert tr.fix_rejects == {} and out and out[-1].cov[0, 0] < 20.0  # taken: the fix anchors it again
+        sm = core.track("ff1")["track"]  # the graph's estimate (the published pose closes in step by step)
+        assert math.hypot(sm["x"][-1] - (last.x + 25.0), sm["y"][-1] - last.y) < 3.0
+    else:
+        assert tr.fix_rejects.get("gnss_gate") == 1 and not out
+    run(core, tail)
+    assert core.counters.errors == 0
+
+
+def test_device_time_fixes_follow_the_stream_clock():
+    """A checkpoint stamped on the new stream's device clock lands at that moment of the track."""
+    w = walk(seconds=70.0, seed=8)
+    core = IncidentCore(CFG)
+    run(core, at_rate(w.frames[:300], 10.0))
+    second = restamped(w.frames[320:], dt=-float(w.frames[320].t[0]), seq0=0, boot="b2")  # clock from 0
+    run(core, at_rate(second[:200], 10.0 + 32.0))
+    r = core.responders["ff1"]
+    now_device = float(second[199].t[-1])
+    cp = wire.Fix.checkpoint("ff1", now_device - 0.5, x=3.0, y=4.0, floor=0, sigma=0.3)
+    out = _poses(core.feed(Inbound("fix", wire.key(CFG.id, "ff1", "fix"), wire.encode(cp), 10.0 + 32.0 + 20.0)))
+    # taken at once (on the track's clock it is 0.5 s old; read as track time it would be ~1000 s old)
+    assert r.fixes_rejected == {} and r.tracker.fix_rejects == {} and r.tracker.fixes_queued == 0
+    assert out and math.hypot(out[-1].x - 3.0, out[-1].y - 4.0) < 1.5
