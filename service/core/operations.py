@@ -1,0 +1,143 @@
+"""Presence, orders and acknowledgements, the access policy, operator actions and their audit.
+
+A mixin of :class:`service.core.incident_core.IncidentCore` (its state and settings).
+"""
+from __future__ import annotations
+
+import logging
+
+from service.core.core_types import (
+    MAX_EARLY_ACKS,
+    Outbound,
+)
+from service.protocol import wire
+
+log = logging.getLogger("firetrack.service")
+
+
+class OperatorDesk:
+    """Presence, orders and acknowledgements, access policy and operator actions with their audit."""
+
+    def _on_presence(self, key: str, payload: bytes) -> None:
+        try:
+            _, rid, _ = wire.parse_key(key)
+        except ValueError:
+            return
+        if rid in self._revoked:
+            self._refuse_revoked(rid, key)
+            return
+        alive = payload == b"1"
+        r = self.responders.get(rid)
+        if r is not None:
+            r.present = alive
+        else:
+            self._presence[rid] = alive
+            while len(self._presence) > self.MAX_PRESENCE:
+                del self._presence[next(iter(self._presence))]
+        log.info("wearable of %s %s", rid, "connected" if alive else "disconnected")
+
+    def _on_command(self, kind: str, key: str, payload: bytes, now: float) -> None:
+        """An order to a wearable (roll call, evacuation) or its acknowledgement: kept per
+        responder and action, so Status says who has not answered."""
+        try:
+            _, rid, _ = wire.parse_key(key)
+            if kind == "ack" and rid in self._revoked:
+                self._refuse_revoked(rid, key)
+                return
+            msg = wire.decode(payload, expect=wire.Command if kind == "command" else wire.Ack)
+        except (ValueError, wire.WireError) as e:
+            self.unattributed[f"{kind}_invalid"] = self.unattributed.get(f"{kind}_invalid", 0) + 1
+            log.warning("rejected a %s on %r: %s", kind, key, e)
+            return
+        r = self.responders.get(rid)
+        if r is None or msg.responder != rid:
+            self.unattributed[f"{kind}_unknown_responder"] = self.unattributed.get(f"{kind}_unknown_responder", 0) + 1
+            return
+        if kind == "command":  # an acknowledgement may have overtaken its order (other key, other path)
+            early = r.early_acks.pop((msg.action, msg.id), None)
+            r.commands[msg.action] = {"id": msg.id, "issued_at": msg.issued_at, "issued_by": msg.issued_by,
+                                      "acked_at": early}
+            log.info("%s: %s %s issued by %s", rid, msg.action, msg.id, msg.issued_by or "?")
+            return
+        order = r.commands.get(msg.action)
+        if order is not None and order["id"] == msg.id:
+            if order["acked_at"] is None:
+                order["acked_at"] = msg.at
+                log.info("%s acknowledged %s %s", rid, msg.action, msg.id)
+        elif len(r.early_acks) < MAX_EARLY_ACKS:
+            r.early_acks[(msg.action, msg.id)] = msg.at
+
+    def _on_access(self, payload: bytes) -> None:
+        try:
+            acc = wire.decode(payload, expect=wire.Access)
+        except wire.WireError as e:  # the service's own message: a bug, loud
+            self.counters.errors += 1
+            log.error("access policy not understood, the previous one stays: %s", e)
+            return
+        first = self.access == wire.Access(enforce=False)
+        self.access = acc
+        self._revoked = frozenset(acc.revoked) if acc.enforce else frozenset()
+        self._refused_logged.clear()
+        log.log(logging.INFO if first else logging.WARNING, "access policy%s: %s",
+                f" from {acc.source}" if acc.source else "",
+                    (f"operators {', '.join(acc.operators) or 'none'}; revoked {', '.join(acc.revoked) or 'none'}")
+                    if acc.enforce else "open (nothing enforced)")
+
+    def _refuse_revoked(self, ident: str, key: str) -> None:
+        self.unattributed["revoked"] = self.unattributed.get("revoked", 0) + 1
+        if ident not in self._refused_logged:
+            self._refused_logged.add(ident)
+            log.warning("refused %s: %s is revoked", key, ident)
+
+    def _on_op(self, key: str, payload: bytes, now: float) -> None:
+        """An operator action: refused unless the actor may act (and is not revoked); a fix
+        goes to its responder's tracker; every action is answered with an Audit."""
+        try:
+            _, actor, _ = wire.parse_key(key)
+        except ValueError as e:
+            self.unattributed["bad_key"] = self.unattributed.get("bad_key", 0) + 1
+            log.warning("rejected an action on %r: %s", key, e)
+            return
+        try:
+            op = wire.decode(payload, expect=wire.OperatorAction)
+        except wire.WireError as e:
+            self.unattributed[f"op_{e.reason}"] = self.unattributed.get(f"op_{e.reason}", 0) + 1
+            log.warning("rejected an action of %s: %s", actor, e)
+            return
+        base = dict(actor=actor, operator=op.operator, action=op.action, responder=op.responder, utc=op.utc,
+                    received=now, order=op.order)
+        acc = self.access
+        if acc.enforce and (actor in self._revoked or actor not in acc.operators):
+            reason = "revoked" if actor in self._revoked else "unauthorised"
+            log.warning("refused a %s action of %s (%s): %s", op.action, actor, op.operator, reason)
+            self._audit(wire.Audit(outcome="refused", reason=reason,
+                                   detail=f"{actor} {'is revoked' if reason == 'revoked' else 'may not act as an operator'}",
+                                   **base))
+            return
+        if op.action != "fix":
+            log.info("%s (%s): %s %s", actor, op.operator, op.action, op.responder or op.name or op.order or "")
+            self._audit(wire.Audit(outcome="recorded", **base))
+            return
+        try:
+            fix = wire.decode(op.fix, expect=wire.Fix)
+        except wire.WireError as e:
+            self._audit(wire.Audit(outcome="refused", reason="schema", detail=e.detail[:500], **base))
+            return
+        r = self.responders.get(op.responder)
+        if fix.responder != op.responder or r is None or op.responder in self._revoked:
+            reason, detail = (("schema", f"the fix is for {fix.responder!r}, the action for {op.responder!r}")
+                              if fix.responder != op.responder else
+                              ("revoked", f"{op.responder} is revoked") if op.responder in self._revoked else
+                              ("unknown_responder", f"no frame of {op.responder!r} has been taken yet"))
+            self._audit(wire.Audit(outcome="refused", reason=reason, detail=detail, **base))
+            return
+        outcome, reason, detail, verdict = self._take_fix(r, fix)
+        flagged = verdict is not None and verdict.implausible
+        self._audit(wire.Audit(outcome=outcome, reason=reason, detail=detail, t=fix.t,
+                               flags=["implausible_jump"] if flagged else [],
+                               jump_m=verdict.jump_m if verdict is not None else None,
+                               walkable_m=verdict.walkable_m if verdict is not None else None, **base))
+
+    def _audit(self, a: wire.Audit) -> None:
+        self.audits += 1
+        self._out.append(Outbound(wire.key(self.id, a.actor, "audit"), a))

@@ -1,0 +1,115 @@
+"""Poses out (local ENU and WGS-84, a round at a time) and snapshots of the whole core.
+
+A mixin of :class:`service.core.incident_core.IncidentCore` (its state and settings).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from typing import Self
+
+import numpy as np
+
+from pdr.events import bearing_deg
+from service.core import snapshot as snapshots
+from service.core.core_types import (
+    CoreSettings,
+    Outbound,
+)
+from service.core.responder import Responder
+from service.core.tracker import (
+    PoseEstimate,
+)
+from service.protocol import wire
+from service.protocol.incident import IncidentConfig
+
+log = logging.getLogger("firetrack.service")
+
+
+class PoseOutput:
+    """Poses out (local ENU and WGS-84, a round at a time) and snapshots of the whole core."""
+
+    def _answer_pose(self, r: Responder, p: PoseEstimate) -> None:
+        """A pose to answer: its place in the output is kept, its wire form is made for all the
+        round's poses at once (one geodetic conversion, :meth:`_emit_poses`)."""
+        self._pose_queue.append((len(self._out), r, p, max(r.seq, 0), self._now, r.utc_offset))
+        self._out.append(None)
+        r.poses += 1
+
+    def _emit_poses(self) -> None:
+        q, self._pose_queue = self._pose_queue, []
+        if not q:
+            return
+        try:
+            lat, lon = self._geodetic(np.array([e[2].x for e in q], float), np.array([e[2].y for e in q], float))
+            lat, lon = lat.tolist(), lon.tolist()
+        except Exception:
+            self.counters.errors += 1
+            log.exception("geodetic position of %d poses", len(q))
+            lat = lon = [math.nan] * len(q)
+        for (i, r, p, seq, now, utc_offset), la, lo in zip(q, lat, lon):
+            try:
+                self._out[i] = Outbound(wire.key(self.id, r.id, "pose"), self._pose(r, p, la, lo, seq, now, utc_offset))
+            except Exception:  # a pose that is not a valid message is dropped, counted and logged
+                self.counters.errors += 1
+                log.exception("pose of %s", r.id)
+        if any(o is None for o in self._out):
+            self._out = [o for o in self._out if o is not None]
+
+    def _geodetic(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """ENU -> (lat, lon) for arrays: every pose the same bits whether converted alone or among many."""
+        lat, lon, _ = self.incident.to_geodetic(x, y, np.zeros_like(x))
+        return np.atleast_1d(lat), np.atleast_1d(lon)
+
+    def pose_message(self, r: Responder, p: PoseEstimate) -> wire.Pose:
+        """The wire form of a pose: geodetic position, compass bearing, symmetric covariance;
+        ``published_at`` is the core's time, which the shell restamps when it publishes."""
+        lat, lon = self._geodetic(np.array([p.x], float), np.array([p.y], float))
+        return self._pose(r, p, float(lat[0]), float(lon[0]), max(r.seq, 0), self._now, r.utc_offset)
+
+    @staticmethod
+    def _pose(r: Responder, p: PoseEstimate, lat: float, lon: float, seq: int, now: float, utc_offset) -> wire.Pose:
+        cov = np.asarray(p.cov, float)
+        cov = 0.5 * (cov + cov.T)
+        t = p.t - r.t_offset  # on the current stream's device clock, like every time on the wire
+        return wire.Pose(
+            responder=r.id, t=t, x=p.x, y=p.y, floor=int(p.floor), lat=lat, lon=lon,
+            heading_deg=bearing_deg(p.heading) if math.isfinite(p.heading) else 0.0, cov=cov, steps=p.steps,
+            source=p.source, seq=seq, published_at=now,
+            utc=None if utc_offset is None else t + utc_offset,
+        )
+
+    def snapshot(self) -> bytes:
+        """The core's state as bytes (between rounds): every responder (gate, motion model,
+        estimator, counters), the intake's budgets and the counters. Not the incident config or
+        the settings: :meth:`restore` takes those from the caller."""
+        if self._dirty or any(r.backlog for r in self.responders.values()):
+            self._run_dirty()  # between rounds nothing waits; make sure
+        state = {"incident": self.id, "responders": self.responders, "unattributed": self.unattributed,
+                 "counters": self.counters, "presence": self._presence, "intake": self.intake, "now": self._now,
+                 "access": self.access, "early_rejects": self._early_rejects, "fleet": self.fleet,
+                 "expiry_checked": self._expiry_checked}
+        return snapshots.dumps(state)
+
+    @classmethod
+    def restore(cls, blob: bytes, incident: IncidentConfig, settings: CoreSettings | None = None) -> Self:
+        """A core that goes on from :meth:`snapshot`'s bytes (taken by a core of the same incident)."""
+        core = cls(incident, settings)
+        state = snapshots.loads(blob)
+        if state.get("incident") != core.id:
+            raise ValueError(f"the snapshot is of incident {state.get('incident')!r}, not {core.id!r}")
+        core.responders = state["responders"]
+        core.unattributed = state["unattributed"]
+        core.counters = state["counters"]
+        core._presence = state["presence"]
+        intake = state["intake"]
+        intake.settings = core.settings.intake  # today's budgets over yesterday's counts
+        core.intake = intake
+        core._now = state["now"]
+        core._expiry_checked = state["expiry_checked"]
+        acc = state["access"]
+        core.access, core._revoked = acc, frozenset(acc.revoked) if acc.enforce else frozenset()
+        core._early_rejects = state["early_rejects"]
+        if state["fleet"] is not None:  # the restored handheld trackers' slots live in it: new ones join it
+            core.fleet = state["fleet"]
+        return core
