@@ -180,8 +180,9 @@ class SimulationPublisher:
                 if offset[i] is None:
                     offset[i] = time.time() - float(b.t[0])
                 r = self.wearables[i].responder
-                row.append(wire.encode(wire.ImuBatch(responder=r, device=f"sim:{r}", seq=int(self.seq[i]) + k, t=b.t,
-                                                     utc_offset=offset[i], **self.boots.signals(i, b))))
+                row.append(wire.encode(wire.ImuBatch(responder=r, device=f"sim:{r}", boot=self.wearables[i].boot,
+                                                     seq=int(self.seq[i]) + k, t=b.t, utc_offset=offset[i],
+                                                     **self.boots.signals(i, b))))  # as Wearable.send stamps it
             out.append(row)
         return out
 

@@ -50,7 +50,9 @@ import zenoh.ext as zext
 from service.core.incident_core import CoreSettings, Inbound, IncidentCore, Outbound
 from service.protocol import wire
 from service.protocol.incident import IncidentConfig
+from service.shell.round_intake import RoundIntake
 from service.shell.sharding import in_shard
+from service.shell.snapshots import SnapshotWriter, return_memory
 
 log = logging.getLogger("firetrack.service")
 
@@ -69,7 +71,7 @@ class ServiceSettings:
     warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
 
 
-class IncidentService:
+class IncidentService(RoundIntake, SnapshotWriter):
     """The service of one incident on an open zenoh session: ``start()``, ``close()``."""
 
     def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
@@ -309,62 +311,6 @@ class IncidentService:
             if stop:
                 return
 
-    def _take_frames(self, limit: int | None) -> list[Inbound]:
-        """Frames, then fixes, waiting in zenoh's channels for this worker's responders, each
-        through the intake (by key and size, before its payload is copied) and stamped as taken."""
-        out: list[Inbound] = []
-        for kind, sub in (("imu", self._imu), ("fix", self._fix)):
-            if sub is None:
-                continue
-            self._take_from(kind, sub, out, limit)
-        return out
-
-    def _take_from(self, kind: str, sub, out: list[Inbound], limit: int | None) -> None:
-        admit, clock, mine = self.core.admit, self.clock, self._mine
-        while limit is None or len(out) < limit:
-            try:
-                sample = sub.try_recv()
-            except zenoh.ZError:  # undeclared (closing)
-                break
-            if sample is None:
-                break
-            key = str(sample.key_expr)
-            if not mine(key):
-                continue
-            payload = sample.payload
-            now = clock()
-            if admit(kind, key, len(payload), now) is None:
-                out.append(Inbound(kind, key, payload.to_bytes(), now))
-
-    def _take_queued(self, items: list[Inbound], wait: float) -> tuple[int, int, bool]:
-        """Append what the callbacks queued to ``items``, waiting up to ``wait`` s for the
-        first. Returns how many queue entries were taken, how many were ticks, and whether one
-        asked the worker to stop (the frames still in the channel are then taken too)."""
-        try:
-            pending = [self._queue.get(timeout=wait) if wait > 0 else self._queue.get_nowait()]
-        except queue.Empty:
-            return 0, 0, False
-        while len(items) + len(pending) < self.settings.max_round:
-            try:
-                pending.append(self._queue.get_nowait())
-            except queue.Empty:
-                break
-        stop = None in pending
-        ticks = 0
-        for p in pending:
-            if p is None:
-                continue
-            if p[0] == "tick":
-                ticks += 1
-            elif p[0] in ("command", "ack", "op"):  # from the network: through the intake like frames
-                now = self.clock()
-                if self.core.admit(p[0], p[1], len(p[2]), now) is None:
-                    items.append(Inbound(*p, now))
-            else:  # presence (liveliness), access (this process's own policy)
-                items.append(Inbound(*p, self.clock()))
-        if stop:
-            items += self._take_frames(None)
-        return len(pending), ticks, stop
 
     def _run_round(self, items: list[Inbound], ticks: int) -> None:
         started = time.perf_counter()
@@ -381,7 +327,7 @@ class IncidentService:
                 self._forget_publishers()
                 if self.core.counters.expired != self._expired_seen:
                     self._expired_seen = self.core.counters.expired
-                    _return_memory()
+                    return_memory()
             self._snapshot_if_due()
         finally:
             self.busy_s += time.perf_counter() - started
@@ -395,45 +341,6 @@ class IncidentService:
             except Exception:
                 pass
 
-    def _snapshot_if_due(self) -> None:
-        """The core's snapshot into the state file beside the recording, every ``snapshot_every_s``,
-        once the recording holds everything the core has seen (a failure is logged once and
-        the service goes on: the recording alone still lets ``serve`` resume)."""
-        sf = self.state_file
-        now = time.monotonic()
-        if sf is None or self.recorder is None or self.recorder_error is not None or self.snapshot_error is not None \
-                or now - self._last_snapshot < self.settings.snapshot_every_s:
-            return
-        if self._snapshot_writer is not None and self._snapshot_writer.is_alive():
-            self.snapshots_skipped += 1  # the disk is slower than the snapshots: the next one will do
-            return
-        self._last_snapshot = now
-        try:
-            with self._rec_lock:
-                self.recorder.flush()  # everything fed so far is in the file before the snapshot says so
-                position = self.recorder.message_count
-            with self._core_lock:
-                blob = self.core.snapshot()
-        except Exception as e:
-            self._snapshot_failed(sf, e)
-            return
-        # writing and fsyncing megabytes is the disk's time, not the worker's: a thread of its own
-        # (the state file is replaced whole, so a crash meanwhile leaves the previous snapshot)
-        self._snapshot_writer = threading.Thread(target=self._write_snapshot, args=(sf, blob, position, self.clock()),
-                                                 daemon=True, name="snapshot-writer")
-        self._snapshot_writer.start()
-
-    def _write_snapshot(self, sf, blob: bytes, position: int, now: float) -> None:
-        try:
-            sf.write(blob, position, now)
-            self.snapshots += 1
-        except Exception as e:
-            self._snapshot_failed(sf, e)
-
-    def _snapshot_failed(self, sf, e: Exception) -> None:
-        self.snapshot_error = str(e)
-        log.error("writing the snapshot %s failed; no more snapshots (a restart replays the recording): %s",
-                  getattr(sf, "path", sf), e)
 
     # ------------------------------------------------------------------ output
     def _publish(self, out: list[Outbound]) -> None:
@@ -478,19 +385,6 @@ class IncidentService:
         except Exception as e:  # a full disk must be loud, not silent
             self.recorder_error = str(e)
             log.error("recording failed, the incident is no longer being recorded: %s", e)
-
-
-def _return_memory() -> None:
-    """After responders left: collect their cycles and hand the freed heap back to the operating
-    system (glibc keeps freed small blocks otherwise, and the process would look as big as at
-    its peak). A no-op where there is no glibc."""
-    gc.collect()
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
 
 
 decode_track = wire.decode_track  # the reply format lives with the wire format

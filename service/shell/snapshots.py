@@ -1,0 +1,70 @@
+"""Snapshots of the core on the service's schedule: taken by the worker, written and fsynced by a
+thread of their own (issue 20, restart recovery).
+
+A mixin of :class:`service.shell.service.IncidentService`.
+"""
+from __future__ import annotations
+
+import gc
+import logging
+import threading
+import time
+
+log = logging.getLogger("firetrack.service")
+
+
+class SnapshotWriter:
+    """The core's snapshots: taken by the worker, written by a thread of their own."""
+
+    def _snapshot_if_due(self) -> None:
+        """The core's snapshot into the state file beside the recording, every ``snapshot_every_s``,
+        once the recording holds everything the core has seen (a failure is logged once and
+        the service goes on: the recording alone still lets ``serve`` resume)."""
+        sf = self.state_file
+        now = time.monotonic()
+        if sf is None or self.recorder is None or self.recorder_error is not None or self.snapshot_error is not None \
+                or now - self._last_snapshot < self.settings.snapshot_every_s:
+            return
+        if self._snapshot_writer is not None and self._snapshot_writer.is_alive():
+            self.snapshots_skipped += 1  # the disk is slower than the snapshots: the next one will do
+            return
+        self._last_snapshot = now
+        try:
+            with self._rec_lock:
+                self.recorder.flush()  # everything fed so far is in the file before the snapshot says so
+                position = self.recorder.message_count
+            with self._core_lock:
+                blob = self.core.snapshot()
+        except Exception as e:
+            self._snapshot_failed(sf, e)
+            return
+        # writing and fsyncing megabytes is the disk's time, not the worker's: a thread of its own
+        # (the state file is replaced whole, so a crash meanwhile leaves the previous snapshot)
+        self._snapshot_writer = threading.Thread(target=self._write_snapshot, args=(sf, blob, position, self.clock()),
+                                                 daemon=True, name="snapshot-writer")
+        self._snapshot_writer.start()
+
+    def _write_snapshot(self, sf, blob: bytes, position: int, now: float) -> None:
+        try:
+            sf.write(blob, position, now)
+            self.snapshots += 1
+        except Exception as e:
+            self._snapshot_failed(sf, e)
+
+    def _snapshot_failed(self, sf, e: Exception) -> None:
+        self.snapshot_error = str(e)
+        log.error("writing the snapshot %s failed; no more snapshots (a restart replays the recording): %s",
+                  getattr(sf, "path", sf), e)
+
+
+def return_memory() -> None:
+    """After responders left: collect their cycles and hand the freed heap back to the operating
+    system (glibc keeps freed small blocks otherwise, and the process would look as big as at
+    its peak). A no-op where there is no glibc."""
+    gc.collect()
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
