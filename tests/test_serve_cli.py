@@ -197,7 +197,14 @@ def test_the_systemd_unit_restarts_serve_after_sigkill_on_its_fixed_recording_pa
                 time.sleep(0.02)
 
         send(50)
-        assert wait_until(state.exists, 30)  # a snapshot beside the recording
+        from service.review.resume import StateFile
+
+        def snapshot_holds_the_frames():  # a snapshot beside the recording, taken after the 50 frames
+            try:
+                return StateFile.read(state)["position"] >= 50
+            except (OSError, ValueError):
+                return False
+        assert wait_until(snapshot_holds_the_frames, 30, 0.2)
         proc.kill()  # SIGKILL
         assert proc.wait(10) == -signal.SIGKILL
         time.sleep(float(settings["RestartSec"]))
