@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import contextlib
 import cProfile
+import dataclasses
 import io
 import multiprocessing as mp
 import os
@@ -102,7 +103,7 @@ WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers 
 # profile sums, for the columnar rounds (pdr/fleet*) and for one-responder-at-a-time
 # pipelines (pdr/pipeline.py and its stage classes) alike, so one table compares both.
 STAGES: dict[str, tuple[tuple[str, str], ...]] = {
-    "zenoh take": (("service/shell/service.py", "_take_frames"), ("service/shell/service.py", "_take_queued")),
+    "zenoh take": (("service/shell/round_intake.py", "_take_frames"), ("service/shell/round_intake.py", "_take_queued")),
     "decode": (("service/protocol/codec.py", "decode"),),
     "frame gate": (("service/core/gate.py", "offer"), ("service/core/gate.py", "expire")),
     "heading (AHRS, bias, compass, per step)": (
@@ -118,11 +119,11 @@ STAGES: dict[str, tuple[tuple[str, str], ...]] = {
                               ("pdr/pipeline.py", "finish")),
     "fusion (graph, dead reckoning)": (("service/fusion/estimators.py", "add_step"), ("service/fusion/estimators.py", "add_fix"),
                                        ("service/fusion/estimators.py", "set_floor"), ("service/fusion/estimators.py", "flush")),
-    "pose message": (("service/core/incident_core.py", "_emit_poses"), ("service/core/incident_core.py", "pose_message")),
+    "pose message": (("service/core/pose_output.py", "_emit_poses"), ("service/core/pose_output.py", "pose_message")),
     "status": (("service/core/incident_core.py", "status_of"),),
     "publish (encode, put)": (("service/shell/service.py", "_publish"),),
-    "worker total": (("service/shell/service.py", "_run_round"), ("service/shell/service.py", "_take_frames"),
-                     ("service/shell/service.py", "_take_queued")),
+    "worker total": (("service/shell/service.py", "_run_round"), ("service/shell/round_intake.py", "_take_frames"),
+                     ("service/shell/round_intake.py", "_take_queued")),
 }
 
 
@@ -143,7 +144,7 @@ def stage_table(stats: pstats.Stats, frames: int, steps: int) -> dict[str, dict[
                 totals[stage] += cum
         if path.endswith("queue.py") and func == "get":
             idle += sum(c[3] for (cpath, _, cfunc), c in callers.items()
-                        if cpath.replace("\\", "/").endswith("service/shell/service.py") and cfunc == "_take_queued")
+                        if cpath.replace("\\", "/").endswith("service/shell/round_intake.py") and cfunc == "_take_queued")
     for k in IDLE_STAGES:
         totals[k] -= idle
     totals["idle (waiting for input)"] = idle
@@ -187,13 +188,20 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
             acl, access = access_control(roster, cfg.id), access_message(roster)
         session = open_session([endpoint], tls=svc_id, acl=acl)
         done.callback(session.close)
-        svc = IncidentService(session, cfg, ServiceSettings(), shard=(0, workers), access=access,
+        # the crew is known: admit all of it at once, as `serve --admit-burst N` (or a roster) would at an incident
+        # of that size (the default budget, 256 new ids at once then 2/s, is for an unknown crowd)
+        base = ServiceSettings()
+        settings = dataclasses.replace(base, core=dataclasses.replace(base.core, intake=dataclasses.replace(
+            base.core.intake, admit_burst=max(base.core.intake.admit_burst, responders),
+            max_responders=max(base.core.intake.max_responders, responders))))
+        svc = IncidentService(session, cfg, settings, shard=(0, workers), access=access,
                               actor=svc_id.name if svc_id else "service")
         svc.pose_hook = lambda rid, msg, oldest: poses.append((rid, oldest, msg.published_at))
         svc.profiler = prof
         done.callback(svc.close)
         svc.start()
-        pool = WorkerPool(endpoint, cfg, workers, stats_dir, log_poses=True, tls_dir=str(svc_id.dir) if tls else None,
+        pool = WorkerPool(endpoint, cfg, workers, stats_dir, log_poses=True, settings=settings,
+                          tls_dir=str(svc_id.dir) if tls else None,
                           roster=str(Path(stats_dir) / "pki" / "roster.json") if tls else None)
         done.callback(pool.close)
         if not pool.wait_ready(120):

@@ -212,7 +212,8 @@ class running_service:
 
             ep = (self.connect or self.listen or [default_endpoint(tls)])[0].replace("0.0.0.0", "127.0.0.1")
             pool = WorkerPool(ep, self.cfg, self.workers, tls_dir=str(tls.dir) if tls is not None else None,
-                              roster=str(sec.roster_path) if sec is not None and sec.roster_path else None)
+                              roster=str(sec.roster_path) if sec is not None and sec.roster_path else None,
+                              settings=self.settings)
             self._closers.append(pool.close)
             if not pool.wait_ready(60):
                 err.print("[yellow]warning:[/] not every worker process started within 60 s")

@@ -19,7 +19,7 @@ from pathlib import Path
 
 def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop, ready, stats_path: str | None,
                 log_poses: bool = False, tls_dir: str | None = None,
-                roster: str | None = None) -> None:  # pragma: no cover - runs in a child process
+                roster: str | None = None, settings=None) -> None:  # pragma: no cover - runs in a child process
     import signal
 
     from service.protocol.incident import incident_from_dict
@@ -38,7 +38,7 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
 
         access = access_message(load_roster(roster), roster)
     session = open_client(endpoint, tls=tls)
-    svc = IncidentService(session, cfg, shard=(k, n), access=access, actor=tls.name if tls else "service")
+    svc = IncidentService(session, cfg, settings, shard=(k, n), access=access, actor=tls.name if tls else "service")
     if roster is not None:
         from service.protocol.access import RosterWatcher
 
@@ -80,7 +80,7 @@ class WorkerPool:
     """Workers 1..K-1 of an incident (worker 0 is the caller's own IncidentService)."""
 
     def __init__(self, endpoint: str, cfg, n: int, stats_dir: str | None = None, log_poses: bool = False,
-                 tls_dir: str | None = None, roster: str | None = None):
+                 tls_dir: str | None = None, roster: str | None = None, settings=None):
         self.ctx = mp.get_context("spawn")
         self.stop = self.ctx.Event()
         self.procs = []
@@ -91,7 +91,8 @@ class WorkerPool:
             ready = self.ctx.Event()
             path = str(Path(stats_dir) / f"worker{k}.json") if stats_dir else None
             p = self.ctx.Process(target=worker_main,
-                                 args=(endpoint, config, base, k, n, self.stop, ready, path, log_poses, tls_dir, roster),
+                                 args=(endpoint, config, base, k, n, self.stop, ready, path, log_poses, tls_dir, roster,
+                                       settings),  # the same ServiceSettings as worker 0 (intake, expiry, ...)
                                  name=f"firetrack-worker-{k}", daemon=True)
             p.start()
             self.procs.append((p, ready))
