@@ -448,12 +448,17 @@ VALID = [encode(imu(n=5, mag=np.ones((5, 3)), pressure_t=[99.0], pressure=[970.0
 @given(st.sampled_from(VALID), st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)), min_size=1, max_size=6),
        st.integers(0, 10**6), st.booleans())
 def test_fuzz_mutated_valid_payloads(payload, flips, cut, truncate):
+    decode_only_wire_errors(mutated(payload, flips, cut, truncate))
+
+
+def mutated(payload: bytes, flips, cut: int, truncate: bool) -> bytes:
+    """``payload`` with bytes overwritten at ``flips`` (position, byte) and, if ``truncate``, cut short."""
     data = bytearray(payload)
     for pos, byte in flips:
         data[pos % len(data)] = byte
     if truncate:
         data = data[: cut % (len(data) + 1)]
-    decode_only_wire_errors(bytes(data))
+    return bytes(data)
 
 
 msgpack_values = st.recursive(
@@ -638,12 +643,7 @@ IMU_VALID = [encode(imu(n=5, mag=np.ones((5, 3)), pressure_t=[99.0], pressure=[9
 @given(st.sampled_from(IMU_VALID), st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)), min_size=1, max_size=6),
        st.integers(0, 10**6), st.booleans())
 def test_fast_path_answers_mutated_frames_as_the_schema(payload, flips, cut, truncate):
-    data = bytearray(payload)
-    for pos, byte in flips:
-        data[pos % len(data)] = byte
-    if truncate:
-        data = data[: cut % (len(data) + 1)]
-    same_answer_fast_and_schema(bytes(data))
+    same_answer_fast_and_schema(mutated(payload, flips, cut, truncate))
 
 
 @settings(max_examples=600)
