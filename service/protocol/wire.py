@@ -43,6 +43,7 @@ a key-expression separator or wildcard (``/``, ``*``, ``$``, ``#``, ``?``).
 from __future__ import annotations
 
 from service.protocol.actions import ACTIONS, Access, Audit, OperatorAction  # noqa: F401
+from service.protocol.batches import imu_batches_from_arrays  # noqa: F401
 from service.protocol.codec import (  # noqa: F401
     TRACK_FIELDS,
     decode,
@@ -60,8 +61,8 @@ from service.protocol.fixes import (  # noqa: F401
     register_fix_message,
 )
 from service.protocol.keys import (  # noqa: F401
-    ID_PATTERN,
     ACTOR_KINDS,
+    ID_PATTERN,
     KEY_KINDS,
     KEY_ROOT,
     is_valid_id,
@@ -87,5 +88,4 @@ from service.protocol.schema import (  # noqa: F401
     Status,
     WireError,
     WireMessage,
-    imu_batches_from_arrays,
 )
