@@ -54,3 +54,17 @@ def test_boot_streams_give_a_share_of_wearers_boot_signals_without_magnetometer_
     assert BootStreams(n, 0.0, rate, 1000.0, seed=2).count == 0
     with pytest.raises(ValueError, match="share of boot-mounted"):
         BootStreams(n, 1.5, rate, 1000.0, seed=2)
+
+
+def test_bench_decode_reports_both_paths_for_every_run():
+    import json
+
+    from typer.testing import CliRunner
+
+    from client.cli import app
+
+    r = CliRunner().invoke(app, ["bench", "decode", "--frames", "20", "--runs", "2"])
+    assert r.exit_code == 0, r.output
+    d = json.loads(r.stdout)
+    assert len(d["fast_path_us_per_frame"]) == 2 and len(d["schema_path_us_per_frame"]) == 2
+    assert all(x > 0 for x in d["fast_path_us_per_frame"] + d["schema_path_us_per_frame"])

@@ -136,3 +136,33 @@ def bench_zupt(
     err.print(f"INS + detector: {n / one:,.0f} samples/s at once, {m / live:,.0f} in batches of {batch}; "
               f"motion model {m / model:,.0f} samples/s in batches of {batch}")
     print_json(report)
+
+
+@app.command("decode")
+def bench_decode(
+    frames: int = typer.Option(20000, help="decodes per run"),
+    runs: int = typer.Option(5, help="runs; every run is reported"),
+):
+    """Time to decode and validate one live frame (10 samples at 100 Hz with magnetometer and
+    pressure, as a phone sends it), on the fast path (msgspec) and on the schema's own validation."""
+    from service.protocol import wire
+    from service.protocol.codec import _fast_imu, decode
+
+    rng = np.random.default_rng(0)
+    t = 1000.0 + np.arange(10) / 100.0
+    payload = wire.encode(wire.ImuBatch(
+        responder="ff1", device="phone-1", boot="b1", seq=7, t=t, acc=rng.normal(0, 1, (10, 3)) + [0, 0, 9.81],
+        gyr=rng.normal(0, 0.1, (10, 3)), mag=rng.normal(0, 30, (10, 3)), pressure_t=t[:1], pressure=np.array([1013.2]),
+        carry="handheld", utc_offset=1.7e9))
+    if _fast_imu(payload) is None:
+        raise RuntimeError("the common frame did not take the fast path")
+    report = {"payload_bytes": len(payload), "frames_per_run": frames}
+    for name, fast in (("fast_path_us_per_frame", True), ("schema_path_us_per_frame", False)):
+        times = []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            for _ in range(frames):
+                decode(payload, expect=wire.ImuBatch, fast=fast)
+            times.append(round((time.perf_counter() - t0) / frames * 1e6, 3))
+        report[name] = times
+    print_json(report)
