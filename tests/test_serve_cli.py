@@ -221,3 +221,18 @@ def test_the_systemd_unit_restarts_serve_after_sigkill_on_its_fixed_recording_pa
             session.close()
         if proc.poll() is None:
             proc.kill()
+
+
+def test_without_a_config_an_install_without_the_demo_config_says_what_to_give(monkeypatch, tmp_path, capsys):
+    """A wearable-only install (no deploy/ folder) asked for the default incident: a clear error, not a missing path."""
+    import typer
+
+    from service.protocol import incident as incidents
+    from service.protocol.terminal import incident_or_exit
+
+    monkeypatch.setattr(incidents, "DEFAULT_INCIDENT_PATH", tmp_path / "nowhere" / "ipin-museum.json")
+    with pytest.raises(typer.Exit) as e:
+        incident_or_exit(None)
+    assert e.value.exit_code == 2
+    out = capsys.readouterr()
+    assert "--config FILE" in out.out + out.err

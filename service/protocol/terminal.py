@@ -135,12 +135,18 @@ def incident_or_exit(config, incident_id: str | None = None):
     when given; a clear error and exit code 2 when it cannot be read."""
     import typer
 
+    from service.protocol import incident as incidents
     from service.protocol.incident import (
         IncidentConfigError,
         default_incident,
         load_incident,
     )
 
+    if not config and not incidents.DEFAULT_INCIDENT_PATH.is_file():
+        fail("no incident config given, and this install has no demo config (deploy/incidents/ is not installed with "
+             "the package, e.g. a wearable's `pip install firetrack`): give --config FILE, the incident's config "
+             "from the command post")
+        raise typer.Exit(2)
     try:
         cfg = load_incident(config) if config else default_incident()
     except IncidentConfigError as e:
