@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import json
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +43,19 @@ def identity(d: Path, name: str) -> TlsIdentity:
 
 def tls_client(endpoint: str, ident: TlsIdentity) -> zenoh.Session:
     return open_client(endpoint, tls=ident)
+
+
+def matched_publisher(session: zenoh.Session, key: str, timeout: float = 10.0):
+    """A publisher on ``key`` once the service's subscription has reached it (zenoh drops what
+    is put before the route exists; on a loaded machine that takes a while)."""
+    pub = session.declare_publisher(key, reliability=zenoh.Reliability.RELIABLE,  # block, never drop, when
+                                    congestion_control=zenoh.CongestionControl.BLOCK)  # the loaded machine lags
+    deadline = time.monotonic() + timeout
+    while not pub.matching_status.matching:
+        if time.monotonic() > deadline:
+            raise AssertionError(f"no subscriber reached the publisher of {key} within {timeout} s")
+        time.sleep(0.02)
+    return pub
 
 
 def bare_tls_client(endpoint: str, ca: Path) -> zenoh.Session:

@@ -25,6 +25,7 @@ from tests.security_util import (
     bare_tls_client,
     identity,
     make_pki,
+    matched_publisher,
     secure_service,
     tls_client,
     walking_frames,
@@ -236,21 +237,23 @@ def test_a_revoked_identity_is_refused_while_the_service_runs(pkidir, tmp_path):
         console = tls_client(endpoint, identity(d, "console-1"))
         try:
             a, b = walking_frames("ff1", 4.0), walking_frames("ff2", 4.0)
+            p1, p2 = (matched_publisher(s, wire.key(INCIDENT, n, "imu")) for s, n in ((ff1, "ff1"), (ff2, "ff2")))
             for x, y in zip(a[:20], b[:20]):
-                ff1.put(wire.key(INCIDENT, "ff1", "imu"), wire.encode(x))
-                ff2.put(wire.key(INCIDENT, "ff2", "imu"), wire.encode(y))
-            assert wait_until(lambda: svc.frames_processed >= 40 and svc.wait_idle(0.2), 10)
+                p1.put(wire.encode(x))
+                p2.put(wire.encode(y))
+            assert wait_until(lambda: svc.frames_processed >= 40 and svc.wait_idle(0.2), 10), \
+                (svc.frames_processed, svc.frame_accounting(), svc.received, dict(svc.core.unattributed))
             pki.revoke(d, "ff2")
             pki.revoke(d, "console-1")
             svc.update_access(access_message(load_roster(d / "roster.json")))  # what the roster watcher does
             for x, y in zip(a[20:], b[20:]):
-                ff1.put(wire.key(INCIDENT, "ff1", "imu"), wire.encode(x))
-                ff2.put(wire.key(INCIDENT, "ff2", "imu"), wire.encode(y))
+                p1.put(wire.encode(x))
+                p2.put(wire.encode(y))
             console.put(wire.key(INCIDENT, "console-1", "op"), wire.encode(wire.OperatorAction(
                 action="fix", operator="bob", utc=time.time(), responder="ff1",
                 fix=wire.encode(wire.Fix.checkpoint("ff1", 1003.0, x=5.0, y=5.0)))))
             assert wait_until(lambda: svc.responders["ff1"].gate.accepted == len(a) and svc.received["op"] == 1
-                              and svc.wait_idle(0.2), 10)
+                              and svc.core.unattributed["revoked"] == len(b) - 20 and svc.wait_idle(0.2), 10)
             assert svc.responders["ff2"].gate.accepted == 20  # nothing of ff2 since the revocation
             assert svc.core.unattributed["revoked"] == len(b) - 20
             audits = [wire.decode(p) for k, p in tap.items if k.endswith("/audit")]
