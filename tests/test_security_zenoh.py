@@ -241,8 +241,12 @@ def test_a_revoked_identity_is_refused_while_the_service_runs(pkidir, tmp_path):
             for x, y in zip(a[:20], b[:20]):
                 p1.put(wire.encode(x))
                 p2.put(wire.encode(y))
-            assert wait_until(lambda: svc.frames_processed >= 40 and svc.wait_idle(0.2), 10), \
-                (svc.frames_processed, svc.frame_accounting(), svc.received, dict(svc.core.unattributed))
+            # these plain publishers do not retransmit: on a loaded machine a frame may not arrive (the gate counts
+            # it lost); what this test is about is what the service takes after the revocation, so it counts on
+            # what arrived before it rather than on all 40
+            assert wait_until(lambda: svc.received["imu"] >= 30 and {"ff1", "ff2"} <= set(svc.responders)
+                              and svc.wait_idle(0.5), 10), (svc.received, svc.frame_accounting())
+            n1, n2 = svc.responders["ff1"].gate.accepted, svc.responders["ff2"].gate.accepted
             pki.revoke(d, "ff2")
             pki.revoke(d, "console-1")
             svc.update_access(access_message(load_roster(d / "roster.json")))  # what the roster watcher does
@@ -252,10 +256,10 @@ def test_a_revoked_identity_is_refused_while_the_service_runs(pkidir, tmp_path):
             console.put(wire.key(INCIDENT, "console-1", "op"), wire.encode(wire.OperatorAction(
                 action="fix", operator="bob", utc=time.time(), responder="ff1",
                 fix=wire.encode(wire.Fix.checkpoint("ff1", 1003.0, x=5.0, y=5.0)))))
-            assert wait_until(lambda: svc.responders["ff1"].gate.accepted == len(a) and svc.received["op"] == 1
-                              and svc.core.unattributed["revoked"] == len(b) - 20 and svc.wait_idle(0.2), 10)
-            assert svc.responders["ff2"].gate.accepted == 20  # nothing of ff2 since the revocation
-            assert svc.core.unattributed["revoked"] == len(b) - 20
+            assert wait_until(lambda: svc.responders["ff1"].gate.accepted >= n1 + 15 and svc.received["op"] == 1
+                              and svc.core.unattributed["revoked"] >= 15 and svc.wait_idle(0.5), 10)
+            assert svc.responders["ff2"].gate.accepted == n2  # nothing of ff2 since the revocation
+            assert svc.core.unattributed["revoked"] <= len(b) - 20  # ... every ff2 frame that came was refused
             audits = [wire.decode(p) for k, p in tap.items if k.endswith("/audit")]
             assert [(x.actor, x.outcome, x.reason) for x in audits] == [("console-1", "refused", "revoked")]
             assert svc.responders["ff1"].tracker.fixes_applied == 0  # the fix never came in
