@@ -158,10 +158,7 @@ def load_ipin(path: str | Path) -> Recording:
     }
     gnss = gnss_fixes(rows(_GNSS), offset, meta, notes)
     landmarks = landmark_table(rows(_POSI), offset, path, lambda k: _line_number(lines, "POSI;", k), meta, notes)
-    if landmarks is not None and len(landmarks):
-        outside = (landmarks.t < acc.t[0]) | (landmarks.t > acc.t[-1])
-        if outside.any():
-            notes.warn(f"{int(outside.sum())} landmark time(s) fall outside the accelerometer's time span")
+    warn_landmarks_outside(landmarks, acc, notes)
 
     return Recording(
         source=str(path),
@@ -293,6 +290,14 @@ def gnss_fixes(g: np.ndarray, offset: float, meta: dict, notes: Notes) -> GnssFi
     meta["gnss_unix_time_s"] = g[:, 1]
     meta["gnss_age_s"] = age
     return GnssFixes(t=t, lat=g[:, 2], lon=g[:, 3], alt=g[:, 4], accuracy_m=g[:, 5])
+
+
+def warn_landmarks_outside(landmarks: Landmarks | None, acc: Series, notes: Notes) -> None:
+    """A warning when landmark times fall outside the accelerometer's time span (both loaders)."""
+    if landmarks is not None and len(landmarks):
+        outside = (landmarks.t < acc.t[0]) | (landmarks.t > acc.t[-1])
+        if outside.any():
+            notes.warn(f"{int(outside.sum())} landmark time(s) fall outside the accelerometer's time span")
 
 
 def landmark_table(p: np.ndarray, offset: float, path, line_of, meta: dict, notes: Notes) -> Landmarks | None:

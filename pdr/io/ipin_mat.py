@@ -39,6 +39,7 @@ from pdr.io.ipin import (
     gnss_fixes,
     landmark_table,
     quaternion_from_rotation_vector,
+    warn_landmarks_outside,
 )
 from pdr.recording import Recording, Series
 
@@ -87,10 +88,7 @@ def load_ipin_mat(path: str | Path) -> Recording:
         rows = np.column_stack([p[:, 0], np.arange(1, len(p) + 1), p[:, 1], p[:, 2], p[:, 3], np.full(len(p), np.nan)])
         landmarks = landmark_table(rows, offset, path, lambda k: None, meta, notes)
     acc = series("Acce", acce, lambda a: a[:, 2:5])
-    if landmarks is not None and len(landmarks):
-        outside = (landmarks.t < acc.t[0]) | (landmarks.t > acc.t[-1])
-        if outside.any():
-            notes.warn(f"{int(outside.sum())} landmark time(s) fall outside the accelerometer's time span")
+    warn_landmarks_outside(landmarks, acc, notes)
     return Recording(
         source=str(path),
         kind="ipin",
