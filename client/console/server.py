@@ -27,6 +27,11 @@ HTTP API (JSON; errors are ``{"error": "..."}`` with a 4xx status naming what is
 ``POST /api/ack``       ``{responder, alarm}``: an alarm acknowledged (recorded by the service)
 ======================  =========================================================================
 
+The routes are grouped by what they serve: this module keeps the lifecycle, the page, the
+live feed and the guard; :mod:`client.console.login_routes` the logins,
+:mod:`client.console.actions` the operator actions, :mod:`client.console.track_routes` the
+tracks, and :mod:`client.console.requests` what a request body must be.
+
 Security (:mod:`client.console.auth`): every request's ``Host`` must be one of the console's
 own addresses and a POST's or WebSocket's ``Origin`` one of its origins (403 otherwise); with
 a roster every API call and the live feed need a login (401), and only operators act
@@ -42,16 +47,15 @@ import asyncio
 import errno
 import json
 import logging
-import math
 import mimetypes
 import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import zenoh
 from aiohttp import WSMsgType, web
 
+from client.console.actions import OperatorActions
 from client.console.auth import (
     SESSION_COOKIE,
     Logins,
@@ -61,10 +65,12 @@ from client.console.auth import (
     server_ssl_context,
 )
 from client.console.live import LiveBoard
+from client.console.login_routes import LoginRoutes
 from client.console.plans import grid_matrix, plan_png, plan_problem, served_plan
-from pdr.events import bearing_deg
+from client.console.requests import POST_MAX_BYTES, SESSION_KEY, error_response
+from client.console.track_routes import TrackRoutes
 from service.protocol import wire
-from service.protocol.incident import IncidentConfig, UnknownCheckpointError
+from service.protocol.incident import IncidentConfig
 
 log = logging.getLogger("firetrack.console")
 
@@ -77,28 +83,15 @@ mimetypes.add_type("text/css", ".css")
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 BATCH_PERIOD_S = 0.15  # one update message per page at most this often
 LOST_CONTACT_S = 10.0  # the page raises lost_contact when nothing is heard of a responder for this long
-TRACK_QUERY_TIMEOUT_S = 5.0
 CLIENT_BACKLOG = 20  # messages queued for a slow page before they are replaced by one snapshot
 START_TIMEOUT_S = 10.0
 STOP_TIMEOUT_S = 5.0
-POST_MAX_BYTES = 64 * 1024
-SESSION_KEY = web.RequestKey("session", object) if hasattr(web, "RequestKey") else "session"  # aiohttp >= 3.12 wants typed keys
 AUDITS_KEPT = 200  # recent audits (operator actions, flags) a page gets in its snapshot
 PUBLIC_PATHS = ("/", "/api/session", "/api/login", "/api/logout")  # besides /static/: what a logged-out page may load
 
 
 class ConsoleError(RuntimeError):
     """The console cannot start (the port is taken, the address is not this machine's, ...)."""
-
-
-class _HttpError(Exception):
-    def __init__(self, status: int, message: str):
-        super().__init__(message)
-        self.status = status
-
-
-def _error(status: int, message: str) -> web.Response:
-    return web.json_response({"error": message}, status=status)
 
 
 class _Page:
@@ -128,35 +121,7 @@ class _Page:
             log.info("console: a page stopped listening: %s", e)
 
 
-def _no_constant(name: str):
-    raise ValueError(f"{name} is not a number JSON has")
-
-
-def _finite_number(body: dict, name: str, required: bool = True) -> float | None:
-    v = body.get(name)
-    if v is None:
-        if required:
-            raise _HttpError(400, f"'{name}' is required")
-        return None
-    try:
-        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
-    except OverflowError:  # an integer beyond any float
-        ok = False
-    if not ok:
-        raise _HttpError(400, f"'{name}' must be a finite number, got {str(v)[:40]}")
-    return float(v)
-
-
-def _integer(body: dict, name: str) -> int | None:
-    v = body.get(name)
-    if v is None:
-        return None
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise _HttpError(400, f"'{name}' must be an integer, got {v!r}")
-    return v
-
-
-class ConsoleServer:
+class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
     """The aiohttp application and its loop thread; use :func:`start_console`."""
 
     def __init__(self, session: zenoh.Session, cfg: IncidentConfig, host: str, port: int,
@@ -390,74 +355,18 @@ class ConsoleServer:
     async def _guard(self, request: web.Request, handler):
         site = self.site
         if site is None:
-            return _error(503, "the console is starting")
+            return error_response(503, "the console is starting")
         problem = site.host_problem(request.headers.get("Host"))
         if problem is None and (request.method not in ("GET", "HEAD", "OPTIONS") or request.path == "/ws"):
             problem = site.origin_problem(request.headers.get("Origin"))
         if problem is not None:
             log.warning("console: refused %s %s: %s", request.method, request.path, problem)
-            return _error(403, problem)
+            return error_response(403, problem)
         session = self.logins.session(request.cookies.get(SESSION_COOKIE))
         request[SESSION_KEY] = session
         if session is None and request.path not in PUBLIC_PATHS and not request.path.startswith("/static/"):
-            return _error(401, "log in first (POST /api/login)")
+            return error_response(401, "log in first (POST /api/login)")
         return await handler(request)
-
-    def _actor_session(self, request: web.Request):
-        """The session of an operator who may act, or :class:`_HttpError` 403 for a viewer."""
-        s = request[SESSION_KEY]
-        if not s.may_act:
-            raise _HttpError(403, f"{s.user} is a {s.role}: viewers cannot act (fix, checkpoint, acknowledge, PAR)")
-        return s
-
-    # ------------------------------------------------------------------ login
-    def _session_json(self, s) -> dict:
-        info = {"auth": "open" if self.logins.open else "required", "user": None, "role": None,
-                "incident": self.cfg.id, "https": self.https}
-        if s is not None:
-            info.update(user=s.user, role=s.role, via=s.via)
-        return info
-
-    async def _session_info(self, request: web.Request) -> web.Response:
-        info = self._session_json(request[SESSION_KEY])
-        cert = self._peer_certificate(request)
-        if cert is not None and info["user"] is None:
-            from service.protocol.pki import certificate_common_name
-
-            info["certificate"] = certificate_common_name(cert)
-        return web.json_response(info)
-
-    def _peer_certificate(self, request: web.Request) -> bytes | None:
-        sslobj = request.transport.get_extra_info("ssl_object") if request.transport is not None else None
-        return sslobj.getpeercert(binary_form=True) if sslobj is not None else None
-
-    async def _login(self, request: web.Request) -> web.Response:
-        if self.logins.open:
-            return web.json_response(self._session_json(request[SESSION_KEY]))
-        address = request.remote or "?"
-        if self.logins.throttled(address):
-            return _error(429, "too many failed logins from this address: wait a minute")
-        try:
-            body = await self._body(request)
-        except _HttpError as e:
-            return _error(e.status, e.args[0])
-        if body.get("certificate") is True:
-            s = self.logins.with_certificate(self._peer_certificate(request), address)
-            if s is None:
-                return _error(401, "no client certificate of an operator or viewer of this incident was presented")
-        else:
-            s = self.logins.with_password(body.get("user"), body.get("password"), address)
-            if s is None:
-                return _error(401, "wrong user or password")
-        resp = web.json_response(self._session_json(s))
-        resp.set_cookie(SESSION_COOKIE, s.token, httponly=True, samesite="Strict", secure=self.https, path="/")
-        return resp
-
-    async def _logout(self, request: web.Request) -> web.Response:
-        self.logins.logout(request.cookies.get(SESSION_COOKIE))
-        resp = web.json_response({"user": None})
-        resp.del_cookie(SESSION_COOKIE, path="/")
-        return resp
 
     # ------------------------------------------------------------------ pages and data
     async def _index(self, request: web.Request) -> web.FileResponse:
@@ -496,231 +405,16 @@ class ConsoleServer:
         floor = int(request.match_info["floor"])
         numbers = [f.number for f in self.cfg.floors]
         if floor not in numbers:
-            return _error(404, f"floor {floor} is not configured for incident {self.cfg.id!r}; floors: {numbers}")
+            return error_response(404, f"floor {floor} is not configured for incident {self.cfg.id!r}; floors: {numbers}")
         sp = served_plan(self.cfg, floor)
         if sp is None:
-            return _error(404, f"floor {floor}: {plan_problem(self.cfg, floor)}")
+            return error_response(404, f"floor {floor}: {plan_problem(self.cfg, floor)}")
         try:
             png = await asyncio.get_running_loop().run_in_executor(None, plan_png, sp)
         except Exception as e:  # the file vanished or is corrupt since the config was loaded
             log.warning("plan image of floor %d: %s", floor, e)
-            return _error(404, f"floor {floor}: plan image {sp.source} unreadable: {e}")
+            return error_response(404, f"floor {floor}: plan image {sp.source} unreadable: {e}")
         return web.Response(body=png, content_type="image/png", headers={"Cache-Control": "max-age=3600"})
-
-    # ------------------------------------------------------------------ tracks
-    def _query_tracks(self, key: str) -> dict[str, dict]:
-        """Blocking zenoh query (run in an executor): responder -> track as JSON-ready lists."""
-        from service.protocol.wire import (
-            decode_track,  # the reply format is defined once, with the wire format
-        )
-
-        out = {}
-        for reply in self.session.get(key, timeout=TRACK_QUERY_TIMEOUT_S):
-            if reply.ok is None:
-                log.warning("track query %s: %s", key, reply.err.payload.to_string())
-                continue
-            d = decode_track(reply.ok.payload.to_bytes())
-            yaw = d["heading"]  # ENU yaw, rad (gtsam theta); NaN on dead-reckoning tracks
-            bearing = bearing_deg(yaw)
-            out[str(d["responder"])] = {
-                "responder": str(d["responder"]), "smoothed": bool(d["smoothed"]),
-                "t": d["t"].tolist(), "x": np.round(d["x"], 3).tolist(), "y": np.round(d["y"], 3).tolist(),
-                "floor": d["floor"].astype(int).tolist(),
-                "heading_deg": np.where(np.isfinite(bearing), np.round(bearing, 1), None).tolist(),
-            }
-        return out
-
-    async def _track(self, request: web.Request) -> web.Response:
-        rid = request.match_info["responder"]
-        if not wire.is_valid_id(rid):
-            return _error(400, f"responder id {rid!r} must match [A-Za-z0-9_.-]{{1,64}}")
-        tracks = await asyncio.get_running_loop().run_in_executor(
-            None, self._query_tracks, wire.key(self.cfg.id, rid, "track"))
-        if rid not in tracks:
-            return _error(404, f"no track of responder {rid!r}: the service of incident {self.cfg.id!r} "
-                               f"did not answer within {TRACK_QUERY_TIMEOUT_S:g} s or does not know {rid!r}")
-        return web.json_response(tracks[rid])
-
-    async def _tracks(self, request: web.Request) -> web.Response:
-        tracks = await asyncio.get_running_loop().run_in_executor(
-            None, self._query_tracks, wire.key_all(self.cfg.id, "track"))
-        return web.json_response({"tracks": tracks})
-
-    # ------------------------------------------------------------------ operator actions
-    async def _body(self, request: web.Request) -> dict:
-        """The request's JSON object, or :class:`_HttpError` (4xx) for anything else: another
-        type, a body over :data:`POST_MAX_BYTES`, bytes that are not UTF-8 JSON, nesting too
-        deep to parse (Python's parser recurses), constants JSON does not have (NaN, Infinity)."""
-        if request.content_type != "application/json":
-            raise _HttpError(415, f"send the request as application/json, not {request.content_type or 'no type'}")
-        try:
-            raw = await request.read()
-        except web.HTTPRequestEntityTooLarge:
-            raise _HttpError(413, f"the body is larger than {POST_MAX_BYTES} bytes") from None
-        try:
-            body = json.loads(raw.decode("utf-8"), parse_constant=_no_constant)
-        except RecursionError:
-            raise _HttpError(400, "the body is nested too deeply to be a request") from None
-        except (ValueError, UnicodeDecodeError) as e:  # JSONDecodeError is a ValueError
-            raise _HttpError(400, f"the body is not valid JSON: {str(e)[:200]}") from None
-        if not isinstance(body, dict):
-            raise _HttpError(400, f"the body must be a JSON object, got {type(body).__name__}")
-        return body
-
-    def build_fix(self, body: dict, operator: str = "console") -> wire.Fix:
-        """A checkpoint Fix from a request body, or :class:`_HttpError` saying what is wrong."""
-        rid = body.get("responder")
-        if not isinstance(rid, str) or not wire.is_valid_id(rid):
-            raise _HttpError(400, f"'responder' must be a responder id ([A-Za-z0-9_.-]{{1,64}}), got {rid!r}")
-        t = self.board.device_time(rid)
-        if t is None:
-            raise _HttpError(409, f"responder {rid!r} has not been heard by this console yet: a fix is stamped "
-                                  "with the responder's latest device time, and there is none")
-        sigma = _finite_number(body, "sigma", required=False)
-        if sigma is not None and not sigma > 0:
-            raise _HttpError(400, f"'sigma' must be positive (m), got {sigma}")
-        name = body.get("name")
-        if name is not None:
-            if not isinstance(name, str):
-                raise _HttpError(400, f"'name' must be a checkpoint name, got {name!r}")
-            if "x" in body or "y" in body:
-                raise _HttpError(400, "give a checkpoint 'name' or 'x' and 'y', not both")
-            try:
-                cp = self.cfg.checkpoint(name)
-            except UnknownCheckpointError as e:
-                raise _HttpError(404, str(e)) from None
-            if cp.name not in self.added_checkpoints:  # the service's config file has it: it resolves the name
-                return wire.Fix.checkpoint(rid, t, name=cp.name, sigma=sigma, operator=operator)
-            # added in this console: a service in another process may not know it, so send where it is
-            return wire.Fix.checkpoint(rid, t, x=cp.x, y=cp.y, floor=cp.floor, sigma=sigma or cp.sigma_m,
-                                       operator=operator)
-        x, y = _finite_number(body, "x"), _finite_number(body, "y")
-        floor = _integer(body, "floor")
-        if floor is None:
-            floor = self.board.floor_of(rid)
-        if floor is None:
-            raise _HttpError(400, f"'floor' is required: responder {rid!r} has no position yet to take it from")
-        numbers = [f.number for f in self.cfg.floors]
-        if floor not in numbers:
-            raise _HttpError(400, f"floor {floor} is not configured for incident {self.cfg.id!r}; floors: {numbers}")
-        return wire.Fix.checkpoint(rid, t, x=x, y=y, floor=floor, sigma=sigma, operator=operator)
-
-    async def _publish_action(self, action: wire.OperatorAction) -> str:
-        """An operator action to the service, on this console's own key (its certificate's name)."""
-        key = wire.key(self.cfg.id, self.actor, "op")
-        payload = wire.encode(action)
-        await asyncio.get_running_loop().run_in_executor(
-            None, lambda: self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK))
-        log.info("console: %s by %s published on %s", action.action, action.operator, key)
-        return key
-
-    async def _fix(self, request: web.Request) -> web.Response:
-        try:
-            who = self._actor_session(request)
-            fix = self.build_fix(await self._body(request), operator=who.user)
-        except _HttpError as e:
-            return _error(e.status, e.args[0])
-        except (ValueError, TypeError, RecursionError) as e:  # a field no check above foresaw (pydantic's are ValueErrors)
-            return _error(400, f"the fix cannot be made from this body: {' '.join(str(e).split())[:300]}")
-        key = await self._publish_action(wire.OperatorAction(
-            action="fix", operator=who.user, utc=time.time(), responder=fix.responder, fix=wire.encode(fix)))
-        self.fixes_sent += 1
-        sent = {k: v for k, v in fix.model_dump().items() if v is not None}
-        self._send_all({"type": "fix", "now": time.time(), "fix": sent})
-        return web.json_response({"sent": sent, "key": key, "operator": who.user})
-
-    def _responder_field(self, body: dict) -> str:
-        rid = body.get("responder")
-        if not isinstance(rid, str) or not wire.is_valid_id(rid):
-            raise _HttpError(400, f"'responder' must be a responder id ([A-Za-z0-9_.-]{{1,64}}), got {rid!r}")
-        return rid
-
-    async def _ack(self, request: web.Request) -> web.Response:
-        try:
-            who = self._actor_session(request)
-            body = await self._body(request)
-            rid = self._responder_field(body)
-            alarm = body.get("alarm")
-            if not isinstance(alarm, str) or not 0 < len(alarm) <= 64:
-                raise _HttpError(400, f"'alarm' must be the alarm's kind (e.g. man_down), got {alarm!r}")
-        except _HttpError as e:
-            return _error(e.status, e.args[0])
-        key = await self._publish_action(wire.OperatorAction(action="ack", operator=who.user, utc=time.time(),
-                                                             responder=rid, alarm=alarm))
-        return web.json_response({"acknowledged": {"responder": rid, "alarm": alarm}, "operator": who.user, "key": key})
-
-    async def _command(self, request: web.Request) -> web.Response:
-        """A roll call (``{"action": "par"}``) or an evacuation order (``{"action": "evacuate"}``)
-        to every responder this console knows, or to ``"responders": [...]``; each wearable
-        acknowledges, and the service's Status says who has not. An operator's action: the
-        orders name the operator (``issued_by``), and the console publishes the action on its own
-        ``op`` key, the record of who issued it (the orders' keys name the responders only)."""
-        try:
-            who = self._actor_session(request)
-            body = await self._body(request)
-            action = body.get("action")
-            if action not in ("par", "evacuate"):
-                raise _HttpError(400, f"'action' must be 'par' (roll call) or 'evacuate', got {action!r}")
-            known = self.board.responders()
-            wanted = body.get("responders", known)
-            if not isinstance(wanted, list) or not all(isinstance(r, str) and wire.is_valid_id(r) for r in wanted):
-                raise _HttpError(400, "'responders' must be a list of responder ids")
-            if not wanted:
-                raise _HttpError(409, "no responder is known to this console yet")
-        except _HttpError as e:
-            return _error(e.status, e.args[0])
-        self.commands_sent += 1
-        now = time.time()
-        order_id = f"{action}-{int(now)}-{self.commands_sent}"
-        payloads = [(wire.key(self.cfg.id, rid, "command"),
-                     wire.encode(wire.Command(responder=rid, id=order_id, action=action, issued_at=now,
-                                              issued_by=who.user))) for rid in wanted]
-
-        def put_all():
-            for key, payload in payloads:
-                self.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
-
-        await asyncio.get_running_loop().run_in_executor(None, put_all)
-        await self._publish_action(wire.OperatorAction(action=action, operator=who.user, utc=now, order=order_id,
-                                                       responders=wanted))
-        log.info("console: %s %s by %s sent to %d responder(s)", action, order_id, who.user, len(wanted))
-        self._send_all({"type": "command", "now": now, "command": {"id": order_id, "action": action,
-                                                                    "responders": wanted, "issued_at": now}})
-        return web.json_response({"id": order_id, "action": action, "responders": wanted, "issued_at": now,
-                                  "operator": who.user})
-
-    async def _checkpoint(self, request: web.Request) -> web.Response:
-        try:
-            who = self._actor_session(request)
-            body = await self._body(request)
-            name = body.get("name")
-            if not isinstance(name, str) or not name.strip():
-                raise _HttpError(400, f"'name' must be a non-empty text, got {name!r}")
-            name = name.strip()
-            if any(c.name == name for c in self.cfg.checkpoints):
-                raise _HttpError(409, f"checkpoint {name!r} exists already")
-            x, y = _finite_number(body, "x"), _finite_number(body, "y")
-            floor = _integer(body, "floor")
-            if floor is None:
-                raise _HttpError(400, "'floor' is required")
-            sigma = _finite_number(body, "sigma_m", required=False)
-            note = body.get("note")
-            if note is not None and not isinstance(note, str):
-                raise _HttpError(400, f"'note' must be text, got {note!r}")
-            try:
-                cp = self.cfg.add_checkpoint(name, floor=floor, x=x, y=y, note=note,
-                                             **({"sigma_m": sigma} if sigma is not None else {}))
-            except (ValueError, TypeError) as e:  # pydantic's ValidationError is a ValueError: a bad field, an unknown floor
-                raise _HttpError(400, " ".join(str(e).split())[:300]) from None
-        except _HttpError as e:
-            return _error(e.status, e.args[0])
-        self.added_checkpoints.add(cp.name)
-        log.info("console: checkpoint %r added at (%.2f, %.2f) floor %d", cp.name, cp.x, cp.y, cp.floor)
-        await self._publish_action(wire.OperatorAction(action="checkpoint", operator=who.user, utc=time.time(),
-                                                       name=cp.name, x=cp.x, y=cp.y, floor=cp.floor, note=cp.note))
-        self._send_all({"type": "checkpoints", "now": time.time(), "checkpoints": self._checkpoints_json()})
-        return web.json_response({"checkpoint": next(c for c in self._checkpoints_json() if c["name"] == cp.name)},
-                                 status=201)
 
 
 class ConsoleHandle:
