@@ -58,6 +58,17 @@ def matched_publisher(session: zenoh.Session, key: str, timeout: float = 10.0):
     return pub
 
 
+def put_routed(session: zenoh.Session, key: str, payload: bytes, timeout: float = 10.0) -> None:
+    """One message that must arrive (a positive control): put once the route to a subscriber
+    exists, blocking rather than dropping (a fresh session's plain ``put`` goes nowhere until the
+    router has told it of the subscription, which a loaded machine delays)."""
+    pub = matched_publisher(session, key, timeout)
+    try:
+        pub.put(payload)
+    finally:
+        pub.undeclare()
+
+
 def bare_tls_client(endpoint: str, ca: Path) -> zenoh.Session:
     """A TLS client that trusts the incident CA but presents no certificate of its own."""
     conf = zenoh.Config()

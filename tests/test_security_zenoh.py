@@ -26,6 +26,7 @@ from tests.security_util import (
     identity,
     make_pki,
     matched_publisher,
+    put_routed,
     secure_service,
     tls_client,
     walking_frames,
@@ -127,9 +128,9 @@ def test_roles_console_viewer_anchor_publish_only_what_they_may(pkidir):
         ff1 = tls_client(endpoint, identity(pkidir, "ff1"))
         sessions = {n: tls_client(endpoint, identity(pkidir, n)) for n in ("console-1", "vic", "a1", "alice")}
         try:
-            frames = walking_frames("ff1", 2.0)
-            for b in frames:
-                ff1.put(wire.key(INCIDENT, "ff1", "imu"), wire.encode(b))
+            pub = matched_publisher(ff1, wire.key(INCIDENT, "ff1", "imu"))
+            for b in walking_frames("ff1", 2.0):
+                pub.put(wire.encode(b))
             assert wait_until(lambda: "ff1" in svc.responders, 10)
             fix = wire.encode(wire.Fix.checkpoint("ff1", 1000.5, x=1.0, y=1.0))
 
@@ -143,9 +144,9 @@ def test_roles_console_viewer_anchor_publish_only_what_they_may(pkidir):
             sessions["vic"].put(wire.key(INCIDENT, "ff1", "fix"), fix)
             sessions["alice"].put(wire.key(INCIDENT, "console-1", "op"), op("alice"))
             # allowed: a console's and an operator's actions on their own keys, an anchor's fix for anyone
-            sessions["console-1"].put(wire.key(INCIDENT, "console-1", "op"), op("bob"))
-            sessions["alice"].put(wire.key(INCIDENT, "alice", "op"), op("alice"))
-            sessions["a1"].put(wire.key(INCIDENT, "ff1", "fix"), fix)
+            put_routed(sessions["console-1"], wire.key(INCIDENT, "console-1", "op"), op("bob"))
+            put_routed(sessions["alice"], wire.key(INCIDENT, "alice", "op"), op("alice"))
+            put_routed(sessions["a1"], wire.key(INCIDENT, "ff1", "fix"), fix)
             assert wait_until(lambda: svc.received["op"] >= 2 and svc.received["fix"] >= 1 and svc.wait_idle(0.2), 10)
             time.sleep(SETTLE_S)
             assert svc.received["op"] == 2 and svc.received["fix"] == 1
@@ -277,9 +278,11 @@ def test_a_reserved_name_joins_mid_incident_and_an_unknown_one_waits_for_a_resta
         pki.issue(d, "wearable", "ff10")  # a name the router's rules do not have
         joined = [tls_client(endpoint, identity(d, n)) for n in ("ff9", "ff10")]
         try:
-            for s, n in zip(joined, ("ff9", "ff10")):
-                for b in walking_frames(n, 1.0):
-                    s.put(wire.key(INCIDENT, n, "imu"), wire.encode(b))
+            pub = matched_publisher(joined[0], wire.key(INCIDENT, "ff9", "imu"))  # reserved: routed once issued
+            for b in walking_frames("ff9", 1.0):
+                pub.put(wire.encode(b))
+            for b in walking_frames("ff10", 1.0):  # not in the router's rules: refused there
+                joined[1].put(wire.key(INCIDENT, "ff10", "imu"), wire.encode(b))
             assert wait_until(lambda: "ff9" in svc.responders and svc.wait_idle(0.2), 10)
             time.sleep(SETTLE_S)
             assert "ff10" not in svc.responders and not any("/ff10/" in k for k in tap.keys())
@@ -289,8 +292,9 @@ def test_a_reserved_name_joins_mid_incident_and_an_unknown_one_waits_for_a_resta
     with secure_service(d) as (svc, endpoint, tap):  # the router restarted with the new roster
         s = tls_client(endpoint, identity(d, "ff10"))
         try:
+            pub = matched_publisher(s, wire.key(INCIDENT, "ff10", "imu"))
             for b in walking_frames("ff10", 1.0):
-                s.put(wire.key(INCIDENT, "ff10", "imu"), wire.encode(b))
+                pub.put(wire.encode(b))
             assert wait_until(lambda: "ff10" in svc.responders, 10)
         finally:
             s.close()
@@ -316,8 +320,9 @@ def test_a_standalone_router_from_certs_router_config_enforces_the_same(pkidir):
             time.sleep(SETTLE_S)
             for b in walking_frames("ff2", 1.0):
                 ff1.put(wire.key(INCIDENT, "ff2", "imu"), wire.encode(b))
+            pub = matched_publisher(ff1, wire.key(INCIDENT, "ff1", "imu"))
             for b in walking_frames("ff1", 8.0):
-                ff1.put(wire.key(INCIDENT, "ff1", "imu"), wire.encode(b))
+                pub.put(wire.encode(b))
             assert wait_until(lambda: len(poses) > 0, 20), "no pose reached the console through zenohd"
             assert set(svc.responders) == {"ff1"} and set(poses) == {wire.key(INCIDENT, "ff1", "pose")}
             with pytest.raises(zenoh.ZError):
@@ -413,7 +418,7 @@ def test_only_consoles_give_orders_and_a_wearable_hears_and_answers_its_own(pkid
             heard_by_ff2 = []
             s2.declare_subscriber(wire.key(INCIDENT, "ff1", "command"), lambda s: heard_by_ff2.append(1))
             time.sleep(SETTLE_S)
-            console.put(wire.key(INCIDENT, "ff1", "command"), order("par", "par-7", "alice"))
+            put_routed(console, wire.key(INCIDENT, "ff1", "command"), order("par", "par-7", "alice"))
             assert wait_until(lambda: (svc.responders["ff1"].commands.get("par") or {}).get("acked_at") is not None, 10)
             assert [(c.action, c.id) for c in w1.commands] == [("par", "par-7")]  # the forged order never came
             assert "evacuate" not in svc.responders["ff1"].commands and heard_by_ff2 == []
