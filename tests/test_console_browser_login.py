@@ -12,7 +12,17 @@ import pytest
 from client.console.server import start_console
 from service.protocol import wire
 from service.protocol.incident import default_incident
-from tests.security_util import INCIDENT, PASSWORDS, identity, make_pki, secure_service, tls_client, walking_frames
+from tests.security_util import (
+    INCIDENT,
+    PASSWORDS,
+    identity,
+    make_pki,
+    matched_publisher,
+    put_routed,
+    secure_service,
+    tls_client,
+    walking_frames,
+)
 from tests.test_console_browser import PAGE_TIMEOUT_MS, VIEWPORT, Page, browser  # noqa: F401  (the fixture)
 from tests.zenoh_util import wait_until
 
@@ -48,13 +58,14 @@ def secured(tmp_path):
 
         def walk():  # ff1 placed at the door by its own checkpoint, then walking at twice real time
             frames = walking_frames("ff1", 400.0)
+            imu = matched_publisher(ff1, wire.key(INCIDENT, "ff1", "imu"))  # nothing put before the route is lost
             for i, b in enumerate(frames):
                 if stop.is_set():
                     return
-                ff1.put(wire.key(INCIDENT, "ff1", "imu"), wire.encode(b))
+                imu.put(wire.encode(b))
                 if i == 40:
                     wait_until(lambda: svc.received["imu"] == 41, 10)
-                    ff1.put(wire.key(INCIDENT, "ff1", "fix"), wire.encode(
+                    put_routed(ff1, wire.key(INCIDENT, "ff1", "fix"), wire.encode(
                         wire.Fix.checkpoint("ff1", float(b.t[-1]), x=0.0, y=0.0, floor=0, sigma=0.5)))
                 time.sleep(0.05)
         walker = threading.Thread(target=walk, daemon=True)

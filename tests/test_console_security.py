@@ -17,7 +17,17 @@ from service.protocol import pki, wire
 from service.protocol.incident import default_incident
 from service.review.recorder import IncidentRecorder, read_recording
 from service.review.reprocess import reprocess
-from tests.security_util import INCIDENT, PASSWORDS, identity, make_pki, secure_service, tls_client, walking_frames
+from tests.security_util import (
+    INCIDENT,
+    PASSWORDS,
+    identity,
+    make_pki,
+    matched_publisher,
+    put_routed,
+    secure_service,
+    tls_client,
+    walking_frames,
+)
 from tests.zenoh_util import wait_until
 
 
@@ -68,14 +78,15 @@ def secured(tmp_path):
         try:
             frames = walking_frames("ff1", 12.0)
             head = [b for b in frames if b.t[-1] <= 1002.0]
+            imu = matched_publisher(ff1, wire.key(INCIDENT, "ff1", "imu"))  # nothing put before the route is lost
             for b in head:
-                ff1.put(wire.key(INCIDENT, "ff1", "imu"), wire.encode(b))
+                imu.put(wire.encode(b))
             assert wait_until(lambda: svc.received["imu"] == len(head), 10)  # the door fix comes after these
             door = wire.Fix.checkpoint("ff1", float(head[-1].t[-1]), x=0.0, y=0.0, floor=0, sigma=0.5)
-            ff1.put(wire.key(INCIDENT, "ff1", "fix"), wire.encode(door))  # ff1's own: placed at the door
+            put_routed(ff1, wire.key(INCIDENT, "ff1", "fix"), wire.encode(door))  # ff1's own: placed at the door
             assert wait_until(lambda: svc.received["fix"] == 1, 10)
             for b in frames[len(head):]:
-                ff1.put(wire.key(INCIDENT, "ff1", "imu"), wire.encode(b))
+                imu.put(wire.encode(b))
             assert wait_until(lambda: console.board.device_time("ff1") is not None and svc.wait_idle(0.2), 20)
             yield d, svc, console, tap, rec_path
         finally:
