@@ -164,7 +164,8 @@ class PdrFleet:
         self._n = 0
         self._cap = 0
         self.members: list[FleetMember] = []
-        self._alloc(max(int(capacity), 1))
+        self._first_cap = max(int(capacity), 1)
+        self._alloc(self._first_cap)
         # typed lists of per-slot buffers
         self._bias_tails = _list2(0, 5)
         self._hbufs = _list2(0, 5)
@@ -322,6 +323,31 @@ class PdrFleet:
         self._step_times[m.slot] = np.empty(0)
         self._floor_work.discard(m.slot)
         self._free.append(m.slot)
+        self._shrink()
+
+    def _shrink(self) -> None:
+        """Free slots at the top leave the fleet (their rows back to a new row's fill, their
+        buffers dropped), and the rows' capacity halves while at most a quarter is in use (not
+        below the first capacity): the arrays of a crowd that came and left are given back."""
+        free = set(self._free)
+        top = self._n
+        while top and top - 1 in free:
+            top -= 1
+        if top == self._n:
+            return
+        self._free = [k for k in self._free if k < top]
+        for name, fill in self._SLOT_FILL.items():
+            getattr(self, name)[top:self._n] = fill
+        for lst in (self._bias_tails, self._hbufs, self._mot_tails, self._lms, self._raws, self._det_tails, self._pres,
+                    self._step_times):
+            for _ in range(self._n - top):
+                lst.pop()
+        self._n = top
+        cap, least = self._cap, getattr(self, "_first_cap", 1)
+        while cap // 2 >= least and self._n <= cap // 4:
+            cap //= 2
+        if cap != self._cap:
+            self._alloc(cap)
 
     # ------------------------------------------------------------------ a round
     def run(self, items: Sequence[tuple[FleetMember, ImuFrame]]) -> list:

@@ -61,6 +61,10 @@ class _Unpickler(pickle.Unpickler):
         self._resolve = resolve
 
     def find_class(self, module: str, name: str):
+        if (module, name) == (__name__, "Ref"):  # a name of something the snapshot shares: resolved here
+            if self._resolve is None:
+                raise SnapshotError("a reference where the snapshot may hold none")
+            return self._resolve
         if (module, name) in ALLOWED_GLOBALS or (module.startswith("numpy.dtypes") and name.endswith("DType")):
             return super().find_class(module, name)
         if module.startswith(PROJECT_PREFIXES) or module in ("pdr", "service"):
@@ -71,17 +75,24 @@ class _Unpickler(pickle.Unpickler):
         raise SnapshotError(f"a snapshot may not name {module}.{name} (only this project's classes, numpy arrays "
                             "and the standard containers)")
 
-    def persistent_load(self, pid):
-        if self._resolve is None:
-            raise SnapshotError(f"a reference {pid!r} where the snapshot may hold none")
-        return self._resolve(pid)
+
+
+class Ref:
+    """In a responder's pickle, what stands for an object it shares (:class:`SharedRefs`):
+    reading calls the reader's resolver with ``Ref``'s arguments instead of this class."""
+
+    def __new__(cls, *name):  # pragma: no cover - never called: the unpickler resolves it
+        raise SnapshotError("a snapshot reference read without its snapshot")
 
 
 class _Pickler(pickle.Pickler):
     def __init__(self, file, name=None, reducers=None):
         super().__init__(file, protocol=5)
-        if name is not None:
-            self.persistent_id = name
+        if name is not None:  # called for instances (not numbers, strings, containers): far fewer calls than persistent_id
+            def reducer_override(obj):
+                ref = name(obj)
+                return NotImplemented if ref is None else (Ref, ref)
+            self.reducer_override = reducer_override
         if reducers:
             self.dispatch_table = {**copyreg.dispatch_table, **reducers}
 
@@ -150,7 +161,7 @@ class SharedRefs:
             return None  # not a whole row: pickled as it is
         return ("row", self._rows[id(base)], offset // stride)
 
-    def resolve(self, pid):
+    def resolve(self, *pid):
         """For reading a responder's pickle: the object a name stands for."""
         try:
             kind = pid[0]

@@ -52,7 +52,7 @@ from service.protocol import wire
 from service.protocol.incident import IncidentConfig
 from service.shell.round_intake import RoundIntake
 from service.shell.sharding import in_shard
-from service.shell.snapshots import SnapshotWriter, return_memory
+from service.shell.snapshots import SnapshotWriter, fix_mmap_threshold, return_memory
 
 log = logging.getLogger("firetrack.service")
 
@@ -69,6 +69,7 @@ class ServiceSettings:
     snapshot_every_s: float = 5.0  # s between snapshots of the core beside the recording (with a state file)
     idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
     warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
+    mmap_threshold_bytes: int | None = 128 * 1024  # bytes: larger blocks mapped alone, returned when freed (None: glibc's)
 
 
 class IncidentService(RoundIntake, SnapshotWriter):
@@ -141,6 +142,7 @@ class IncidentService(RoundIntake, SnapshotWriter):
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> IncidentService:
+        fix_mmap_threshold(self.settings.mmap_threshold_bytes)  # freed big buffers go back (snapshots.py)
         if self.settings.warm_up:
             from service.core.warmup import warm_up
 

@@ -57,6 +57,27 @@ class SnapshotWriter:
                   getattr(sf, "path", sf), e)
 
 
+M_MMAP_THRESHOLD = -3  # glibc's mallopt parameter (malloc.h)
+
+
+def fix_mmap_threshold(nbytes: int | None) -> bool:
+    """Blocks of ``nbytes`` and more are mapped on their own and unmapped when freed (glibc's
+    ``mallopt(M_MMAP_THRESHOLD)``); True when set. glibc's default threshold rises to the size
+    of the largest mapped block freed (up to 32 MB), after which the service's big short-lived
+    buffers — a snapshot's bytes every few seconds, its state file's framing, large payloads —
+    come from the heap, scatter free space through it, and stay resident: a flood that
+    admitted hundreds of ids left ~80 MB of free heap resident after they expired (issue 20).
+    A fixed threshold keeps the dynamic rise off. None, or no glibc: nothing is changed."""
+    if nbytes is None:
+        return False
+    try:
+        import ctypes
+
+        return bool(ctypes.CDLL("libc.so.6").mallopt(M_MMAP_THRESHOLD, int(nbytes)))
+    except (OSError, AttributeError):
+        return False
+
+
 def return_memory() -> None:
     """After responders left: collect their cycles and hand the freed heap back to the operating
     system (glibc keeps freed small blocks otherwise, and the process would look as big as at
