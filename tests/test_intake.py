@@ -104,6 +104,29 @@ def test_the_log_of_a_flood_is_a_few_lines_per_source_and_a_summary():
 # --------------------------------------------------------------------------------------
 # The core: 5,000 new ids, expiry, bounded memory and status
 # --------------------------------------------------------------------------------------
+def test_a_wearable_added_to_the_roster_mid_incident_is_admitted_with_roster_only():
+    """serve --roster-only: the roster file gains a wearable while the service runs; the access
+    policy it sends the core (service.cli.serve._watch_roster) carries the roster's wearables,
+    and from that message on the new name is admitted (before it, refused)."""
+    from service.protocol.access import Roster, access_message
+
+    core = IncidentCore(CFG, CoreSettings(intake=IntakeSettings(roster=frozenset({"ff1"}), roster_only=True)))
+    roster = Roster(incident=CFG.id)
+    roster.add("ff1", "wearable")
+    roster.add("console", "console")
+    core.feed(Inbound("access", key("svc", "access"), wire.encode(access_message(roster)), 1.0))
+    assert core.admit("imu", key("ff9"), 100, 2.0) == "not_admitted"
+    roster.add("ff9", "wearable")  # firetrack certs issue --role wearable --name ff9, mid-incident
+    roster.add("ff7", "wearable")
+    acc = access_message(roster)
+    assert acc.wearables == ["ff1", "ff7", "ff9"] and acc.operators == ["console"]
+    core.feed(Inbound("access", key("svc", "access"), wire.encode(acc), 3.0))
+    assert core.admit("imu", key("ff9"), 100, 4.0) is None
+    assert core.admit("imu", key("ff1"), 100, 4.0) is None and core.admit("imu", key("zz"), 100, 4.0) == "not_admitted"
+    twin = IncidentCore.restore(core.snapshot(), CFG, core.settings)  # a restart from the snapshot keeps it
+    assert twin.admit("imu", key("ff7"), 100, 5.0) is None and twin.admit("imu", key("ff8"), 100, 5.0) == "not_admitted"
+
+
 def frame_payload(rid, seq, t0):
     z = np.zeros((10, 3))
     z[:, 2] = 9.81

@@ -79,6 +79,7 @@ class OperatorDesk:
         first = self.access == wire.Access(enforce=False)
         self.access = acc
         self._revoked = frozenset(acc.revoked) if acc.enforce else frozenset()
+        self.intake.set_roster(frozenset(acc.wearables))  # a wearable added to the roster is admitted from now on
         self._refused_logged.clear()
         log.log(logging.INFO if first else logging.WARNING, "access policy%s: %s",
                 f" from {acc.source}" if acc.source else "",

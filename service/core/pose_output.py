@@ -159,6 +159,7 @@ class PoseOutput:
         core._expiry_checked = state["expiry_checked"]
         acc = state["access"]
         core.access, core._revoked = acc, frozenset(acc.revoked) if acc.enforce else frozenset()
+        intake.set_roster(frozenset(acc.wearables))  # today's roster and the policy's wearables
         core._early_rejects = state["early_rejects"]
         return core
 
