@@ -181,6 +181,55 @@ def test_an_incremental_snapshot_restores_the_core_a_whole_snapshot_restores():
     assert [wire.encode(m) for m in sa] == [wire.encode(m) for m in sb]  # every counter, alarm, order, step
 
 
+def test_a_crowd_of_new_responders_is_pickled_a_batch_per_round_before_the_snapshot():
+    """300 ids admitted at once (a flood's burst): the core pickles at most a batch of them per
+    call and says how many are left; the shell defers a due snapshot while more than a batch is
+    left, and the snapshot it then writes pickles no more than a batch afresh and is the very
+    snapshot a whole pickling gives."""
+    import threading
+    import types
+
+    from service.shell.service import ServiceSettings
+    from service.shell.snapshots import SnapshotWriter
+
+    core = IncidentCore(CFG)
+    core.feed_round(inputs_of(walk(seconds=3.0, seed=5))[:20])
+    core.snapshot()
+    for k in range(300):
+        f = walk(f"new{k:03d}", seconds=0.1, seed=k).frames[0]
+        core.feed_round([Inbound("imu", wire.key(CFG.id, f"new{k:03d}", "imu"), wire.encode(f), 103.0)])
+    assert core.prepare_snapshot(100) == 200 and core.prepare_snapshot(0) == 200
+
+    written = []
+    settings = ServiceSettings(snapshot_batch=64)
+    shell = types.SimpleNamespace(
+        state_file=types.SimpleNamespace(write=lambda blob, pos, now: written.append(blob)), recorder_error=None,
+        recorder=types.SimpleNamespace(flush=lambda: None, message_count=7), snapshot_error=None, core=core,
+        settings=settings, _last_snapshot=100.0, _snapshot_writer=None, snapshots=0, snapshots_skipped=0,
+        snapshots_deferred=0, _rec_lock=threading.Lock(), _core_lock=threading.Lock(), clock=lambda: 200.0)
+    for name in ("_snapshot_if_due", "_write_snapshot", "_snapshot_failed"):
+        setattr(shell, name, types.MethodType(getattr(SnapshotWriter, name), shell))
+    made = []
+    real = core.responder_blob
+    core.responder_blob = lambda r, refs=None: made.append(r.id) or real(r, refs)
+    import service.shell.snapshots as snapshots_module
+    clock = snapshots_module.time.monotonic
+    try:
+        snapshots_module.time.monotonic = lambda: 106.0  # due (5 s), within two periods: deferred
+        rounds = 0
+        while not written and rounds < 10:
+            shell._snapshot_if_due()
+            if shell._snapshot_writer is not None:
+                shell._snapshot_writer.join()
+            rounds += 1
+    finally:
+        snapshots_module.time.monotonic = clock
+    assert written and shell.snapshots_deferred == 3 and len(made) == 200  # 64, 64, 64, then the last 8 in the snapshot
+    del core.responder_blob
+    core._blobs.clear()
+    assert written[0] == core.snapshot()
+
+
 def test_a_restored_fleets_pipelines_see_its_rows():
     """The handheld pipelines' floor and altimeter state are views of the fleet's rows; after a
     restore they are views of the restored fleet's rows (not copies that the fleet's rounds

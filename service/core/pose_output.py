@@ -106,6 +106,23 @@ class PoseOutput:
         # the fleet's members are its responders': the fleet names them by slot
         return snapshots.dumps(state, {FleetMember: _member_slot_of})
 
+    def prepare_snapshot(self, limit: int) -> int:
+        """Pickle (and keep) up to ``limit`` of the responders the next snapshot would pickle
+        afresh; returns how many are left. The shell spreads a crowd's pickling over rounds this
+        way (a burst of newly admitted ids is not one long stall); what it keeps stays valid
+        until the responder changes, like any kept pickle."""
+        refs, left = None, 0
+        for rid, r in self.responders.items():
+            if rid in self._blobs:
+                continue
+            if limit <= 0 or r.backlog or rid in self._dirty:
+                left += 1
+                continue
+            refs = refs or self._shared_refs()
+            self._blobs[rid] = self.responder_blob(r, refs)
+            limit -= 1
+        return left
+
     def responder_blob(self, r: Responder, refs=None) -> bytes:
         """``r``'s own pickle, as a snapshot holds it (its Status bookkeeping aside)."""
         refs = refs or self._shared_refs()

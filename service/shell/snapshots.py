@@ -28,6 +28,13 @@ class SnapshotWriter:
         if self._snapshot_writer is not None and self._snapshot_writer.is_alive():
             self.snapshots_skipped += 1  # the disk is slower than the snapshots: the next one will do
             return
+        # a crowd of responders to pickle afresh (ids just admitted) is pickled a batch per round,
+        # and the snapshot taken when few are left (or once it is a whole period late)
+        with self._core_lock:
+            left = self.core.prepare_snapshot(self.settings.snapshot_batch)
+        if left and now - self._last_snapshot < 2 * self.settings.snapshot_every_s:
+            self.snapshots_deferred += 1
+            return
         self._last_snapshot = now
         try:
             with self._rec_lock:
