@@ -164,7 +164,8 @@ class PdrFleet:
         self._n = 0
         self._cap = 0
         self.members: list[FleetMember] = []
-        self._alloc(max(int(capacity), 1))
+        self._first_cap = max(int(capacity), 1)
+        self._alloc(self._first_cap)
         # typed lists of per-slot buffers
         self._bias_tails = _list2(0, 5)
         self._hbufs = _list2(0, 5)
@@ -183,6 +184,12 @@ class PdrFleet:
         """Whether ``settings`` can run in a fleet (the default algorithms, any numbers)."""
         return settings.detector == "norm" and settings.heading.ahrs == "decoupled"
 
+    # the arrays with a row per slot and what _alloc fills a new row with
+    _SLOT_FILL = {"_ahrs": 0.0, "_bias": 0.0, "_raw_last": np.nan, "_turns": 0, "_t0h": np.nan, "_ep": 0.0,
+                  "_det": np.nan, "_sos": 0.0, "_zi": 0.0, "_zi_unit": 0.0, "_swings": 0.0, "_bouts": 0.0,
+                  "_mot": np.nan, "_alt": np.nan, "_h0": 0.0, "_height": np.nan, "_fs": np.nan, "_ring_t": 0.0,
+                  "_ring_z": 0.0, "_rr": 0.0, "_known": 0, "_learned": 0.0, "_pred": 0.0, "_t_first": np.nan}
+
     def _alloc(self, cap: int) -> None:
         nf = self._elev.shape[0]
         shapes = {
@@ -195,6 +202,7 @@ class PdrFleet:
             "_fs": (15, float, np.nan), "_ring_t": (1024, float, 0.0), "_ring_z": (1024, float, 0.0),
             "_rr": (nf, float, 0.0), "_known": (nf, np.int64, 0), "_learned": (nf, float, 0.0), "_pred": (nf, float, 0.0),
         }
+        assert set(shapes) | {"_t_first"} == set(self._SLOT_FILL), "every slot array has its fill"
         for name, (shape, dtype, fill) in shapes.items():
             shape = (cap,) + (shape if isinstance(shape, tuple) else (shape,))
             new = np.full(shape, fill, dtype=dtype)
@@ -216,25 +224,45 @@ class PdrFleet:
         tr._state, tr._ring_t, tr._ring_z = self._fs[slot], self._ring_t[slot], self._ring_z[slot]
         tr._r, tr._known, tr._learned_in, tr._pred = self._rr[slot], self._known[slot], self._learned[slot], self._pred[slot]
 
-    # the per-slot numba typed lists (2: rows of samples, 1: a vector), as plain lists in a pickle
-    _TYPED_LISTS = {"_bias_tails": 2, "_hbufs": 2, "_mot_tails": 2, "_lms": 2, "_raws": 2, "_det_tails": 2,
-                    "_pres": 2, "_step_times": 1}
+    # the per-slot numba typed lists (2: rows of samples, 1: a vector) and their columns; in a
+    # pickle each is one array of every slot's rows and the slots' row counts
+    _TYPED_LISTS = {"_bias_tails": (2, 5), "_hbufs": (2, 5), "_mot_tails": (2, 3), "_lms": (2, 2), "_raws": (2, 2),
+                    "_det_tails": (2, 2), "_pres": (2, 2), "_step_times": (1, 0)}
 
     def __getstate__(self) -> dict:
-        """Picklable state (a service's snapshot): numba's typed lists become lists of arrays."""
+        """Picklable state (a service's snapshot): numba's typed lists packed (``pack_rows``,
+        one compiled pass each, not a Python object per slot); the slot arrays up to the slots
+        in use (the rest is refilled on reading)."""
         d = dict(self.__dict__)
-        for k in self._TYPED_LISTS:
-            d[k] = [np.array(a) for a in d[k]]
+        for k, (dim, cols) in self._TYPED_LISTS.items():
+            d[k] = ("packed",) + (K.pack_rows(d[k], cols) if dim == 2 else K.pack_vectors(d[k]))
+        for k in self._SLOT_FILL:
+            d[k] = d[k][:self._n]
         return d
 
     def __setstate__(self, d: dict) -> None:
-        for k, dim in self._TYPED_LISTS.items():
+        for k, (dim, cols) in self._TYPED_LISTS.items():
             out = List.empty_list(types.float64[:, ::1] if dim == 2 else types.float64[::1])
-            for a in d[k]:
+            v = d[k]
+            if isinstance(v, tuple) and v and v[0] == "packed":
+                lens, rows = v[1], v[2]
+                ends = np.cumsum(lens)
+                v = [rows[e - n:e] for n, e in zip(lens.tolist(), ends.tolist())]
+            for a in v:
                 out.append(np.ascontiguousarray(a, dtype=np.float64))
             d[k] = out
         d.setdefault("_free", [])
+        n, cap = d["_n"], d["_cap"]
+        for k, fill in self._SLOT_FILL.items():  # back to the capacity, the free rows as _alloc fills them
+            a = d[k]
+            if a.shape[0] < cap:
+                full = np.full((cap,) + a.shape[1:], fill, dtype=a.dtype)
+                full[:n] = a[:n]
+                d[k] = full
         self.__dict__.update(d)
+        for m in self.members:  # pickled with the fleet, the pipelines' views came back as copies: views again
+            if getattr(m, "pipe", None) is not None:  # (a service's snapshot gives members their pipelines later)
+                self._bind(m.slot, m.pipe)
 
     def member(self, start_floor: int = 0) -> FleetMember:
         """A new responder starting on ``start_floor``."""
@@ -295,6 +323,31 @@ class PdrFleet:
         self._step_times[m.slot] = np.empty(0)
         self._floor_work.discard(m.slot)
         self._free.append(m.slot)
+        self._shrink()
+
+    def _shrink(self) -> None:
+        """Free slots at the top leave the fleet (their rows back to a new row's fill, their
+        buffers dropped), and the rows' capacity halves while at most a quarter is in use (not
+        below the first capacity): the arrays of a crowd that came and left are given back."""
+        free = set(self._free)
+        top = self._n
+        while top and top - 1 in free:
+            top -= 1
+        if top == self._n:
+            return
+        self._free = [k for k in self._free if k < top]
+        for name, fill in self._SLOT_FILL.items():
+            getattr(self, name)[top:self._n] = fill
+        for lst in (self._bias_tails, self._hbufs, self._mot_tails, self._lms, self._raws, self._det_tails, self._pres,
+                    self._step_times):
+            for _ in range(self._n - top):
+                lst.pop()
+        self._n = top
+        cap, least = self._cap, getattr(self, "_first_cap", 1)
+        while cap // 2 >= least and self._n <= cap // 4:
+            cap //= 2
+        if cap != self._cap:
+            self._alloc(cap)
 
     # ------------------------------------------------------------------ a round
     def run(self, items: Sequence[tuple[FleetMember, ImuFrame]]) -> list:

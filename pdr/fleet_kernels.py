@@ -661,6 +661,43 @@ def append_rows(lst, a):  # pragma: no cover - compiled
     lst.append(a)
 
 
+@njit(cache=True)
+def pack_rows(lst, cols):  # pragma: no cover - compiled
+    """A typed list of ``(k_i, cols)`` arrays as one ``(sum k_i, cols)`` array and the ``k_i``
+    (a snapshot's form: one array, not one object per slot)."""
+    n = len(lst)
+    lens = np.empty(n, np.int64)
+    total = 0
+    for i in range(n):
+        if lst[i].shape[1] != cols:
+            raise ValueError("pack_rows: an entry with another number of columns")
+        lens[i] = lst[i].shape[0]
+        total += lens[i]
+    out = np.empty((total, cols))
+    k = 0
+    for i in range(n):
+        out[k:k + lens[i]] = lst[i]
+        k += lens[i]
+    return lens, out
+
+
+@njit(cache=True)
+def pack_vectors(lst):  # pragma: no cover - compiled
+    """A typed list of 1-D arrays as one array and their lengths (see :func:`pack_rows`)."""
+    n = len(lst)
+    lens = np.empty(n, np.int64)
+    total = 0
+    for i in range(n):
+        lens[i] = lst[i].shape[0]
+        total += lens[i]
+    out = np.empty(total)
+    k = 0
+    for i in range(n):
+        out[k:k + lens[i]] = lst[i]
+        k += lens[i]
+    return lens, out
+
+
 # ------------------------------------------------------------------ trailing windows, paid only where it can matter
 # The stillness tests need a window's standard deviation only where it could pass: a window whose
 # range is at least √(2n)·σ_max cannot have σ < σ_max (σ ≥ range/√(2n) for any n samples), and a

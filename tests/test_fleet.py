@@ -227,3 +227,65 @@ def test_the_service_gives_the_same_poses_with_and_without_columnar_rounds():
         assert (p.responder, p.t, p.x, p.y, p.floor, p.steps, p.source, p.lat, p.lon) == \
                (q.responder, q.t, q.x, q.y, q.floor, q.steps, q.source, q.lat, q.lon)
         assert np.array_equal(p.cov, q.cov)
+
+
+@pytest.mark.bitexact
+def test_a_pickled_fleet_goes_on_like_the_original():
+    """A fleet pickled mid-walk (a service's snapshot: typed lists packed, the rows in use only)
+    and read back gives the same events as the original, bit for bit, with its pipelines'
+    floor and altimeter state views of the restored rows again."""
+    import pickle
+
+    floors = FloorElevations.uniform(3.0, 0, 2)
+    walks = simulated(5, 50, seed=7)
+    fleet = PdrFleet(None, floors, capacity=2)
+    members = [fleet.member(0) for _ in walks]
+    fleet.release(members.pop(3))  # a free slot
+    walks.pop(3)
+    for k in range(200):
+        fleet.run([(m, w[k]) for m, w in zip(members, walks)])
+    twin = pickle.loads(pickle.dumps(fleet, protocol=5))
+    assert twin._ring_t.shape == fleet._ring_t.shape and twin._free == fleet._free
+    for m in twin.members:
+        assert m.pipe._tracker._state.base is twin._fs and m.pipe._altimeter._state.base is twin._alt
+    a, b = [[] for _ in walks], [[] for _ in walks]
+    for k in range(200, 500):
+        for i, ev in enumerate(fleet.run([(m, w[k]) for m, w in zip(members, walks)])):
+            a[i] += ev
+        for i, ev in enumerate(twin.run([(m, w[k]) for m, w in zip(twin.members, walks)])):
+            b[i] += ev
+    assert sum(len(e) for e in a) > 100
+    for x, y in zip(a, b):
+        assert same_events(x, y)
+    assert [m.floor for m in members] == [m.floor for m in twin.members]
+
+
+@pytest.mark.bitexact
+def test_a_crowd_that_leaves_gives_its_rows_back_and_the_fleet_goes_on():
+    """Forty members join beside one walker (a flood's admitted ids) and leave: the fleet's rows
+    shrink back to their first capacity, the walker's events are those of a pipeline alone,
+    and a member that joins afterwards starts as a fresh pipeline in a refilled row."""
+    floors = FloorElevations.uniform(3.0, 0, 2)
+    walks = simulated(3, 40, seed=9)
+    fleet = PdrFleet(None, floors, capacity=2)
+    walker = fleet.member(0)
+    crowd = [fleet.member(0) for _ in range(40)]
+    got = []
+    for k in range(150):
+        res = fleet.run([(walker, walks[0][k])] + [(m, walks[1 + j % 2][k]) for j, m in enumerate(crowd)])
+        got += res[0]
+    assert fleet._cap == 64
+    for m in crowd[::-1][:20] + crowd[:20]:  # out of order: the top is freed only when all of it is
+        fleet.release(m)
+    assert (fleet._n, fleet._cap, fleet._free, len(fleet._hbufs), len(fleet._step_times)) == (1, 2, [], 1, 1)
+    late = fleet.member(0)
+    assert late.slot == 1
+    late_got = []
+    for k in range(150, 400):
+        res = fleet.run([(walker, walks[0][k]), (late, walks[2][k - 150])])
+        got, late_got = got + res[0], late_got + res[1]
+    got += walker.finish()
+    late_got += late.finish()
+    for ref, mine in ((alone(walks[0][:400], floors, 0), got), (alone(walks[2][:250], floors, 0), late_got)):
+        (sa, ma), (sb, mb) = by_kind(ref), by_kind(mine)
+        assert len(sa) > 20 and same_events(sa, sb) and same_events(ma, mb)

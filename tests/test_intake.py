@@ -6,6 +6,8 @@ import gc
 import io
 import logging
 import os
+import subprocess
+import sys
 import tracemalloc
 
 import msgpack
@@ -102,6 +104,29 @@ def test_the_log_of_a_flood_is_a_few_lines_per_source_and_a_summary():
 # --------------------------------------------------------------------------------------
 # The core: 5,000 new ids, expiry, bounded memory and status
 # --------------------------------------------------------------------------------------
+def test_a_wearable_added_to_the_roster_mid_incident_is_admitted_with_roster_only():
+    """serve --roster-only: the roster file gains a wearable while the service runs; the access
+    policy it sends the core (service.cli.serve._watch_roster) carries the roster's wearables,
+    and from that message on the new name is admitted (before it, refused)."""
+    from service.protocol.access import Roster, access_message
+
+    core = IncidentCore(CFG, CoreSettings(intake=IntakeSettings(roster=frozenset({"ff1"}), roster_only=True)))
+    roster = Roster(incident=CFG.id)
+    roster.add("ff1", "wearable")
+    roster.add("console", "console")
+    core.feed(Inbound("access", key("svc", "access"), wire.encode(access_message(roster)), 1.0))
+    assert core.admit("imu", key("ff9"), 100, 2.0) == "not_admitted"
+    roster.add("ff9", "wearable")  # firetrack certs issue --role wearable --name ff9, mid-incident
+    roster.add("ff7", "wearable")
+    acc = access_message(roster)
+    assert acc.wearables == ["ff1", "ff7", "ff9"] and acc.operators == ["console"]
+    core.feed(Inbound("access", key("svc", "access"), wire.encode(acc), 3.0))
+    assert core.admit("imu", key("ff9"), 100, 4.0) is None
+    assert core.admit("imu", key("ff1"), 100, 4.0) is None and core.admit("imu", key("zz"), 100, 4.0) == "not_admitted"
+    twin = IncidentCore.restore(core.snapshot(), CFG, core.settings)  # a restart from the snapshot keeps it
+    assert twin.admit("imu", key("ff7"), 100, 5.0) is None and twin.admit("imu", key("ff8"), 100, 5.0) == "not_admitted"
+
+
 def frame_payload(rid, seq, t0):
     z = np.zeros((10, 3))
     z[:, 2] = 9.81
@@ -212,3 +237,43 @@ def test_silent_ids_cost_little_status_traffic_and_an_alarm_goes_out_at_once():
             assert t1 - t0 >= s.idle_status_every_s or a1 != a0, (t0, t1, a0, a1)
     first = next(t for t, a in quiet if "lost_contact" in a)  # the alarm went out the tick it was raised
     assert first <= 1000.0 + LOST_CONTACT_S + 1.0
+
+
+_CHURN = """
+import sys
+from service.shell.snapshots import fix_mmap_threshold
+def rss_mb():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+if sys.argv[1] == "fixed":
+    assert fix_mmap_threshold(128 * 1024)
+big = bytearray(16 << 20)  # freed, it raises glibc's dynamic threshold to 16 MB
+del big
+keep, blocks = [], []
+before = rss_mb()
+for k in range(60):  # snapshot-sized buffers between small blocks that stay: the service's heap churn
+    blocks.append(bytes(1 << 20) + bytes([k]))
+    keep.append(bytearray(2000))
+grown = rss_mb()
+del blocks
+print(grown - before, grown - rss_mb())
+"""
+
+
+def _glibc() -> bool:
+    try:
+        return sys.platform.startswith("linux") and bool(os.confstr("CS_GNU_LIBC_VERSION"))
+    except (ValueError, OSError):
+        return False
+
+
+@pytest.mark.skipif(not _glibc(), reason="needs glibc's mallopt and /proc/self/status")
+def test_freed_big_buffers_go_back_to_the_system_with_the_services_mmap_threshold():
+    """Big short-lived buffers (a snapshot's bytes every few seconds) between small blocks that
+    stay: with the service's fixed mmap threshold (ServiceSettings.mmap_threshold_bytes) what
+    they took is returned when they are freed; with glibc's dynamic one, raised by an earlier
+    big block, they come from the heap and much of it stays resident."""
+    grown, back = map(float, subprocess.run([sys.executable, "-c", _CHURN, "fixed"], capture_output=True, text=True,
+                                            check=True).stdout.split())
+    assert grown > 50 and back > 0.9 * grown

@@ -10,6 +10,7 @@ import sys
 import time
 
 import msgpack
+import numpy as np
 import pytest
 
 from service.core import snapshot as snapshots
@@ -86,6 +87,159 @@ def test_a_snapshot_names_nothing_but_the_projects_classes():
         snapshots.loads(b"garbage")
     with pytest.raises(snapshots.SnapshotError, match="cannot be read"):
         snapshots.loads(snapshots.MAGIC + b"\x80\x05garbage")
+
+
+def _eventful_inputs():
+    """Two walkers with checkpoints; one's frames swapped in pairs and one held back (the gate
+    holds and a tick releases), presence, a roll call and its ack, an operator's fix, an
+    oversize message through the intake, and a crowd of ids that send one frame and fall
+    silent (a flood's admitted ids)."""
+    items = inputs_of(walk(seconds=40.0, seed=21)) + inputs_of(walk("ff2", seconds=40.0, seed=22), "ff2", rt0=100.03)
+    frames2 = [i for i in items if i.kind == "imu" and "/ff2/" in i.key]
+    for a, b in zip(frames2[10:200:7], frames2[11:200:7]):  # out of order: held until the missing one
+        a_rt, b_rt = a.received, b.received
+        items[items.index(a)], items[items.index(b)] = b._replace(received=a_rt), a._replace(received=b_rt)
+    gone = frames2[250]
+    items.remove(gone)  # never comes: the gate holds the next ones until a tick gives up on it
+    for k in range(30):
+        f = walk(f"idle{k:02d}", seconds=0.1, seed=100 + k).frames[0]
+        items.append(Inbound("imu", wire.key(CFG.id, f"idle{k:02d}", "imu"), wire.encode(f), 101.0 + 0.1 * k))
+    items.append(Inbound("presence", wire.key(CFG.id, "idle05", "presence"), b"0", 110.0))
+    items.append(Inbound("presence", wire.key(CFG.id, "idle06", "presence"), b"0", 111.0))
+    items.append(Inbound("presence", wire.key(CFG.id, "idle06", "presence"), b"1", 112.0))
+    cmd = wire.Command(responder="idle07", action="par", id="p1", issued_at=115.0, issued_by="ic")
+    items.append(Inbound("command", wire.key(CFG.id, "idle07", "command"), wire.encode(cmd), 115.0))
+    ack = wire.Ack(responder="idle07", action="par", id="p1", at=117.0)
+    items.append(Inbound("ack", wire.key(CFG.id, "idle07", "ack"), wire.encode(ack), 117.0))
+    w1 = walk(seconds=40.0, seed=21)
+    for rid, k, rt in (("ff1", 2500, 125.5), ("idle11", 5, 126.5)):  # operators' fixes: a walker, an idle id
+        t = float(w1.t[k]) if rid == "ff1" else 1000.05
+        fix = wire.Fix.checkpoint(rid, t, x=float(w1.x[k]), y=float(w1.y[k]), floor=0, sigma=0.5)
+        op = wire.OperatorAction(operator="ic", action="fix", responder=rid, fix=wire.encode(fix), utc=rt)
+        items.append(Inbound("op", wire.key(CFG.id, "console", "op"), wire.encode(op), rt))
+    return sorted(items, key=lambda i: i.received)
+
+
+def test_a_responders_kept_pickle_is_its_pickle_now_whenever_a_snapshot_reuses_it():
+    """Incremental snapshots: whatever happened since (frames, held frames released by a tick,
+    presence, orders, acks, operator fixes, an oversize message, silence), a responder whose
+    pickle the core kept from the last snapshot pickles to the same bytes now, and the idle
+    crowd is not pickled again."""
+    core = IncidentCore(CFG)
+    items = _eventful_inputs()
+    oversize_at = len(items) // 3
+    checked = reused = 0
+    rt = items[0].received
+    for i in range(0, len(items), 25):
+        for it in items[i:i + 25]:
+            if core.admit(it.kind, it.key, len(it.payload), it.received) is None:
+                core.feed_round([it])
+        if i // 25 == oversize_at // 25:
+            k = wire.key(CFG.id, "idle09", "imu")
+            assert core.admit("imu", k, wire.MAX_PAYLOAD_BYTES + 1, items[i].received) == "oversize"
+        while rt < items[min(i + 25, len(items) - 1)].received:
+            rt += 1.0
+            core.tick(rt)
+        for rid, blob in core._blobs.items():
+            assert blob == core.responder_blob(core.responders[rid]), f"{rid}'s kept pickle is stale at item {i}"
+            checked += 1
+        before = dict(core._blobs)
+        core.snapshot()
+        reused += sum(1 for rid, b in before.items() if core._blobs.get(rid) is b)
+    assert checked > 500 and reused > 500  # the idle ids' pickles were reused, and still right
+    st = {rid: core.status_of(core.responders[rid], rt) for rid in ("ff2", "idle05", "idle07", "idle09", "idle11")}
+    assert st["ff2"].lost >= 1 and st["idle07"].commands["par"]["acked_at"] == 117.0  # the events above happened
+    assert "disconnected" in st["idle05"].alarms and st["idle09"].rejected.get("oversize") == 1
+    assert core.responders["ff1"].tracker.fixes_applied >= 2 and core.counters.errors == 0
+
+
+def test_an_incremental_snapshot_restores_the_core_a_whole_snapshot_restores():
+    """A snapshot that reused the silent responders' pickles restores a core that goes on, bit
+    for bit, like one restored from a snapshot that pickled every responder afresh, and with
+    the uninterrupted core's step counts and statuses."""
+    items = _eventful_inputs()
+    cut = len(items) * 2 // 3
+    core = IncidentCore(CFG)
+    for i in range(0, cut, 40):
+        core.feed_round(items[i:min(i + 40, cut)])
+        core.tick(items[min(i + 40, cut) - 1].received)
+        core.snapshot()
+    kept = dict(core._blobs)
+    incremental = core.snapshot()
+    assert sum(1 for rid, b in kept.items() if core._blobs[rid] is b) >= 30  # the idle crowd was reused
+    core._blobs.clear()
+    whole = core.snapshot()
+    twins = [IncidentCore.restore(incremental, CFG), IncidentCore.restore(whole, CFG)]
+    out = [[], [], []]
+    for i in range(cut, len(items), 40):
+        now = items[min(i + 40, len(items)) - 1].received
+        for c, o in zip([core] + twins, out):
+            o += [m.message for m in c.feed_round(items[i:i + 40]) + c.tick(now)]
+    assert len(out[1]) > 100
+    assert [wire.encode(m) for m in out[1]] == [wire.encode(m) for m in out[2]]
+    sa, sb = ([m for m in o if isinstance(m, wire.Status)] for o in (out[0], out[1]))
+    assert [wire.encode(m) for m in sa] == [wire.encode(m) for m in sb]  # every counter, alarm, order, step
+
+
+def test_a_crowd_of_new_responders_is_pickled_a_batch_per_round_before_the_snapshot():
+    """300 ids admitted at once (a flood's burst): the core pickles at most a batch of them per
+    call and says how many are left; the shell defers a due snapshot while more than a batch is
+    left, and the snapshot it then writes pickles no more than a batch afresh and is the very
+    snapshot a whole pickling gives."""
+    import threading
+    import types
+
+    from service.shell.service import ServiceSettings
+    from service.shell.snapshots import SnapshotWriter
+
+    core = IncidentCore(CFG)
+    core.feed_round(inputs_of(walk(seconds=3.0, seed=5))[:20])
+    core.snapshot()
+    for k in range(300):
+        f = walk(f"new{k:03d}", seconds=0.1, seed=k).frames[0]
+        core.feed_round([Inbound("imu", wire.key(CFG.id, f"new{k:03d}", "imu"), wire.encode(f), 103.0)])
+    assert core.prepare_snapshot(100) == 200 and core.prepare_snapshot(0) == 200
+
+    written = []
+    settings = ServiceSettings(snapshot_batch=64)
+    shell = types.SimpleNamespace(
+        state_file=types.SimpleNamespace(write=lambda blob, pos, now: written.append(blob)), recorder_error=None,
+        recorder=types.SimpleNamespace(flush=lambda: None, message_count=7), snapshot_error=None, core=core,
+        settings=settings, _last_snapshot=100.0, _snapshot_writer=None, snapshots=0, snapshots_skipped=0,
+        snapshots_deferred=0, _rec_lock=threading.Lock(), _core_lock=threading.Lock(), clock=lambda: 200.0)
+    for name in ("_snapshot_if_due", "_write_snapshot", "_snapshot_failed"):
+        setattr(shell, name, types.MethodType(getattr(SnapshotWriter, name), shell))
+    made = []
+    real = core.responder_blob
+    core.responder_blob = lambda r, refs=None: made.append(r.id) or real(r, refs)
+    import service.shell.snapshots as snapshots_module
+    clock = snapshots_module.time.monotonic
+    try:
+        snapshots_module.time.monotonic = lambda: 106.0  # due (5 s), within two periods: deferred
+        rounds = 0
+        while not written and rounds < 10:
+            shell._snapshot_if_due()
+            if shell._snapshot_writer is not None:
+                shell._snapshot_writer.join()
+            rounds += 1
+    finally:
+        snapshots_module.time.monotonic = clock
+    assert written and shell.snapshots_deferred == 3 and len(made) == 200  # 64, 64, 64, then the last 8 in the snapshot
+    del core.responder_blob
+    core._blobs.clear()
+    assert written[0] == core.snapshot()
+
+
+def test_a_restored_fleets_pipelines_see_its_rows():
+    """The handheld pipelines' floor and altimeter state are views of the fleet's rows; after a
+    restore they are views of the restored fleet's rows (not copies that the fleet's rounds
+    would leave behind)."""
+    core = IncidentCore(CFG)
+    core.feed_round(inputs_of(walk(seconds=5.0, seed=3))[:40])
+    twin = IncidentCore.restore(core.snapshot(), CFG)
+    m = twin.responders["ff1"].tracker.model
+    assert m.pipe._tracker._state.base is twin.fleet._fs and m.pipe._altimeter._state.base is twin.fleet._alt
+    assert np.shares_memory(m.pipe._tracker._ring_t, twin.fleet._ring_t[m.slot])
 
 
 def test_the_state_file_is_replaced_whole_and_checked_on_reading(tmp_path):

@@ -45,6 +45,7 @@ class FrameRounds:
             self._process(r, b)
 
     def _process(self, r: Responder, b: wire.ImuBatch) -> None:
+        self._touch(r)
         if b is r.gate.first_of_stream and b is not r.stream_start:
             self._new_stream(r, b)
         t0 = float(b.t[0]) + r.t_offset
@@ -102,6 +103,8 @@ class FrameRounds:
         """The round's end: every responder's waiting frames through its tracker; those on the
         handheld pipeline together, a stage at a time (:meth:`_run_columnar`)."""
         dirty, self._dirty = self._dirty, {}
+        for r in dirty.values():
+            self._touch(r)
         columns: list[Responder] = []
         for r in dirty.values():
             if r.backlog and isinstance(r.tracker.choose_model(r.backlog[0].carry), FleetMember):

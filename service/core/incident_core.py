@@ -116,6 +116,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         self.counters = CoreCounters()
         self.recording_failed = False  # set by the shell: every Status then carries the alarm
         self._dirty: dict[str, Responder] = {}  # responders with frames waiting for the round's end
+        self._blobs: dict[str, bytes] = {}  # responders' pickles of the last snapshot, while they do not change
         self._out: list[Outbound] = []
         self._pose_queue: list[tuple] = []  # poses of this round waiting for their wire form
         self._now = 0.0
@@ -195,6 +196,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
                 # a bad message like any other: the burst alarm hears of it (an id admitted in the same
                 # round, whose Responder the round has not made yet, gets it when it is made)
                 if r is not None:
+                    self._touch(r)
                     r.rejects.append(now)
                 else:
                     self._early_rejects.setdefault(source, deque(maxlen=64)).append(now)
@@ -296,6 +298,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         r = self.responders.get(rid)
         if r is None:
             r = self._new_responder(rid, now)
+        self._touch(r)
         r.last_input = now
         return r
 
@@ -318,6 +321,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
             if now - r.last_input > limit and now - r.first_heard > limit:
                 del self.responders[rid]
                 self._dirty.pop(rid, None)
+                self._blobs.pop(rid, None)
                 self.intake.forget(rid)
                 r.tracker.release_model()  # e.g. its columnar slot goes to the next responder
                 self.counters.expired += 1

@@ -208,6 +208,11 @@ class Intake:
         """Every source (responder ids and the pseudo-sources) throttled within ``flood_alarm_s``."""
         return [name for name, src in self.sources.items() if now - src.last_throttled <= self.settings.flood_alarm_s]
 
+    def set_roster(self, extra: frozenset[str]) -> None:
+        """The ids always admitted: the settings' roster and ``extra`` (the access policy's
+        wearables, which a roster changed mid-incident brings)."""
+        self._roster = (self.settings.roster or frozenset()) | frozenset(extra)
+
     def forget(self, source: str) -> None:
         """The core let a responder go (expired): its budget goes with it."""
         self.sources.pop(source, None)

@@ -29,6 +29,7 @@ class OperatorDesk:
         alive = payload == b"1"
         r = self.responders.get(rid)
         if r is not None:
+            self._touch(r)
             r.present = alive
         else:
             self._presence[rid] = alive
@@ -53,6 +54,7 @@ class OperatorDesk:
         if r is None or msg.responder != rid:
             self.unattributed[f"{kind}_unknown_responder"] = self.unattributed.get(f"{kind}_unknown_responder", 0) + 1
             return
+        self._touch(r)
         if kind == "command":  # an acknowledgement may have overtaken its order (other key, other path)
             early = r.early_acks.pop((msg.action, msg.id), None)
             r.commands[msg.action] = {"id": msg.id, "issued_at": msg.issued_at, "issued_by": msg.issued_by,
@@ -77,6 +79,7 @@ class OperatorDesk:
         first = self.access == wire.Access(enforce=False)
         self.access = acc
         self._revoked = frozenset(acc.revoked) if acc.enforce else frozenset()
+        self.intake.set_roster(frozenset(acc.wearables))  # a wearable added to the roster is admitted from now on
         self._refused_logged.clear()
         log.log(logging.INFO if first else logging.WARNING, "access policy%s: %s",
                 f" from {acc.source}" if acc.source else "",
@@ -131,6 +134,7 @@ class OperatorDesk:
                               ("unknown_responder", f"no frame of {op.responder!r} has been taken yet"))
             self._audit(wire.Audit(outcome="refused", reason=reason, detail=detail, **base))
             return
+        self._touch(r)
         outcome, reason, detail, verdict = self._take_fix(r, fix)
         flagged = verdict is not None and verdict.implausible
         self._audit(wire.Audit(outcome=outcome, reason=reason, detail=detail, t=fix.t,

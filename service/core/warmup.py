@@ -7,7 +7,7 @@ its first step, first compass epoch and first fix within the same seconds, the w
 for some hundreds of milliseconds and every frame queued behind it waits. So before the
 service subscribes, a simulated walker goes through the very path live frames take —
 decode, gate, pipeline, fusion, every kind of fix the incident can use, pose and status
-encoding, the track reply — on a throwaway incident core whose output is dropped.
+encoding, the track reply, a snapshot — on a throwaway incident core whose output is dropped.
 """
 from __future__ import annotations
 
@@ -74,6 +74,7 @@ def _walk(incident, settings, seconds: float, started: float) -> WarmUp:
         wire.encode(o.message)
     t = core.track(rid)
     wire.encode_track(rid, t["track"], t["smoothed"])
+    core.snapshot()  # the snapshot's compiled packing (pdr.fleet) is loaded before the first live one
     r = core.responders[rid]
     return WarmUp(time.perf_counter() - started, r.poses, r.tracker.fixes_applied, core.counters.errors)
 

@@ -273,7 +273,8 @@ def access_message(roster: Roster | None, source: str | None = None):
 
     if roster is None:
         return Access(enforce=False, source=source)
-    return Access(enforce=True, operators=roster.names(*ACTING_ROLES), revoked=roster.revoked(), source=source)
+    return Access(enforce=True, operators=roster.names(*ACTING_ROLES), revoked=roster.revoked(),
+                  wearables=roster.names("wearable"), source=source)
 
 
 class RosterWatcher:

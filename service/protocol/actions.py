@@ -109,13 +109,16 @@ class Access(WireMessage):
     ``enforce`` false: every identity may do everything (the insecure demo). True: operator
     actions are taken only from ``operators`` (console, operator and service identities of the
     roster), and nothing is taken from a ``revoked`` identity (its frames, fixes, presence
-    and actions are refused before they reach a track).
+    and actions are refused before they reach a track). ``wearables`` join the intake's roster
+    (:mod:`service.core.intake`), so a wearable added to the roster mid-incident is admitted.
     """
 
     KIND: ClassVar[str] = "access"
     enforce: bool = Field(description="false: everyone may do everything (insecure demo); true: the lists below apply")
     operators: list[Id] = Field(default_factory=list, description="identities whose operator actions are taken")
     revoked: list[Id] = Field(default_factory=list, description="identities from which nothing is taken")
+    wearables: list[Id] = Field(default_factory=list, description="the roster's wearable identities: always admitted "
+                                "as responders (with serve --roster-only, they and the incident config's roster only)")
     source: str | None = Field(None, max_length=512, description="where the policy came from (the roster file)")
 
 

@@ -52,7 +52,7 @@ from service.protocol import wire
 from service.protocol.incident import IncidentConfig
 from service.shell.round_intake import RoundIntake
 from service.shell.sharding import in_shard
-from service.shell.snapshots import SnapshotWriter, return_memory
+from service.shell.snapshots import SnapshotWriter, fix_mmap_threshold, return_memory
 
 log = logging.getLogger("firetrack.service")
 
@@ -67,8 +67,10 @@ class ServiceSettings:
     fix_channel: int = 5_000  # fixes zenoh may hold for the worker
     history_frames: int = 3000  # frames asked of a wearable's keep when it is detected or missed some
     snapshot_every_s: float = 5.0  # s between snapshots of the core beside the recording (with a state file)
+    snapshot_batch: int = 32  # responders pickled afresh per round while a snapshot waits (service/shell/snapshots.py)
     idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
     warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
+    mmap_threshold_bytes: int | None = 128 * 1024  # bytes: larger blocks mapped alone, returned when freed (None: glibc's)
 
 
 class IncidentService(RoundIntake, SnapshotWriter):
@@ -89,6 +91,7 @@ class IncidentService(RoundIntake, SnapshotWriter):
         self._last_snapshot = -math.inf
         self._snapshot_writer: threading.Thread | None = None  # writes (and fsyncs) the newest snapshot's bytes
         self.snapshots_skipped = 0  # snapshots not written because the previous one was still being written
+        self.snapshots_deferred = 0  # rounds a due snapshot waited while a crowd's pickles were made
         self._expired_seen = 0
         self.queue_dropped = 0  # callbacks' messages dropped because the worker's queue was full
         self.incident = incident
@@ -141,6 +144,7 @@ class IncidentService(RoundIntake, SnapshotWriter):
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> IncidentService:
+        fix_mmap_threshold(self.settings.mmap_threshold_bytes)  # freed big buffers go back (snapshots.py)
         if self.settings.warm_up:
             from service.core.warmup import warm_up
 

@@ -28,6 +28,13 @@ class SnapshotWriter:
         if self._snapshot_writer is not None and self._snapshot_writer.is_alive():
             self.snapshots_skipped += 1  # the disk is slower than the snapshots: the next one will do
             return
+        # a crowd of responders to pickle afresh (ids just admitted) is pickled a batch per round,
+        # and the snapshot taken when few are left (or once it is a whole period late)
+        with self._core_lock:
+            left = self.core.prepare_snapshot(self.settings.snapshot_batch)
+        if left and now - self._last_snapshot < 2 * self.settings.snapshot_every_s:
+            self.snapshots_deferred += 1
+            return
         self._last_snapshot = now
         try:
             with self._rec_lock:
@@ -55,6 +62,27 @@ class SnapshotWriter:
         self.snapshot_error = str(e)
         log.error("writing the snapshot %s failed; no more snapshots (a restart replays the recording): %s",
                   getattr(sf, "path", sf), e)
+
+
+M_MMAP_THRESHOLD = -3  # glibc's mallopt parameter (malloc.h)
+
+
+def fix_mmap_threshold(nbytes: int | None) -> bool:
+    """Blocks of ``nbytes`` and more are mapped on their own and unmapped when freed (glibc's
+    ``mallopt(M_MMAP_THRESHOLD)``); True when set. glibc's default threshold rises to the size
+    of the largest mapped block freed (up to 32 MB), after which the service's big short-lived
+    buffers — a snapshot's bytes every few seconds, its state file's framing, large payloads —
+    come from the heap, scatter free space through it, and stay resident: a flood that
+    admitted hundreds of ids left ~80 MB of free heap resident after they expired (issue 20).
+    A fixed threshold keeps the dynamic rise off. None, or no glibc: nothing is changed."""
+    if nbytes is None:
+        return False
+    try:
+        import ctypes
+
+        return bool(ctypes.CDLL("libc.so.6").mallopt(M_MMAP_THRESHOLD, int(nbytes)))
+    except (OSError, AttributeError):
+        return False
 
 
 def return_memory() -> None:
