@@ -170,9 +170,10 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         s = self.settings
         for r in list(self.responders.values()):
             try:
-                st = self.status_of(r, now)
+                current = self._alarms_now(r, now)
                 idle = now - r.last_input >= s.idle_after_s
-                if not idle or st.alarms != r.last_alarms or now - r.last_status >= s.idle_status_every_s:
+                if not idle or current != r.last_alarms or now - r.last_status >= s.idle_status_every_s:
+                    st = self.status_of(r, now, current)  # built only when sent: a crowd of silent ids is cheap
                     self._out.append(Outbound(wire.key(self.id, r.id, "status"), st))
                     r.last_status, r.last_alarms = now, st.alarms
             except Exception:
@@ -204,17 +205,24 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         return reason
 
     # ------------------------------------------------------------------ queries
-    def status_of(self, r: Responder, now: float) -> wire.Status:
-        heard = r.gate.last_heard if r.gate.last_heard is not None else r.first_heard
-        motion, since = r.tracker.motion
-        rejected = dict(r.gate.counts)
-        tr = r.tracker
+    def _alarms_now(self, r: Responder, now: float) -> list[str]:
+        """The responder's alarms at ``now``; each one's start is kept in ``r.alarm_since``."""
         current = alarms.of_responder(r, now, self.settings, self.recording_failed,
                                       flooding=self.intake.flooding(r.id, now))
         for kind in [k for k in r.alarm_since if k not in current]:
             del r.alarm_since[kind]
         for kind in current:
             r.alarm_since.setdefault(kind, now)
+        return current
+
+    def status_of(self, r: Responder, now: float, current: list[str] | None = None) -> wire.Status:
+        """The responder's Status at ``now`` (``current``: its alarms, when already judged at ``now``)."""
+        heard = r.gate.last_heard if r.gate.last_heard is not None else r.first_heard
+        motion, since = r.tracker.motion
+        rejected = dict(r.gate.counts)
+        tr = r.tracker
+        if current is None:
+            current = self._alarms_now(r, now)
         for reasons in (r.fixes_rejected, tr.fix_rejects, {"unused": tr.fixes_unused}):
             for reason, n in reasons.items():
                 if n:
