@@ -100,8 +100,21 @@ class Page:
         return self.js("window.__firetrack.drawnPositions()")
 
     def click_map_at(self, x: float, y: float) -> None:
-        """Centre the view on ENU (x, y) (away from the overlays at the edges) and click there."""
-        X, Y = self.js("([x, y]) => window.__firetrack.centreOn(x, y)", [x, y])
+        """Centre the view on ENU (x, y) (away from the overlays at the edges) and click there, once
+        the view holds still: a pan or zoom animation begun before (selecting in the roster pans
+        to the responder) can still move the map after centring on a slow machine."""
+        for _ in range(10):
+            X, Y = self.js("([x, y]) => window.__firetrack.centreOn(x, y)", [x, y])
+            box = self.page.locator("#map").bounding_box()
+            self.page.wait_for_timeout(150)
+            still = self.js("""([x, y, X, Y]) => { const m = window.__firetrack.map();
+                const moving = m._animatingZoom || (m._panAnim && m._panAnim._inProgress);
+                const [a, b] = window.__firetrack.enuToScreen(x, y);
+                return !moving && Math.abs(a - X) < 0.5 && Math.abs(b - Y) < 0.5; }""", [x, y, X, Y])
+            if still and self.page.locator("#map").bounding_box() == box:  # nor has the page's layout moved it
+                break
+        else:
+            raise AssertionError(f"the map did not hold still around ({x}, {y}) for a click")
         box = self.page.locator("#map").bounding_box()
         # the click lands on the map itself: not on a control, a marker or a label
         hit = self.js("""([X, Y]) => { const el = document.elementFromPoint(X, Y);
