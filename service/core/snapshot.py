@@ -140,6 +140,7 @@ class SharedRefs:
         self.shared = _dataclass_tree(roots)
         self._ids = {id(o): ("shared", k) for k, o in enumerate(self.shared)}
         self._rows: dict[int, str] = {}
+        self._arrays = frozenset(k for k, v in vars(fleet).items() if isinstance(v, np.ndarray)) if fleet is not None else frozenset()
         if fleet is not None:
             self._ids[id(fleet)] = ("fleet",)
             self._rows = {id(v): k for k, v in vars(fleet).items() if isinstance(v, np.ndarray) and v.ndim >= 2}
@@ -171,7 +172,7 @@ class SharedRefs:
                 return self.fleet
             if self.fleet is not None and kind == "row":
                 name, slot = pid[1], pid[2]
-                if name not in {k for k, v in vars(self.fleet).items() if isinstance(v, np.ndarray)}:
+                if name not in self._arrays:  # only the fleet's arrays may be named
                     raise KeyError(name)
                 return getattr(self.fleet, name)[int(slot)]
         except (TypeError, IndexError, KeyError, ValueError):
