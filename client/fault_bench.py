@@ -251,14 +251,19 @@ def _attacker(endpoint: str, incident: str, mode: str, n: int, seconds: float) -
         session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
         if i % 100 == 99:
             time.sleep(max(0.0, t0 + (i + 1) * seconds / n - time.monotonic()))
+    time.sleep(max(0.0, t0 + seconds - time.monotonic()))  # the attack lasts its time (0 messages: a control run)
     print(f"sent {len(msgs)} {time.monotonic() - t0:.2f}", flush=True)
     session.close()
 
 
-def _rss_mb(pid: int) -> float:
+def _rss_mb(pid: int, field: str = "VmRSS") -> float:
+    """The process's resident memory (MB): ``VmRSS`` in all, or ``RssAnon``, the part that is
+    the process's own (heap, stacks) and not pages of mapped files such as the libraries' code,
+    which the first use of a code path (a flood's error paths in zenoh's 33 MB library) brings
+    in and the kernel may drop again at any time."""
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
+            if line.startswith(f"{field}:"):
                 return int(line.split()[1]) / 1024.0
     except OSError:
         pass
@@ -304,6 +309,16 @@ class _Poses:
                 "latency_p50_ms": _ms(_percentile(lat, 50)), "latency_p99_ms": _ms(_percentile(lat, 99)),
                 "service_latency_p50_ms": _ms(_percentile(svc, 50)),
                 "service_latency_p99_ms": _ms(_percentile(svc, 99)), "poses": len(lat)}
+
+    def timeline(self, responders: list[str], t0: float, t1: float, step: float = 10.0) -> list[list]:
+        """``[s since t0, latency p50 ms, p99 ms, service latency p50 ms]`` per ``step`` s: how the
+        latency moves through the run (with and without an attack)."""
+        out, t = [], t0
+        while t < t1:
+            ph = self.phase(responders, t, min(t + step, t1))
+            out.append([round(t - t0), ph["latency_p50_ms"], ph["latency_p99_ms"], ph["service_latency_p50_ms"]])
+            t += step
+        return out
 
     def status_rate(self, t0: float, t1: float) -> float:
         with self._lock:
@@ -363,23 +378,27 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
             t_before = time.time()
             time.sleep(phase_s)
             rss_before, log_before = _rss_mb(serve.pid), logpath.stat().st_size
+            anon_before = _rss_mb(serve.pid, "RssAnon")
             log(f"phase 2: {mode}: {messages} messages in {attack_s:.0f} s ...")
             t_attack = time.time()
             attacker.stdin.write("go\n")
             attacker.stdin.flush()
-            peak = rss_before
+            peak, anon_peak = rss_before, anon_before
             while attacker.poll() is None:
                 peak = max(peak, _rss_mb(serve.pid))
+                anon_peak = max(anon_peak, _rss_mb(serve.pid, "RssAnon"))
                 time.sleep(0.25)
             sent_line = attacker.stdout.read().strip()
             t_attack_end = time.time()
             log_after_attack = logpath.stat().st_size
             log(f"phase 3: {phase_s:.0f} s after ...")
             t_after0 = time.time()
-            rss_samples = []
+            rss_samples, anon_samples = [], []
             while time.time() < t_after0 + max(phase_s, expire_after + 10.0):  # the ids the attack brought leave
                 rss_samples.append(_rss_mb(serve.pid))
+                anon_samples.append(_rss_mb(serve.pid, "RssAnon"))
                 peak = max(peak, rss_samples[-1])
+                anon_peak = max(anon_peak, anon_samples[-1])
                 time.sleep(0.5)
             t_after1 = time.time()
             by = names[1:]
@@ -398,6 +417,10 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
                            "after": round(rss_samples[-1], 1) if rss_samples else None},
                 "rss_growth_mb": round(peak - rss_before, 1),
                 "rss_kept_after_mb": round(rss_samples[-1] - rss_before, 1) if rss_samples else None,
+                "anon_mb": {"before": round(anon_before, 1), "peak": round(anon_peak, 1),
+                            "after": round(anon_samples[-1], 1) if anon_samples else None},
+                "anon_growth_mb": round(anon_peak - anon_before, 1),
+                "anon_kept_after_mb": round(anon_samples[-1] - anon_before, 1) if anon_samples else None,
                 "log_growth_bytes": log_after_attack - log_before,
                 "status_per_s": {"before": poses.status_rate(t_before, t_attack),
                                  "during": poses.status_rate(t_attack, t_attack_end),
@@ -405,6 +428,7 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
                 "honest_status": None if honest is None else {"alarms": honest.alarms, "rejected": honest.rejected,
                                                                "lost": honest.lost},
             }
+            result["latency_by_10s"] = poses.timeline(by, t_before, t_after1)
             if mode == "ids":
                 result["ids_with_a_status"] = len(poses.status) - len(names)  # admitted (each had a Status)
             poses.close()
@@ -423,6 +447,20 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
             except subprocess.TimeoutExpired:
                 serve.kill()
             logf.close()
+
+
+def against_control(result: dict, control: dict) -> dict:
+    """The attack run's bystanders against a control run's (the same walkers, seeds and phases,
+    no attack): the same stretch of the same walks, so what differs is the attack. The
+    before-phase of the attack run itself is an earlier stretch of the walks, whose latency
+    differs without any attack (``latency_by_10s``)."""
+    a, c = result["bystanders"]["during"], control["bystanders"]["during"]
+    return {"control": {"bystanders": control["bystanders"], "rss_kept_after_mb": control["rss_kept_after_mb"],
+                        "anon_kept_after_mb": control.get("anon_kept_after_mb"),
+                        "latency_by_10s": control.get("latency_by_10s")},
+            "pose_rate_during_over_control": _ratio(a["poses_per_s"], c["poses_per_s"]),
+            "latency_p99_during_over_control": _ratio(a["latency_p99_ms"], c["latency_p99_ms"]),
+            "service_latency_p99_during_over_control": _ratio(a["service_latency_p99_ms"], c["service_latency_p99_ms"])}
 
 
 def _ratio(a, b):
@@ -485,19 +523,30 @@ def reject_cost_us(messages: int = 100_000, incident=None) -> dict:
 
 def bench_faults_command(
     mode: str = typer.Option("flood", "--mode", help="flood: hostile messages; ids: one valid frame from each of N new ids"),
-    messages: int = typer.Option(100_000, "--messages", "-n", help="messages the attacker sends"),
+    messages: int = typer.Option(100_000, "--messages", "-n",
+                                 help="messages the attacker sends (0: a control run, the same phases without an attack)"),
     attack_s: float = typer.Option(30.0, "--attack-s", help="s the attack lasts"),
     phase_s: float = typer.Option(30.0, "--phase-s", help="s of each measured phase (before, after)"),
     expire_after: float = typer.Option(60.0, "--expire-after", help="the service's --expire-after (ids mode: waits for it)"),
     bystanders: int = typer.Option(4, "--bystanders", help="bystander wearables (their figures are pooled)"),
     cost: bool = typer.Option(True, "--cost/--no-cost", help="also measure the in-process cost of the hostile mix"),
+    with_control: bool = typer.Option(False, "--control/--no-control",
+                                      help="first run the same walkers and phases without an attack, and compare with it"),
 ):
     """The service beside an honest and a bystander wearable under a flood (or a storm of new ids): JSON figures."""
     if mode not in ("flood", "ids"):
         err.print(f"--mode must be flood or ids, got {mode!r}")
         raise typer.Exit(2)
-    result = bench_faults(mode, messages, attack_s, phase_s, expire_after, bystanders, log=lambda m: err.print(m))
-    if cost and mode == "flood":
+    say = lambda m: err.print(m)  # noqa: E731
+    control = None
+    if with_control and messages > 0:
+        say("a control run first: the same walkers and phases, no attack ...")
+        control = bench_faults(mode, 0, attack_s, phase_s, expire_after, bystanders, log=say)
+        say("the attack run ...")
+    result = bench_faults(mode, messages, attack_s, phase_s, expire_after, bystanders, log=say)
+    if control is not None:
+        result.update(against_control(result, control))
+    if cost and mode == "flood" and messages > 0:
         err.print("the in-process cost of the hostile mix ...")
         result["cost"] = reject_cost_us(messages)
     print_json(result)

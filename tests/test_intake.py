@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import gc
 import io
+import itertools
 import logging
+import math
 import os
 import subprocess
 import sys
@@ -237,6 +239,71 @@ def test_silent_ids_cost_little_status_traffic_and_an_alarm_goes_out_at_once():
             assert t1 - t0 >= s.idle_status_every_s or a1 != a0, (t0, t1, a0, a1)
     first = next(t for t, a in quiet if "lost_contact" in a)  # the alarm went out the tick it was raised
     assert first <= 1000.0 + LOST_CONTACT_S + 1.0
+
+
+def test_garbage_on_a_fresh_id_makes_no_responder_until_one_of_its_messages_decodes():
+    """An admitted id whose messages do not decode is a newcomer: no tracker, no Status, its
+    rejects counted by reason; its first good frame makes the responder, which carries them.
+    A newcomer that stays silent is forgotten with its budget, its counts kept."""
+    s = CoreSettings(expire_unplaced_s=20.0)
+    core = IncidentCore(CFG, s)
+    bad = [("imu", b"\xc1\xc1"), ("imu", frame_payload("someone_else", 0, 10.0)),
+           ("fix", msgpack.packb({"v": 1, "kind": "fix", "responder": "fresh", "t": "soon", "source": "gnss"})),
+           ("imu", msgpack.packb([1, 2, 3]))]
+    for i, (kind, p) in enumerate(bad * 6):  # 24 rejects: more than the burst alarm's threshold
+        now = 1000.0 + 0.1 * i
+        assert core.admit(kind, key("fresh", kind), len(p), now) is None
+        core.feed(Inbound(kind, key("fresh", kind), p, now))
+    assert core.responders == {}
+    assert [o for o in core.tick(1003.0) if o.key.endswith("/fresh/status")] == []
+    acc = core.frame_accounting()
+    assert (acc["msgpack"], acc["schema"], acc["fix_schema"], acc["not_a_map"]) == (6, 6, 6, 6)
+    core.feed(Inbound("imu", key("fresh"), frame_payload("fresh", 0, 10.0), 1003.5))
+    assert set(core.responders) == {"fresh"} and core.responders["fresh"].first_heard == 1000.0
+    st = next(o.message for o in core.tick(1004.0) if o.key.endswith("/fresh/status"))
+    assert (st.rejected["msgpack"], st.rejected["schema"], st.rejected["fix_schema"]) == (6, 6, 6)
+    assert "rejected_frames" in st.alarms and st.first_heard == 1000.0
+    assert core.frame_accounting()["msgpack"] == 6  # counted once, now as the responder's
+    # a newcomer silent for expire_unplaced_s goes, with its intake budget; its counts stay in the incident's
+    p = b"\xc1"
+    assert core.admit("imu", key("junk"), len(p), 1005.0) is None
+    core.feed(Inbound("imu", key("junk"), p, 1005.0))
+    assert "junk" in core.intake.sources and "junk" not in core.responders
+    core.feed(Inbound("presence", key("fresh", "presence"), b"1", 1026.0))
+    assert "junk" not in core.intake.sources and core.frame_accounting()["newcomer_msgpack"] == 1
+
+
+def test_a_newcomer_survives_a_snapshot():
+    core = IncidentCore(CFG)
+    for i in range(3):
+        core.feed(Inbound("imu", key("fresh"), b"\xc1", 1000.0 + i))
+    back = IncidentCore.restore(core.snapshot(), CFG)
+    assert back.responders == {} and back.frame_accounting()["msgpack"] == 3
+    back.feed(Inbound("imu", key("fresh"), frame_payload("fresh", 0, 10.0), 1004.0))
+    assert back.responders["fresh"].gate.counts["msgpack"] == 3 and back.responders["fresh"].first_heard == 1000.0
+
+
+def test_the_idle_statuses_of_a_crowd_admitted_together_are_spread_over_ticks():
+    """Ids admitted in the same second fall silent together; their idle Statuses go out a share
+    per tick, not all in the same tick every ``idle_status_every_s``, and each still gets one
+    about that often."""
+    s = CoreSettings(idle_after_s=2.0, idle_status_every_s=5.0, expire_after_s=600.0, expire_unplaced_s=600.0)
+    core = IncidentCore(CFG, s)
+    n = 100
+    for i in range(n):
+        core.feed(Inbound("imu", key(f"c{i}"), frame_payload(f"c{i}", 0, 10.0), 1000.0 + i * 1e-3))
+    per_tick, times = [], {f"c{i}": [] for i in range(n)}
+    for k in range(1, 61):
+        now = 1000.0 + k
+        sent = [o.message.responder for o in core.tick(now) if isinstance(o.message, wire.Status)]
+        per_tick.append(len(sent))
+        for rid in sent:
+            times[rid].append(now)
+    settled = per_tick[20:]  # after the alarms they all raise together (lost contact at 10 s) have gone out
+    assert max(settled) <= math.ceil(n / s.idle_status_every_s) + 1, per_tick
+    gaps = [b - a for ts in times.values() for a, b in itertools.pairwise(ts) if a >= 1020.0]
+    assert min(gaps) >= s.idle_status_every_s and max(gaps) <= s.idle_status_every_s + 2.0, sorted(set(gaps))
+    assert sum(settled) == pytest.approx(n * 40 / s.idle_status_every_s, rel=0.1)
 
 
 _CHURN = """

@@ -53,6 +53,11 @@ def test_a_restored_core_goes_on_like_the_uninterrupted_one():
     blob = core.snapshot()
     twin = IncidentCore.restore(blob, CFG)
     assert core.snapshot() == blob  # taking a snapshot changes nothing
+    for rid in ("ff1", "ff2"):  # the whole track so far comes back: every pose, the window's as estimated now
+        mine, theirs = core.track(rid), twin.track(rid)
+        assert mine["smoothed"] and theirs["smoothed"] and len(mine["track"]["t"]) > 50
+        for c in ("t", "x", "y", "heading", "floor"):
+            np.testing.assert_allclose(theirs["track"][c], mine["track"][c], rtol=0, atol=1e-9)
     a, b = [], []
     for i in range(cut, len(items), 200):
         a += poses(core.feed_round(items[i:i + 200]))

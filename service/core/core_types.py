@@ -66,3 +66,4 @@ class CoreCounters:
     errors: int = 0  # exceptions caught while processing (logged a few times per window)
     received: dict = field(default_factory=lambda: {"imu": 0, "fix": 0, "op": 0})  # payloads taken, good or bad
     expired: int = 0  # responders that left after their silence
+    newcomers_forgotten: int = 0  # admitted ids that never sent a decodable message, forgotten after their silence

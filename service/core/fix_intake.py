@@ -22,17 +22,20 @@ class FixIntake:
     """Fixes for a responder: validation, the device clock, plausibility, the graph."""
 
     def _on_fix(self, key: str, payload: bytes, now: float) -> None:
-        r = self._responder_of(key, now, "bad_key")
-        if r is None:
+        rid, r = self._source_of(key, now, "bad_key")
+        if rid is None:
             return
         try:
             fix = wire.decode(payload, expect=wire.Fix)
+            if fix.responder != rid:
+                raise wire.WireError("schema", f"responder {fix.responder!r} in a fix on the key of {rid!r}")
         except wire.WireError as e:
-            self._count_fix_reject(r, e.reason, e.detail)
+            if r is None:  # a newcomer: no responder is made for a message that is none of its
+                self._newcomer_reject(rid, "fixes", e.reason, e.detail, now)
+            else:
+                self._count_fix_reject(r, e.reason, e.detail)
             return
-        if fix.responder != r.id:
-            self._count_fix_reject(r, "schema", f"responder {fix.responder!r} in a fix on the key of {r.id!r}")
-            return
+        r = r or self._responder_for(rid, now)
         outcome, reason, detail, verdict = self._take_fix(r, fix)
         if verdict is not None and verdict.implausible:  # a device's checkpoint fix: taken, flagged, audited
             self._audit(wire.Audit(actor=r.id, action="device_fix", outcome=outcome, responder=r.id, reason=reason,

@@ -23,17 +23,20 @@ class FrameRounds:
     """Frames into tracks: streams, gaps, clock leaps, and the rounds that run the motion models (columnar or one responder at a time)."""
 
     def _on_imu(self, key: str, payload: bytes, now: float) -> None:
-        r = self._responder_of(key, now, "bad_key")
-        if r is None:
+        rid, r = self._source_of(key, now, "bad_key")
+        if rid is None:
             return
         try:
             batch = wire.decode(payload, expect=wire.ImuBatch)
+            if batch.responder != rid:
+                raise wire.WireError("schema", f"responder {batch.responder!r} in a frame on the key of {rid!r}")
         except wire.WireError as e:
-            self._reject(r, e.reason, e.detail, now)
+            if r is None:  # a newcomer: no responder is made for a message that is none of its
+                self._newcomer_reject(rid, "frames", e.reason, e.detail, now)
+            else:
+                self._reject(r, e.reason, e.detail, now)
             return
-        if batch.responder != r.id:
-            self._reject(r, "schema", f"responder {batch.responder!r} in a frame on the key of {r.id!r}", now)
-            return
+        r = r or self._responder_for(rid, now)
         if batch.utc_offset is not None:
             r.utc_offset = batch.utc_offset
         rejected_before = r.gate.rejected

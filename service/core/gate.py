@@ -154,6 +154,11 @@ class FrameGate:
         when = receive_time if receive_time is not None else (self.last_heard if self.last_heard is not None else math.nan)
         self.events.append((when, reason, detail))
 
+    def add_counts(self, counts: dict[str, int]) -> None:
+        """Rejects counted before the gate existed (a newcomer's: :class:`service.core.responder.Newcomer`)."""
+        for reason, n in counts.items():
+            self._counts[reason] += n
+
     # -- the gate -----------------------------------------------------------------------
     def offer(self, batch: ImuBatch, receive_time: float) -> list[ImuBatch]:
         """Take one frame; return the frames released by it, in order (possibly none)."""

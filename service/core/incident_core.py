@@ -42,8 +42,11 @@ message goes on.
 **Isolation.** Before a message is copied, decoded or recorded, the shell asks
 :meth:`IncidentCore.admit` (:mod:`service.core.intake`): its size, whether its responder id may
 join the incident (an admission budget), and whether its source is within its message budget.
+A responder is made for an id only when one of its messages decodes (a frame or a fix for
+that id); until then the id is a :class:`service.core.responder.Newcomer`, which keeps its
+rejects for the responder to take over, and costs no tracker, fleet slot or Status.
 Responders silent for ``expire_after_s`` (``expire_unplaced_s`` for one that never had a frame
-released) leave the core, checked as the inputs' clock passes (so ``reprocess`` lets them go at
+released, and for a newcomer) leave the core, checked as the inputs' clock passes (so ``reprocess`` lets them go at
 the same moments); their track stays in the recording. Memory is bounded by the number of
 responders the intake admits and what each keeps (bounded deques, the estimator's window).
 
@@ -68,7 +71,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections import deque
 from collections.abc import Iterable
 
 import numpy as np
@@ -90,7 +92,7 @@ from service.core.intake import OPERATORS, Intake
 from service.core.operations import OperatorDesk
 from service.core.pose_output import PoseOutput
 from service.core.rejectlog import RejectLog
-from service.core.responder import Responder
+from service.core.responder import Newcomer, Responder
 from service.core.tracker import (
     CheckpointFix,
     ResponderTracker,
@@ -125,7 +127,8 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         self.reject_log = RejectLog(log, settings.rejected_window_s, settings.log_rejects_per_window,
                                     settings.log_lines_per_window)
         self._expiry_checked = -math.inf
-        self._early_rejects: dict[str, deque] = {}  # rejects at the intake of ids admitted but not made yet
+        self._last_tick = -math.inf  # service time of the last tick (spreads idle Statuses)
+        self._newcomers: dict[str, Newcomer] = {}  # admitted ids none of whose messages decoded yet (bounded)
         pipeline = settings.tracker.pipeline
         # the handheld pipelines of all responders, run a stage at a time over the round (pdr.fleet)
         self.fleet = (PdrFleet(pipeline, FloorElevations(incident.elevations()))
@@ -158,7 +161,9 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         """Time passes: frames held for a missing one beyond the gate's wait are released, and
         every responder's Status is answered: at every tick while it is heard, every
         ``idle_status_every_s`` once it has been silent for ``idle_after_s`` (and at once when
-        its alarms change), so a crowd of silent ids costs little status traffic."""
+        its alarms change), so a crowd of silent ids costs little status traffic. The idle
+        ones are spread over ticks (:meth:`_idle_budget`): a crowd admitted together does not
+        stay in step and answer all at once every few seconds."""
         self._now = now
         for r in list(self.responders.values()):
             try:
@@ -168,19 +173,41 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
                 self._error(f"while releasing the held frames of {r.id}")
         self._run_dirty()
         s = self.settings
+        idle_due: list[tuple[float, Responder, list[str]]] = []
+        idle = 0
         for r in list(self.responders.values()):
             try:
                 current = self._alarms_now(r, now)
-                idle = now - r.last_input >= s.idle_after_s
-                if not idle or current != r.last_alarms or now - r.last_status >= s.idle_status_every_s:
-                    st = self.status_of(r, now, current)  # built only when sent: a crowd of silent ids is cheap
-                    self._out.append(Outbound(wire.key(self.id, r.id, "status"), st))
-                    r.last_status, r.last_alarms = now, st.alarms
+                if now - r.last_input < s.idle_after_s or current != r.last_alarms:
+                    self._send_status(r, now, current)
+                    continue
+                idle += 1
+                if now - r.last_status >= s.idle_status_every_s:
+                    idle_due.append((r.last_status, r, current))
             except Exception:
                 self._error(f"status of {r.id}")
+        idle_due.sort(key=lambda e: e[0])  # the longest unanswered first
+        for _, r, current in idle_due[: self._idle_budget(idle, now)]:
+            try:
+                self._send_status(r, now, current)
+            except Exception:
+                self._error(f"status of {r.id}")
+        self._last_tick = now
         self._emit_poses()
         out, self._out = self._out, []
         return out
+
+    def _idle_budget(self, idle: int, now: float) -> int:
+        """Idle Statuses one tick may send: the share of ``idle`` responders that falls in the
+        time since the last tick (``idle × Δt / idle_status_every_s``, rounded up, at least
+        one), so that each still gets one about every ``idle_status_every_s``."""
+        dt = min(max(now - self._last_tick, 0.0), self.settings.idle_status_every_s)
+        return max(1, math.ceil(idle * dt / self.settings.idle_status_every_s))
+
+    def _send_status(self, r: Responder, now: float, current: list[str]) -> None:
+        st = self.status_of(r, now, current)  # built only when sent: a crowd of silent ids is cheap
+        self._out.append(Outbound(wire.key(self.id, r.id, "status"), st))
+        r.last_status, r.last_alarms = now, st.alarms
 
     def admit(self, kind: str, key: str, size: int, now: float) -> str | None:
         """May a message (of ``size`` bytes, on ``key``) enter? None, or the reason it may not
@@ -194,13 +221,13 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
             self.reject_log.note(source, reason, f"{kind} of {size} bytes on {key[:120]!r}", now)
             r = self.responders.get(source)
             if reason == "oversize" and (r is not None or source in self.intake.sources):
-                # a bad message like any other: the burst alarm hears of it (an id admitted in the same
-                # round, whose Responder the round has not made yet, gets it when it is made)
+                # a bad message like any other: the burst alarm hears of it (an id with no Responder
+                # yet, a newcomer, passes it on when one is made)
                 if r is not None:
                     self._touch(r)
                     r.rejects.append(now)
                 else:
-                    self._early_rejects.setdefault(source, deque(maxlen=64)).append(now)
+                    self._newcomer(source, now).rejects.append(now)
                 self.intake.note_reject(source, now)
         return reason
 
@@ -263,6 +290,9 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         out: dict[str, int] = dict(self.unattributed)
         for reason, n in self.intake.counts.items():
             out[reason] = out.get(reason, 0) + n
+        for nc in self._newcomers.values():
+            for reason, n in [*nc.frames.items(), *((f"fix_{k}", v) for k, v in nc.fixes.items())]:
+                out[reason] = out.get(reason, 0) + n
         for r in self.responders.values():
             for reason, n in r.gate.counts.items():
                 out[reason] = out.get(reason, 0) + n
@@ -293,29 +323,72 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         else:
             raise ValueError(f"unknown inbound kind {kind!r}; expected one of {INBOUND_KINDS}")
 
-    def _responder_of(self, key: str, now: float, reason_on_fail: str) -> Responder | None:
+    def _source_of(self, key: str, now: float, reason_on_fail: str) -> tuple[str | None, Responder | None]:
+        """The id ``key`` names and its responder; the responder is None for a newcomer (an id
+        none of whose messages has decoded yet: :meth:`_responder_for` makes it once one does),
+        the id None for a key the core refuses (unparsable, revoked)."""
         try:
             _, rid, _ = wire.parse_key(key)
         except ValueError as e:
             self.unattributed[reason_on_fail] = self.unattributed.get(reason_on_fail, 0) + 1
             self.reject_log.note("<bad key>", reason_on_fail, str(e), now)
-            return None
+            return None, None
         if rid in self._revoked:
             self._refuse_revoked(rid, key)
-            return None
+            return None, None
         r = self.responders.get(rid)
         if r is None:
-            r = self._new_responder(rid, now)
+            self._newcomer(rid, now).last_input = now
+            return rid, None
         self._touch(r)
         r.last_input = now
-        return r
+        return rid, r
+
+    def _responder_for(self, rid: str, now: float) -> Responder:
+        """The responder of ``rid``, made now if its message is the first that decoded."""
+        r = self.responders.get(rid)
+        return r if r is not None else self._new_responder(rid, now)
+
+    def _newcomer(self, rid: str, now: float) -> Newcomer:
+        n = self._newcomers.get(rid)
+        if n is None:
+            if len(self._newcomers) >= self.MAX_NEWCOMERS:  # fed past an intake (reprocess): the oldest goes
+                self._forget_newcomer(next(iter(self._newcomers)))
+            n = self._newcomers[rid] = Newcomer(first_heard=now, last_input=now)
+        return n
+
+    def _forget_newcomer(self, rid: str) -> None:
+        n = self._newcomers.pop(rid)
+        self.intake.forget(rid)
+        self.counters.newcomers_forgotten += 1
+        for reason, k in n.frames.items():  # still in the incident's accounting
+            self.unattributed[f"newcomer_{reason}"] = self.unattributed.get(f"newcomer_{reason}", 0) + k
+        for reason, k in n.fixes.items():
+            self.unattributed[f"newcomer_fix_{reason}"] = self.unattributed.get(f"newcomer_fix_{reason}", 0) + k
+
+    def _newcomer_reject(self, rid: str, counts: str, reason: str, detail: str, now: float) -> None:
+        """A newcomer's message that did not decode: counted by reason (``counts``: ``frames`` or
+        ``fixes``), heard by its budget and the burst alarm, logged like a responder's."""
+        n = self._newcomer(rid, now)
+        book = getattr(n, counts)
+        book[reason] = book.get(reason, 0) + 1
+        if reason != "duplicate":
+            n.rejects.append(now)
+            self.intake.note_reject(rid, now)
+        self.reject_log.note(rid, reason if counts == "frames" else f"fix_{reason}", detail, now)
 
     def _new_responder(self, rid: str, now: float) -> Responder:
         s = self.settings
+        n = self._newcomers.pop(rid, None)
         r = Responder(id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=self._tracker(rid),
-                      first_heard=now, present=self._presence.pop(rid, None))
-        r.rejects.extend(self._early_rejects.pop(rid, ()))
+                      first_heard=now if n is None else n.first_heard, present=self._presence.pop(rid, None),
+                      last_input=now)
+        if n is not None:  # what it sent before this is counted as the responder's
+            r.rejects.extend(n.rejects)
+            r.gate.add_counts(n.frames)
+            r.fixes_rejected.update(n.fixes)
         self.responders[rid] = r
+        self._touch(r)
         log.info("responder %s appeared", rid)
         return r
 
@@ -324,6 +397,8 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         was ever released) leave: their memory goes, their track stays in the recording."""
         self._expiry_checked = now
         s = self.settings
+        for rid in [rid for rid, n in self._newcomers.items() if now - n.last_input > s.expire_unplaced_s]:
+            self._forget_newcomer(rid)
         for rid, r in list(self.responders.items()):
             limit = s.expire_after_s if r.gate.accepted else s.expire_unplaced_s
             if now - r.last_input > limit and now - r.first_heard > limit:
@@ -348,6 +423,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
                                 fleet=self.fleet)
 
     MAX_PRESENCE = 4096  # liveliness states kept for ids with no responder (beyond, the oldest go)
+    MAX_NEWCOMERS = 4096  # newcomers kept (the intake admits fewer; a core fed past an intake is bounded too)
 
 
     def _reject(self, r: Responder, reason: str, detail: str, now: float) -> None:

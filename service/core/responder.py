@@ -47,6 +47,20 @@ class Responder:
     fixes_flagged: int = 0  # checkpoint fixes taken but flagged as implausible jumps
 
 
+@dataclass
+class Newcomer:
+    """An id the intake admitted none of whose messages has decoded yet: what the core keeps
+    for it instead of a :class:`Responder` (no gate, tracker, fleet slot or Status). Its
+    rejects move into the responder its first decodable message makes (issue 20: a flood of
+    garbage on fresh ids costs a few numbers per id, not a tracker each)."""
+
+    first_heard: float  # service time of its first message
+    last_input: float  # service time of its newest
+    rejects: deque = field(default_factory=lambda: deque(maxlen=64))  # service times (the burst alarm, later)
+    frames: dict = field(default_factory=dict)  # frame rejects by reason
+    fixes: dict = field(default_factory=dict)  # fix rejects by reason
+
+
 def continues(prev: wire.ImuBatch, b: wire.ImuBatch) -> bool:
     """Can ``b`` join ``prev`` in one pipeline batch: later samples, the same sensors."""
     return (prev.mag is None) == (b.mag is None) and len(b.t) > 0 and len(prev.t) > 0 and b.t[0] > prev.t[-1]

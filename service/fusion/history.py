@@ -45,6 +45,14 @@ class PoseHistory:
         self._n += 1
         return row
 
+    def copy(self) -> PoseHistory:
+        """A copy holding just the filled rows (column copies, not a row at a time: a snapshot
+        of an hour-long track costs a few memcpys, not thousands of appends)."""
+        out = PoseHistory.__new__(PoseHistory)
+        out._n = self._n
+        out._cols = {k: col[: max(self._n, 1)].copy() for k, col in self._cols.items()}
+        return out
+
     def col(self, name: str) -> np.ndarray:
         """A view of the filled part of column ``name`` (writable: the owner updates it)."""
         return self._cols[name][: self._n]

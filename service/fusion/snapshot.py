@@ -15,7 +15,6 @@ import gtsam
 import numpy as np
 
 from pdr.angles import wrap
-from service.fusion.history import PoseHistory
 from service.fusion.keys import S, X
 from service.fusion.smoother import new_smoother
 
@@ -31,9 +30,7 @@ def fusion_state(self) -> dict:
         return state
     row = len(self._hist) - 1
     est = sm.calculateEstimate()
-    hist = PoseHistory(max(len(self._hist), 1))
-    for k in range(len(self._hist)):
-        hist.append(**{c: self._hist.col(c)[k] for c in self._hist.columns})
+    hist = self._hist.copy()
     xs, ys, hs = hist.col("x"), hist.col("y"), hist.col("heading")
     for r in range(self._window_start, row + 1):  # the window's poses, frozen at their current estimates
         p = est.atPose2(X(r))

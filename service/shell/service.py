@@ -329,8 +329,9 @@ class IncidentService(RoundIntake, SnapshotWriter):
             self._publish(out)
             if ticks:
                 self._forget_publishers()
-                if self.core.counters.expired != self._expired_seen:
-                    self._expired_seen = self.core.counters.expired
+                gone = self.core.counters.expired + self.core.counters.newcomers_forgotten
+                if gone != self._expired_seen:  # responders or newcomers left: their memory goes back
+                    self._expired_seen = gone
                     return_memory()
             self._snapshot_if_due()
         finally:
