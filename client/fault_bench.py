@@ -245,14 +245,14 @@ def _attacker(endpoint: str, incident: str, mode: str, n: int, seconds: float) -
     session = zenoh.open(client_config(endpoint))
     msgs = fresh_id_messages(n, incident) if mode == "ids" else hostile_messages(n, incident, "honest")
     print("ready", flush=True)
-    sys.stdin.readline()
-    t0 = time.monotonic()
-    for i, (key, payload) in enumerate(msgs):
-        session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
-        if i % 100 == 99:
-            time.sleep(max(0.0, t0 + (i + 1) * seconds / n - time.monotonic()))
-    time.sleep(max(0.0, t0 + seconds - time.monotonic()))  # the attack lasts its time (0 messages: a control run)
-    print(f"sent {len(msgs)} {time.monotonic() - t0:.2f}", flush=True)
+    while sys.stdin.readline().strip() == "go":  # one attack per "go" (the same messages each time)
+        t0 = time.monotonic()
+        for i, (key, payload) in enumerate(msgs):
+            session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+            if i % 100 == 99:
+                time.sleep(max(0.0, t0 + (i + 1) * seconds / n - time.monotonic()))
+        time.sleep(max(0.0, t0 + seconds - time.monotonic()))  # the attack lasts its time (0 messages: a control run)
+        print(f"sent {len(msgs)} {time.monotonic() - t0:.2f}", flush=True)
     session.close()
 
 
@@ -268,6 +268,21 @@ def _rss_mb(pid: int, field: str = "VmRSS") -> float:
     except OSError:
         pass
     return math.nan
+
+
+def _cpu_s(pid: int) -> float:
+    """CPU time (user + system, s) the process has used, all its threads (zenoh's too)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return math.nan
+
+
+def _line_or_none(stream, timeout: float) -> str | None:
+    """A line from a child's pipe if one comes within ``timeout`` s."""
+    ready, _, _ = select.select([stream], [], [], timeout)
+    return stream.readline().strip() if ready else None
 
 
 def _percentile(values, q) -> float | None:
@@ -334,7 +349,8 @@ def _ms(v):
 
 
 def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float = 30.0, phase_s: float = 30.0,
-                 expire_after: float = 60.0, bystanders: int = 4, log=print) -> dict:
+                 expire_after: float = 60.0, bystanders: int = 4, log=print, n_attacks: int = 1,
+                 settle_s: float = 10.0) -> dict:
     from service.protocol.incident import default_incident
 
     cfg = default_incident()
@@ -359,7 +375,7 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
                         raise RuntimeError(f"the service did not start: {logpath.read_text()[-2000:]}")
                     time.sleep(0.3)
             time.sleep(3.0)  # warm-up and subscriptions
-            total = 2 * phase_s + attack_s + expire_after + 30.0
+            total = phase_s + n_attacks * (attack_s + max(phase_s, expire_after + settle_s)) + 30.0
             names = ["honest"] + [f"bystander{j}" for j in range(bystanders)]
             for i, r in enumerate(names):
                 walkers[r] = WalkerWearable(ep, cfg.id, r, walker_frames(r, total, seed=i + 1))
@@ -375,32 +391,45 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
                 w.start()
             time.sleep(5.0)  # the walkers' first frames: trackers built
             log(f"phase 1: {phase_s:.0f} s without an attack ...")
-            t_before = time.time()
+            t_before, cpu_before = time.time(), _cpu_s(serve.pid)
             time.sleep(phase_s)
-            rss_before, log_before = _rss_mb(serve.pid), logpath.stat().st_size
+            cpu_attack = _cpu_s(serve.pid)
+            rss_before = _rss_mb(serve.pid)
             anon_before = _rss_mb(serve.pid, "RssAnon")
-            log(f"phase 2: {mode}: {messages} messages in {attack_s:.0f} s ...")
-            t_attack = time.time()
-            attacker.stdin.write("go\n")
-            attacker.stdin.flush()
+            attacks = []  # per attack: (start, end, attacker's line, log growth, rss and anon kept after expiry)
             peak, anon_peak = rss_before, anon_before
-            while attacker.poll() is None:
-                peak = max(peak, _rss_mb(serve.pid))
-                anon_peak = max(anon_peak, _rss_mb(serve.pid, "RssAnon"))
-                time.sleep(0.25)
-            sent_line = attacker.stdout.read().strip()
-            t_attack_end = time.time()
-            log_after_attack = logpath.stat().st_size
-            log(f"phase 3: {phase_s:.0f} s after ...")
-            t_after0 = time.time()
-            rss_samples, anon_samples = [], []
-            while time.time() < t_after0 + max(phase_s, expire_after + 10.0):  # the ids the attack brought leave
-                rss_samples.append(_rss_mb(serve.pid))
-                anon_samples.append(_rss_mb(serve.pid, "RssAnon"))
-                peak = max(peak, rss_samples[-1])
-                anon_peak = max(anon_peak, anon_samples[-1])
-                time.sleep(0.5)
+            for k in range(n_attacks):
+                log(f"phase 2: {mode}: {messages} messages in {attack_s:.0f} s" + (f" (attack {k + 1})" if k else "") + " ...")
+                log0 = logpath.stat().st_size
+                t_attack = time.time()
+                attacker.stdin.write("go\n")
+                attacker.stdin.flush()
+                sent_line = ""
+                while not sent_line:  # the attacker says when it is done
+                    peak = max(peak, _rss_mb(serve.pid))
+                    anon_peak = max(anon_peak, _rss_mb(serve.pid, "RssAnon"))
+                    sent_line = _line_or_none(attacker.stdout, 0.25) or ""
+                    if not sent_line and attacker.poll() is not None:
+                        raise RuntimeError(f"the attacker process ended (exit code {attacker.returncode}) "
+                                           f"during attack {k + 1}")
+                t_attack_end = time.time()
+                if k == 0:
+                    cpu_attack_end = _cpu_s(serve.pid)
+                log_attack = logpath.stat().st_size - log0
+                log(f"phase 3: {phase_s:.0f} s after, and until the ids the attack brought have left ...")
+                t_after0 = time.time()
+                rss_samples, anon_samples = [], []
+                while time.time() < t_after0 + max(phase_s, expire_after + settle_s):
+                    rss_samples.append(_rss_mb(serve.pid))
+                    anon_samples.append(_rss_mb(serve.pid, "RssAnon"))
+                    peak = max(peak, rss_samples[-1])
+                    anon_peak = max(anon_peak, anon_samples[-1])
+                    time.sleep(0.5)
+                attacks.append((t_attack, t_attack_end, sent_line, log_attack, rss_samples[-1], anon_samples[-1]))
+            attacker.stdin.close()
             t_after1 = time.time()
+            t_attack, t_attack_end, sent_line, log_growth, rss_after, anon_after = attacks[0]
+            t_after0 = t_attack_end
             by = names[1:]
             before = poses.phase(by, t_before, t_before + phase_s)
             during = poses.phase(by, t_attack, t_attack_end)
@@ -413,15 +442,17 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
                 "latency_p99_during_over_before": _ratio(during["latency_p99_ms"], before["latency_p99_ms"]),
                 "service_latency_p99_during_over_before": _ratio(during["service_latency_p99_ms"],
                                                                  before["service_latency_p99_ms"]),
-                "rss_mb": {"before": round(rss_before, 1), "peak": round(peak, 1),
-                           "after": round(rss_samples[-1], 1) if rss_samples else None},
+                "rss_mb": {"before": round(rss_before, 1), "peak": round(peak, 1), "after": round(rss_after, 1)},
                 "rss_growth_mb": round(peak - rss_before, 1),
-                "rss_kept_after_mb": round(rss_samples[-1] - rss_before, 1) if rss_samples else None,
-                "anon_mb": {"before": round(anon_before, 1), "peak": round(anon_peak, 1),
-                            "after": round(anon_samples[-1], 1) if anon_samples else None},
+                "rss_kept_after_mb": round(rss_after - rss_before, 1),
+                "anon_mb": {"before": round(anon_before, 1), "peak": round(anon_peak, 1), "after": round(anon_after, 1)},
                 "anon_growth_mb": round(anon_peak - anon_before, 1),
-                "anon_kept_after_mb": round(anon_samples[-1] - anon_before, 1) if anon_samples else None,
-                "log_growth_bytes": log_after_attack - log_before,
+                "anon_kept_after_mb": round(anon_after - anon_before, 1),
+                "log_growth_bytes": log_growth,
+                "service_cpu_per_s": {"before": round((cpu_attack - cpu_before) / phase_s, 3),
+                                      "during": round((cpu_attack_end - cpu_attack) / (t_attack_end - t_attack), 3)},
+                "attacks": [{"attacker": a[2], "log_growth_bytes": a[3], "rss_kept_after_mb": round(a[4] - rss_before, 1),
+                             "anon_kept_after_mb": round(a[5] - anon_before, 1)} for a in attacks],
                 "status_per_s": {"before": poses.status_rate(t_before, t_attack),
                                  "during": poses.status_rate(t_attack, t_attack_end),
                                  "end_of_after": poses.status_rate(t_after1 - 5.0, t_after1)},
@@ -456,6 +487,7 @@ def against_control(result: dict, control: dict) -> dict:
     differs without any attack (``latency_by_10s``)."""
     a, c = result["bystanders"]["during"], control["bystanders"]["during"]
     return {"control": {"bystanders": control["bystanders"], "rss_kept_after_mb": control["rss_kept_after_mb"],
+                        "service_cpu_per_s": control.get("service_cpu_per_s"),
                         "anon_kept_after_mb": control.get("anon_kept_after_mb"),
                         "latency_by_10s": control.get("latency_by_10s")},
             "pose_rate_during_over_control": _ratio(a["poses_per_s"], c["poses_per_s"]),
@@ -530,6 +562,8 @@ def bench_faults_command(
     expire_after: float = typer.Option(60.0, "--expire-after", help="the service's --expire-after (ids mode: waits for it)"),
     bystanders: int = typer.Option(4, "--bystanders", help="bystander wearables (their figures are pooled)"),
     cost: bool = typer.Option(True, "--cost/--no-cost", help="also measure the in-process cost of the hostile mix"),
+    attacks: int = typer.Option(1, "--attacks", min=1, help="attacks one after the other, each followed by its after-phase "
+                                "(memory kept after each: what one leaves, the next must not add to)"),
     with_control: bool = typer.Option(False, "--control/--no-control",
                                       help="first run the same walkers and phases without an attack, and compare with it"),
 ):
@@ -537,13 +571,15 @@ def bench_faults_command(
     if mode not in ("flood", "ids"):
         err.print(f"--mode must be flood or ids, got {mode!r}")
         raise typer.Exit(2)
-    say = lambda m: err.print(m)  # noqa: E731
+    def say(m):
+        err.print(m)
+
     control = None
     if with_control and messages > 0:
         say("a control run first: the same walkers and phases, no attack ...")
-        control = bench_faults(mode, 0, attack_s, phase_s, expire_after, bystanders, log=say)
+        control = bench_faults(mode, 0, attack_s, phase_s, expire_after, bystanders, log=say, n_attacks=attacks)
         say("the attack run ...")
-    result = bench_faults(mode, messages, attack_s, phase_s, expire_after, bystanders, log=say)
+    result = bench_faults(mode, messages, attack_s, phase_s, expire_after, bystanders, log=say, n_attacks=attacks)
     if control is not None:
         result.update(against_control(result, control))
     if cost and mode == "flood" and messages > 0:

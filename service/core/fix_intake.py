@@ -35,7 +35,8 @@ class FixIntake:
             else:
                 self._count_fix_reject(r, e.reason, e.detail)
             return
-        r = r or self._responder_for(rid, now)
+        if r is None:  # its first message that decodes: the responder is made now
+            r = self._new_responder(rid, now)
         outcome, reason, detail, verdict = self._take_fix(r, fix)
         if verdict is not None and verdict.implausible:  # a device's checkpoint fix: taken, flagged, audited
             self._audit(wire.Audit(actor=r.id, action="device_fix", outcome=outcome, responder=r.id, reason=reason,

@@ -36,7 +36,8 @@ class FrameRounds:
             else:
                 self._reject(r, e.reason, e.detail, now)
             return
-        r = r or self._responder_for(rid, now)
+        if r is None:  # its first message that decodes: the responder is made now
+            r = self._new_responder(rid, now)
         if batch.utc_offset is not None:
             r.utc_offset = batch.utc_offset
         rejected_before = r.gate.rejected

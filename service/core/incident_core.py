@@ -325,7 +325,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
 
     def _source_of(self, key: str, now: float, reason_on_fail: str) -> tuple[str | None, Responder | None]:
         """The id ``key`` names and its responder; the responder is None for a newcomer (an id
-        none of whose messages has decoded yet: :meth:`_responder_for` makes it once one does),
+        none of whose messages has decoded yet: the responder is made once one does),
         the id None for a key the core refuses (unparsable, revoked)."""
         try:
             _, rid, _ = wire.parse_key(key)
@@ -343,11 +343,6 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         self._touch(r)
         r.last_input = now
         return rid, r
-
-    def _responder_for(self, rid: str, now: float) -> Responder:
-        """The responder of ``rid``, made now if its message is the first that decoded."""
-        r = self.responders.get(rid)
-        return r if r is not None else self._new_responder(rid, now)
 
     def _newcomer(self, rid: str, now: float) -> Newcomer:
         n = self._newcomers.get(rid)

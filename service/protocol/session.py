@@ -55,6 +55,10 @@ def router_config(listen: list[str] | None = None, tls=None, acl: dict | None = 
     from service.protocol.tls import check_endpoints
 
     conf = _base("router", tls, listen=True)
+    # no shared memory: a local peer's large messages would have the service map that peer's
+    # pool (16 MB each, resident for as long as zenoh keeps the mapping); the wearables are on
+    # the network, where it plays no part (tests/test_router_shm.py)
+    conf.insert_json5("transport/shared_memory/enabled", "false")
     conf.insert_json5("listen/endpoints", json.dumps(check_endpoints(listen or [default_endpoint(tls)], tls, "--listen")))
     if acl is not None:
         conf.insert_json5("access_control", json.dumps(acl))
