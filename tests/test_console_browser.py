@@ -307,6 +307,41 @@ def test_markers_move_a_map_click_places_a_fix_and_review_scrubs_the_track(stack
         page.close()
 
 
+def test_a_bar_appearing_above_the_map_leaves_every_point_where_it_was_on_screen(stack, browser):
+    """Bars above the map (the alarm bar) come and go: the map keeps what is under the officer's
+    pointer where it was on the screen (a fix placed by a click as a bar appears must land where
+    the officer aimed, not half a bar's height away: 3.8 m in a CI run of the test above)."""
+    _svc, console, _cl, cfg, _ = stack
+    page = Page(browser, console.url)
+    try:
+        cp = cfg.checkpoint("t52-lm1")
+        page.page.wait_for_timeout(1000)  # the page's own first fit of the view is over
+        page.js("([x, y]) => window.__firetrack.centreOn(x, y, false)", [cp.x, cp.y])
+        page.page.wait_for_timeout(300)
+
+        def on_page():  # the checkpoint's spot in page pixels
+            box = page.page.locator("#map").bounding_box()
+            X, Y = page.js("([x, y]) => window.__firetrack.enuToScreen(x, y)", [cp.x, cp.y])
+            return box["y"], (box["x"] + X, box["y"] + Y)
+
+        top0, at0 = on_page()
+        for height in (60, 0):  # a bar appears, then goes
+            # a bar of the test's own just above the map (the page's alarm bar follows the page's alarms)
+            page.js("""(h) => { let bar = document.getElementById('test-bar');
+                if (!bar) { bar = document.createElement('div'); bar.id = 'test-bar';
+                            document.querySelector('main').before(bar); }
+                bar.style.height = `${h}px`; }""", height)
+            page.wait("(top) => Math.abs(document.getElementById('map').getBoundingClientRect().top - top) > 30",
+                      top0) if height else page.wait(
+                "(top) => Math.abs(document.getElementById('map').getBoundingClientRect().top - top) < 1", top0)
+            page.page.wait_for_timeout(300)  # the map has settled (no animation left)
+            top, at = on_page()
+            assert (top - top0 > 30) == bool(height)  # the map's box did move
+            assert math.dist(at, at0) < 1.0, (height, at, at0)  # what was under a pixel still is
+    finally:
+        page.close()
+
+
 def test_a_motionless_responder_raises_man_down_which_is_acknowledged_and_raised_again(stack, browser):
     svc, console, cl, cfg, endpoint = stack
     w = Wearable(cl, cfg.id, "echo")

@@ -39,8 +39,17 @@ export function createMap(el, onClick) {
     doubleClickZoom: false,  // a click is an action (a fix): two of them must not also zoom
   });
   map.setView([0, 0], 0);
-  // the alarm list and the review bar change the map's height, not the window's: follow the element
-  new ResizeObserver(() => map.invalidateSize()).observe(el);
+  // the alarm list and the review bar change the map's box, not the window's: follow the element,
+  // keeping every point where it was on the screen (a bar that appears above the map as the
+  // officer clicks must not move the spot under the pointer; Leaflet's own resize keeps the
+  // centre, which moves everything by half the bar's height)
+  let box = el.getBoundingClientRect();
+  new ResizeObserver(() => {
+    const now = el.getBoundingClientRect(), dx = now.left - box.left, dy = now.top - box.top;
+    box = now;
+    map.invalidateSize({pan: false});  // the view's top-left corner stays on the element's
+    if (dx || dy) map.panBy([dx, dy], {animate: false});  // and goes back to where it was on the screen
+  }).observe(el);
   L.control.scale({imperial: false, maxWidth: SCALE_MAX_PX, position: "bottomleft"}).addTo(map);
   new NorthArrow({position: "topright"}).addTo(map);
   map.on("click", (e) => { const [x, y] = frame().toEnu(e.latlng); onClick(x, y, e.containerPoint); });
