@@ -25,18 +25,9 @@ class FixIntake:
         rid, r = self._source_of(key, now, "bad_key")
         if rid is None:
             return
-        try:
-            fix = wire.decode(payload, expect=wire.Fix)
-            if fix.responder != rid:
-                raise wire.WireError("schema", f"responder {fix.responder!r} in a fix on the key of {rid!r}")
-        except wire.WireError as e:
-            if r is None:  # a newcomer: no responder is made for a message that is none of its
-                self._newcomer_reject(rid, "fixes", e.reason, e.detail, now)
-            else:
-                self._count_fix_reject(r, e.reason, e.detail)
+        fix, r = self._decode_for(rid, r, payload, wire.Fix, now)
+        if fix is None:
             return
-        if r is None:  # its first message that decodes: the responder is made now
-            r = self._new_responder(rid, now)
         outcome, reason, detail, verdict = self._take_fix(r, fix)
         if verdict is not None and verdict.implausible:  # a device's checkpoint fix: taken, flagged, audited
             self._audit(wire.Audit(actor=r.id, action="device_fix", outcome=outcome, responder=r.id, reason=reason,

@@ -26,18 +26,9 @@ class FrameRounds:
         rid, r = self._source_of(key, now, "bad_key")
         if rid is None:
             return
-        try:
-            batch = wire.decode(payload, expect=wire.ImuBatch)
-            if batch.responder != rid:
-                raise wire.WireError("schema", f"responder {batch.responder!r} in a frame on the key of {rid!r}")
-        except wire.WireError as e:
-            if r is None:  # a newcomer: no responder is made for a message that is none of its
-                self._newcomer_reject(rid, "frames", e.reason, e.detail, now)
-            else:
-                self._reject(r, e.reason, e.detail, now)
+        batch, r = self._decode_for(rid, r, payload, wire.ImuBatch, now)
+        if batch is None:
             return
-        if r is None:  # its first message that decodes: the responder is made now
-            r = self._new_responder(rid, now)
         if batch.utc_offset is not None:
             r.utc_offset = batch.utc_offset
         rejected_before = r.gate.rejected

@@ -361,6 +361,27 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         for reason, k in n.fixes.items():
             self.unattributed[f"newcomer_fix_{reason}"] = self.unattributed.get(f"newcomer_fix_{reason}", 0) + k
 
+    def _decode_for(self, rid: str, r: Responder | None, payload: bytes, expect, now: float):
+        """``payload`` decoded as ``expect`` (``wire.ImuBatch`` or ``wire.Fix``) for ``rid``, and its
+        responder: ``(message, responder)``, the responder made now if this is the first message
+        of a newcomer that decodes; ``(None, None)`` when refused (counted against the responder,
+        or the newcomer, with the reason)."""
+        frames = expect is wire.ImuBatch
+        try:
+            msg = wire.decode(payload, expect=expect)
+            if msg.responder != rid:
+                what = "frame" if frames else "fix"
+                raise wire.WireError("schema", f"responder {msg.responder!r} in a {what} on the key of {rid!r}")
+        except wire.WireError as e:
+            if r is None:  # a newcomer: no responder is made for a message that is none of its
+                self._newcomer_reject(rid, "frames" if frames else "fixes", e.reason, e.detail, now)
+            elif frames:
+                self._reject(r, e.reason, e.detail, now)
+            else:
+                self._count_fix_reject(r, e.reason, e.detail)
+            return None, None
+        return msg, (r if r is not None else self._new_responder(rid, now))
+
     def _newcomer_reject(self, rid: str, counts: str, reason: str, detail: str, now: float) -> None:
         """A newcomer's message that did not decode: counted by reason (``counts``: ``frames`` or
         ``fixes``), heard by its budget and the burst alarm, logged like a responder's."""
