@@ -14,6 +14,11 @@ Delivery you can count
   fixes), a bounded buffer, and announces its newest sequence number by heartbeat. The
   service's advanced subscriber notices what it missed (a Wi-Fi outage, a router restart, a
   service that started or restarted later) and fetches it from the keep, in order.
+* **Resent on request.** The wearable also keeps its last ``keep_frames`` encoded frames itself.
+  When the service's ``Status`` names frames it is waiting for (``missing``: a gap it could
+  not fill from zenoh's recovery, e.g. after a service restart whose history reply lost the
+  race with the live frames), the wearable puts them again from this keep, in order, on a
+  thread of its own (a frame at most once per ``RESEND_EVERY_S``).
 * **Acknowledgement.** The service's ``Status`` of this responder says the newest frame it has
   taken of this wearable's stream (``device``, ``boot``, ``seq``); the wearable reads it, so
   it knows what is still unacknowledged, and what it can no longer resend (older than its
@@ -31,6 +36,9 @@ the keep, and a service that starts within it fetches them).
 """
 from __future__ import annotations
 
+import logging
+import math
+import queue
 import secrets
 import threading
 import time
@@ -49,6 +57,9 @@ KEEP_FRAMES = 3000  # frames a wearable keeps for resending (5 min at 10 frames/
 KEEP_FIXES = 200  # fixes it keeps
 HEARTBEAT_S = 0.5  # s between announcements of the newest seq (only when it changed)
 FLUSH_S = 5.0  # s an exiting wearable waits for the service to acknowledge its last frame
+RESEND_EVERY_S = 0.5  # s before the same missing run is resent again (the service repeats it in every Status)
+
+log = logging.getLogger("firetrack.wearable")
 
 
 class Wearable:
@@ -62,7 +73,7 @@ class Wearable:
 
     def __init__(self, session: zenoh.Session, incident_id: str, responder: str, on_matching=None,
                  keep_frames: int = KEEP_FRAMES, keep_fixes: int = KEEP_FIXES, boot: str | None = None,
-                 on_command=None, auto_ack: bool = True):
+                 on_command=None, auto_ack: bool = True, zenoh_keep: bool = True):
         if keep_frames < 1 or keep_fixes < 1:
             raise ValueError("keep_frames and keep_fixes must be at least 1")
         self.session = session
@@ -73,6 +84,8 @@ class Wearable:
         beat = zext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S)
 
         def advanced(kind: str, keep: int):
+            if not zenoh_keep:  # a device without zenoh's advanced publisher: only the resend on request fills gaps
+                return session.declare_publisher(wire.key(incident_id, responder, kind), **qos)
             return zext.declare_advanced_publisher(session, wire.key(incident_id, responder, kind),
                                                    cache=zext.CacheConfig(keep), sample_miss_detection=beat,
                                                    publisher_detection=True, **qos)
@@ -87,6 +100,13 @@ class Wearable:
         self.unheard = {"imu": 0, "fix": 0}
         self._lock = threading.Lock()
         self._seqs: list[int] = []  # seq of every frame sent, in order (device, boot) of this wearable
+        self._kept: dict[int, bytes] = {}  # the last keep_frames encoded frames by seq, oldest first
+        self._resent_at: dict[int, float] = {}  # seq -> when it was last resent (not again within RESEND_EVERY_S)
+        self.resent = 0  # frames put again on the service's request
+        self._resends: queue.Queue = queue.Queue(maxsize=8)
+        self._closing = threading.Event()
+        self._resender = threading.Thread(target=self._resend_loop, name=f"resend-{responder}", daemon=True)
+        self._resender.start()
         self._device: str | None = None
         self.acked_seq: int | None = None  # newest seq the service said it took (or counted lost)
         self.service_lost = 0  # frames the service counts lost for this responder (its Status)
@@ -135,6 +155,36 @@ class Wearable:
                     self.acked_seq = st.seq
                 self.service_lost = st.lost
                 self._acked.notify_all()
+            if st.missing is not None and st.boot == self.boot and st.device == self._device:
+                self._ask_resend(st.missing[0], st.missing[1])
+
+    def _ask_resend(self, first: int, last: int) -> None:
+        """Queue the kept frames ``first..last`` for the resend thread (under the lock)."""
+        now = time.monotonic()
+        if len(self._resent_at) > self.keep_frames:
+            self._resent_at = {q: at for q, at in self._resent_at.items() if now - at < RESEND_EVERY_S}
+        seqs = [q for q in self._kept if first <= q <= last and now - self._resent_at.get(q, -math.inf) >= RESEND_EVERY_S]
+        for q in seqs:
+            self._resent_at[q] = now
+        payloads = [self._kept[q] for q in seqs]
+        if payloads:
+            try:
+                self._resends.put_nowait(payloads)
+            except queue.Full:  # the service asks again in its next Status
+                pass
+
+    def _resend_loop(self) -> None:
+        while not self._closing.is_set():
+            try:
+                payloads = self._resends.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            for p in payloads:
+                try:
+                    self._pub["imu"].put(p)
+                except Exception:  # closed under us
+                    return
+                self.resent += 1
 
     def send(self, kind: str, msg_or_payload) -> None:
         """Publish one message. A frame gets this wearable's ``boot`` and, without a clock offset,
@@ -149,12 +199,16 @@ class Wearable:
                 update["boot"] = self.boot
             if update:
                 msg = msg.model_copy(update=update)
+        payload = msg if isinstance(msg, bytes) else wire.encode(msg)
+        if isinstance(msg, wire.ImuBatch):
             with self._lock:
                 self._device = msg.device
                 self._seqs.append(msg.seq)
                 if len(self._seqs) > 2 * self.keep_frames:  # bounded: what the keep could still resend, and as many more
                     del self._seqs[:self.keep_frames]
-        payload = msg if isinstance(msg, bytes) else wire.encode(msg)
+                self._kept[msg.seq] = payload
+                while len(self._kept) > self.keep_frames:
+                    del self._kept[next(iter(self._kept))]
         if kind in self.unheard and not self._probe.matching_status.matching:
             self.unheard[kind] += 1
         self._pub[kind].put(payload)
@@ -188,7 +242,8 @@ class Wearable:
         wait), withdraw the presence and the publishers (their keeps go with them); returns
         :meth:`delivery` as it stood then, with ``flushed`` (everything acknowledged)."""
         flushed = self.flush(flush_s) if flush_s > 0 else None
-        report = {**self.delivery(), "flushed": flushed}
+        report = {**self.delivery(), "flushed": flushed, "resent": self.resent}
+        self._closing.set()
         for d in (self._orders, self._ack, self._listener, self._status, self._token, self._probe, *self._pub.values()):
             if d is None:
                 continue

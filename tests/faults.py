@@ -52,9 +52,10 @@ class RouterProcess:
 
 
 def walker(endpoint: str, responder: str, seed: int = 0, seconds: float = 60.0, speed: float = 1.0,
-           incident: str = "demo") -> WalkerWearable:
+           incident: str = "demo", zenoh_keep: bool = True) -> WalkerWearable:
     """A simulated walker's frames published by a wearable at ``speed`` times real time."""
-    return WalkerWearable(endpoint, incident, responder, walker_frames(responder, seconds, seed), speed)
+    return WalkerWearable(endpoint, incident, responder, walker_frames(responder, seconds, seed), speed,
+                          zenoh_keep=zenoh_keep)
 
 
 def reference(incident, responder: str, frames) -> tuple[list[wire.Pose], IncidentCore]:

@@ -161,6 +161,42 @@ def test_outages_of_10_and_40_s_and_a_killed_wearable_lose_nothing_silently():
         session.close()
 
 
+def test_an_outage_zenoh_cannot_fill_is_filled_by_the_wearables_own_resend():
+    """A wearable without zenoh's kept frames (a plain publisher: what zenoh drops while the link
+    is down is gone for zenoh) loses a 3 s outage unless the service asks for the gap
+    (``Status.missing``) and the wearable resends it from its own keep. The same path fills
+    the gap a restarted service sees when zenoh's history reply loses the race with the live
+    frames (:mod:`service.core.gate`, *Resend*)."""
+    port = free_local_port()
+    session = zenoh.open(router_config([f"tcp/127.0.0.1:{port}"]))
+    svc = IncidentService(session, CFG, ServiceSettings()).start()
+    proxy = TcpProxy(port)
+    w = walker(proxy.endpoint, "plain", seed=11, seconds=60.0, speed=3.0, zenoh_keep=False)
+    try:
+        w.start()
+        assert wait_until(lambda: "plain" in svc.responders and svc.responders["plain"].gate.accepted > 30, 30, 0.05)
+        proxy.cut()
+        time.sleep(3.0)
+        proxy.restore()
+        assert w.done.wait(120)
+        assert wait_until(lambda: svc.responders["plain"].gate.accepted + svc.responders["plain"].gate.lost
+                          >= w.sent(), 60)
+        report = w.close(10.0)
+        svc.wait_idle(10)
+        _, ref_core = reference(CFG, "plain", w.frames)
+        f = figure("outage filled by the wearable's resend", **delivery_figures(svc, w),
+                   reference_steps=ref_core.responders["plain"].tracker.steps, resent=report["resent"],
+                   unacknowledged=report["unacknowledged"])
+        assert f["resent"] > 0 and f["silent_losses"] == 0 and f["lost_counted"] == 0
+        assert f["steps"] == f["reference_steps"] and report["unacknowledged"] == 0
+    finally:
+        if w.report is None:
+            w.close(0.0)
+        proxy.close()
+        svc.close()
+        session.close()
+
+
 # --------------------------------------------------------------------------------------
 # A router restart
 # --------------------------------------------------------------------------------------
@@ -249,6 +285,7 @@ def test_serve_killed_mid_walk_resumes_the_track_and_reprocess_equals_the_live_p
                    final_distance_to_uninterrupted_m=round(math.hypot(last.x - same[-1].x, last.y - same[-1].y), 3)
                    if same else None, reprocess_max_deviation_m=rp["max_deviation_m"],
                    unmatched_live_poses=rp["responders"]["ff1"]["unmatched_live_poses"],
+                   resent_on_request=report["resent"],
                    s_killed_to_end=round(time.monotonic() - killed_at, 1))
         # on a failure, what the service said of the frames (rejects, gaps, streams, the resume) goes with it
         said = "\n".join(line for line in text.splitlines() if " WARNING " in line or "resum" in line)[-4000:]

@@ -76,6 +76,36 @@ def test_a_seq_far_ahead_is_a_restarted_counter_not_a_loss():
     assert gate2.lost == 499 and gate2.gaps == 1 and gate2.gap_s == pytest.approx(500 * N * DT - (N - 1) * DT)
 
 
+def test_a_gap_is_asked_for_once_and_held_until_the_resent_frames_fill_it():
+    gate = FrameGate()  # reorder_window 4: without the ask, the 5th frame after the gap would skip it
+    released = []
+    for s in range(10):
+        released += [b.seq for b in gate.offer(frame(s), s * 0.05)]
+    for k, s in enumerate(range(20, 30)):  # 10..19 missing (a history reply that lost the race)
+        released += [b.seq for b in gate.offer(frame(s), 1.0 + k * 0.05)]
+        if k == 0:
+            assert gate.ask() == (10, 19) and gate.ask() is None  # asked once per gap
+    assert gate.missing == (10, 19) and gate.held == 10 and gate.lost == 0
+    for k, s in enumerate(range(10, 20)):  # the wearable resends them
+        released += [b.seq for b in gate.offer(frame(s), 1.6 + k * 0.01)]
+    assert released == list(range(30)) and gate.lost == 0 and gate.missing is None and gate.counts == {}
+
+
+def test_an_asked_gap_that_is_not_resent_is_lost_after_resend_wait_s_or_max_held():
+    gate = FrameGate(resend_wait_s=2.0, max_held=8)
+    gate.offer(frame(0), 0.0)
+    gate.offer(frame(5), 0.1)
+    assert gate.ask() == (1, 4)
+    assert gate.expire(2.0) == [] and gate.expire(2.11)[0].seq == 5  # the wait is resend_wait_s, not max_hold_s
+    assert gate.lost == 4 and gate.gaps == 1 and gate.missing is None
+    gate.offer(frame(10), 3.0)
+    assert gate.ask() == (6, 9)
+    out = [b.seq for s in range(11, 18) for b in gate.offer(frame(s), 3.0 + (s - 10) * 0.01)]
+    assert out == [] and gate.held == 8  # max_held frames wait for the resend
+    out = [b.seq for s in range(18, 30) for b in gate.offer(frame(s), 3.2)]
+    assert out == list(range(10, 30)) and gate.lost == 8  # one more: the run is lost, and the rest flows
+
+
 # --------------------------------------------------------------------------------------
 # The core: one track across streams and gaps
 # --------------------------------------------------------------------------------------
@@ -140,6 +170,25 @@ def test_a_new_device_for_the_same_responder_continues_the_track():
     run(core, at_rate(other, 100.0 + 32.0))
     r = core.responders["ff1"]
     assert r.tracker.steps > steps and r.gate.device == "spare-phone" and r.gate.streams == 2
+
+
+def test_the_core_asks_for_a_gap_at_once_and_the_resent_frames_give_the_uninterrupted_track():
+    w = walk(seconds=60.0, seed=7)
+    frames = w.frames
+    ref_poses, _ = run(IncidentCore(CFG), at_rate(frames, 100.0))
+    core = IncidentCore(CFG)
+    poses, _ = run(core, at_rate(frames[:200], 100.0))
+    # frames 200..259 do not come (zenoh dropped them); the next ones do
+    asked = [o.message for o in core.feed(Inbound("imu", KEY, wire.encode(frames[260]), 130.0))
+             if isinstance(o.message, wire.Status)]
+    assert [st.missing for st in asked] == [[frames[200].seq, frames[259].seq]]  # at once, not at the next tick
+    assert core.status_of(core.responders["ff1"], 130.0).missing == [frames[200].seq, frames[259].seq]
+    late = [(f, 130.1 + 0.01 * k) for k, f in enumerate(frames[261:270] + frames[200:260])]  # the resend, 0.1 s on
+    more, _ = run(core, late + [(f, 131.0 + 0.1 * k) for k, f in enumerate(frames[270:])])
+    r = core.responders["ff1"]
+    assert r.gate.lost == 0 and r.gate.counts == {} and r.gate.missing is None
+    got = [(p.t, p.steps, p.x, p.y) for p in poses + more]
+    assert got == [(p.t, p.steps, p.x, p.y) for p in ref_poses]
 
 
 def test_an_outage_is_counted_in_frames_and_seconds_and_raises_no_man_down():

@@ -38,6 +38,8 @@ class FrameRounds:
             self._note_reject(r, reason, f"frame {batch.seq}: {detail}", now)
         for b in released:
             self._process(r, b)
+        if r.gate.ask() is not None:  # a gap in front of held frames: the wearable's Status asks for it now
+            self._send_status(r, now, self._alarms_now(r, now))
 
     def _process(self, r: Responder, b: wire.ImuBatch) -> None:
         self._touch(r)

@@ -17,6 +17,18 @@ oldest has waited ``max_hold_s`` of receive time (:meth:`FrameGate.expire`, also
 :meth:`FrameGate.offer`), so one lost frame never stalls a responder for long.
 The first frame a gate sees is released at once and sets ``next``.
 
+Resend. A gap in front of held frames is also *asked for*: :meth:`FrameGate.ask` names the
+missing run ``[next, lowest held - 1]`` once per gap, the core puts it in the responder's
+``Status.missing`` and the wearable resends those frames from its own keep
+(:mod:`client.wearable`). While an asked gap waits, the gate holds up to ``max_held`` frames
+(and ``max_held_samples`` samples) for at most ``resend_wait_s`` instead of ``reorder_window``
+frames and ``max_hold_s``, so the resent frames can fill it; what does not come in that time is
+declared lost as before. This is what fills a gap that zenoh's own recovery cannot: after a
+service restart the advanced subscriber delivers a wearable's first live frame at once when it
+beats the history reply, and then drops the older history frames (zenoh-ext
+``advanced_subscriber.rs``, ``handle_sample`` checks only the initial query, not the query
+for a publisher detected later).
+
 Rejects (counted by reason in :attr:`FrameGate.counts`, logged in :attr:`FrameGate.events`):
 
 * ``duplicate``: the seq is held, or was released already;
@@ -70,16 +82,28 @@ GATE_REASONS = ("duplicate", "late", "time_order", "old_stream", "other_stream",
 class FrameGate:
     """Per-responder reorder buffer and reject counter: ``released = gate.offer(batch, now)``."""
 
+    _asked: tuple[int, int] | None = None  # the run last asked for (class default: gates restored from a snapshot
+    # taken before resends existed)
+    resend_wait_s = 2.0
+    max_held = 64
+    max_held_samples = 8192
+
     def __init__(self, reorder_window: int = 4, max_gap_s: float = 0.5, *, max_hold_s: float = 1.0,
                  restart_after_s: float = 30.0, max_events: int = 256, max_seq_jump: int = 100_000,
-                 max_retired: int = 16, takeover_after_s: float = 0.5):
+                 max_retired: int = 16, takeover_after_s: float = 0.5, resend_wait_s: float = 2.0,
+                 max_held: int = 64, max_held_samples: int = 8192):
         if reorder_window < 0:
             raise ValueError(f"reorder_window must be >= 0, got {reorder_window}")
         if not max_gap_s > 0 or not max_hold_s > 0 or not restart_after_s > 0:
             raise ValueError("max_gap_s, max_hold_s and restart_after_s must be positive")
         if max_seq_jump < 1:
             raise ValueError(f"max_seq_jump must be >= 1 frames, got {max_seq_jump}")
+        if not resend_wait_s >= max_hold_s or max_held < reorder_window or max_held_samples < 1:
+            raise ValueError("resend_wait_s must be >= max_hold_s, max_held >= reorder_window, max_held_samples >= 1")
         self.reorder_window = int(reorder_window)
+        self.resend_wait_s = float(resend_wait_s)
+        self.max_held = int(max_held)
+        self.max_held_samples = int(max_held_samples)
         self.max_gap_s = float(max_gap_s)
         self.max_hold_s = float(max_hold_s)
         self.restart_after_s = float(restart_after_s)
@@ -103,6 +127,7 @@ class FrameGate:
         self._reset_stream()
 
     def _reset_stream(self) -> None:
+        self._asked = None
         self._next: int | None = None
         self._first: int | None = None
         self._last_t: float | None = None
@@ -209,15 +234,47 @@ class FrameGate:
             self._drain(receive_time, out)
         else:
             self._held[batch.seq] = (batch, receive_time)
-            while len(self._held) > self.reorder_window:
-                self._skip_to_held(receive_time, out, f"more than {self.reorder_window} frames arrived after it")
+            while self._held and self._over_hold():
+                self._skip_to_held(receive_time, out, f"more than {self.max_held} frames arrived after it while its "
+                                   "resend was awaited" if self._waiting() else
+                                   f"more than {self.reorder_window} frames arrived after it")
         return out
 
+    def ask(self) -> tuple[int, int] | None:
+        """The run of seqs missing in front of the held frames, ``(first, last)``, the first time
+        it is asked for (None when nothing is missing, or it is part of the run asked already
+        while the resend fills it from below); from now on the gate waits for it by
+        :attr:`resend_wait_s` and :attr:`max_held`."""
+        if not self._held or self._next is None or self._waiting():
+            return None
+        self._asked = (self._next, min(self._held) - 1)
+        return self._asked
+
+    @property
+    def missing(self) -> tuple[int, int] | None:
+        """The asked-for run still missing, ``(first, last)`` seq of the current stream, or None."""
+        return (self._next, min(self._held) - 1) if self._waiting() else None
+
+    def _waiting(self) -> bool:
+        """Frames are held in front of a gap that was asked for (the resend may fill it from below)."""
+        return (bool(self._held) and self._next is not None and self._asked is not None
+                and self._asked[0] <= self._next <= self._asked[1])
+
+    def _over_hold(self) -> bool:
+        if not self._waiting():
+            return len(self._held) > self.reorder_window
+        return (len(self._held) > self.max_held
+                or sum(len(b.t) for b, _ in self._held.values()) > self.max_held_samples)
+
     def expire(self, now: float) -> list[ImuBatch]:
-        """Release held frames whose wait exceeded ``max_hold_s`` (missing ones are declared lost)."""
+        """Release held frames whose wait exceeded ``max_hold_s`` (``resend_wait_s`` for an asked-for
+        gap); the missing ones are declared lost."""
         out: list[ImuBatch] = []
-        while self._held and now - min(rt for _, rt in self._held.values()) > self.max_hold_s:
-            self._skip_to_held(now, out, f"not received within {self.max_hold_s:g} s")
+        while self._held:
+            wait = self.resend_wait_s if self._waiting() else self.max_hold_s
+            if not now - min(rt for _, rt in self._held.values()) > wait:
+                break
+            self._skip_to_held(now, out, f"not received within {wait:g} s")
         return out
 
     def flush(self) -> list[ImuBatch]:

@@ -265,6 +265,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
                    **({"flagged": r.fixes_flagged} if r.fixes_flagged else {})}, utc_offset=r.utc_offset,
             last_fix=tr.last_fix, first_heard=r.first_heard, commands={a: dict(o) for a, o in r.commands.items()},
             lost=g.lost, gap_s=g.gap_s, streams=g.streams, device=g.device, boot=g.boot, seq=g.last_seq,
+            missing=None if g.missing is None else list(g.missing),
         )
 
     def flooding_sources(self, now: float) -> list[str]:

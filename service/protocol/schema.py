@@ -305,7 +305,7 @@ class Status(WireMessage):
     time jumps, new streams), ``lost`` the frames known lost in them and ``gap_s`` the seconds
     they span, ``rejected`` counts per reject reason. ``device``, ``boot`` and ``seq`` say what
     the service has taken of the current stream (the newest frame it released): a wearable
-    reads them as its acknowledgement.
+    reads them as its acknowledgement, and ``missing`` as a request to resend.
     """
 
     KIND: ClassVar[str] = "status"
@@ -333,6 +333,9 @@ class Status(WireMessage):
     boot: str | None = Field(None, max_length=64, description="boot id of the current stream (ImuBatch.boot)")
     seq: int | None = Field(None, ge=0, description="seq of the newest frame the service released from the current "
                                                     "stream: everything up to it is taken or counted in lost")
+    missing: list[Annotated[int, Field(ge=0)]] | None = Field(
+        None, min_length=2, max_length=2, description="[first, last] seq of the current stream that the service is "
+                                                      "waiting for: the wearable resends them from its keep")
     last_fix: dict | None = Field(None, description="the last fix applied: source, and t (device s) it was for")
     first_heard: Finite | None = Field(None, description="s, Unix time UTC when the service first heard of the "
                                                          "responder (time in the building counts from here)")
