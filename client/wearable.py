@@ -53,7 +53,7 @@ from service.protocol.messages import recording_messages
 from service.protocol.pacing import paced
 
 MATCHING_WAIT_S = 1.5  # s a replay waits for a service to match its frames before it warns
-KEEP_FRAMES = 3000  # frames a wearable keeps for resending (5 min at 10 frames/s; ~2.5 MB)
+KEEP_FRAMES = 3000  # frames a wearable keeps for resending (5 min at 10 frames/s; ~2.5 MB in zenoh's keep, as much in its own)
 KEEP_FIXES = 200  # fixes it keeps
 HEARTBEAT_S = 0.5  # s between announcements of the newest seq (only when it changed)
 FLUSH_S = 5.0  # s an exiting wearable waits for the service to acknowledge its last frame
