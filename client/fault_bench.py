@@ -325,6 +325,13 @@ class _Poses:
                 "service_latency_p50_ms": _ms(_percentile(svc, 50)),
                 "service_latency_p99_ms": _ms(_percentile(svc, 99)), "poses": len(lat)}
 
+    def worst(self, responders: list[str], t0: float, t1: float, n: int = 5) -> list[list]:
+        """The ``n`` slowest poses in ``[t0, t1)``: ``[s since t0, latency ms, service latency ms,
+        responder]``, slowest first (a transient at the attack's start shows as small first numbers)."""
+        with self._lock:
+            rows = sorted((r for r in self.rows if r[0] in responders and t0 <= r[1] < t1), key=lambda r: -r[2])[:n]
+        return [[round(r[1] - t0, 2), _ms(r[2]), _ms(r[3]), r[0]] for r in rows]
+
     def timeline(self, responders: list[str], t0: float, t1: float, step: float = 10.0) -> list[list]:
         """``[s since t0, latency p50 ms, p99 ms, service latency p50 ms]`` per ``step`` s: how the
         latency moves through the run (with and without an attack)."""
@@ -460,6 +467,7 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
                                                                "lost": honest.lost},
             }
             result["latency_by_10s"] = poses.timeline(by, t_before, t_after1)
+            result["slowest_during"] = poses.worst(by, t_attack, t_attack_end)
             if mode == "ids":
                 result["ids_with_a_status"] = len(poses.status) - len(names)  # admitted (each had a Status)
             poses.close()
@@ -489,7 +497,8 @@ def against_control(result: dict, control: dict) -> dict:
     return {"control": {"bystanders": control["bystanders"], "rss_kept_after_mb": control["rss_kept_after_mb"],
                         "service_cpu_per_s": control.get("service_cpu_per_s"),
                         "anon_kept_after_mb": control.get("anon_kept_after_mb"),
-                        "latency_by_10s": control.get("latency_by_10s")},
+                        "latency_by_10s": control.get("latency_by_10s"),
+                        "slowest_during": control.get("slowest_during")},
             "pose_rate_during_over_control": _ratio(a["poses_per_s"], c["poses_per_s"]),
             "latency_p99_during_over_control": _ratio(a["latency_p99_ms"], c["latency_p99_ms"]),
             "service_latency_p99_during_over_control": _ratio(a["service_latency_p99_ms"], c["service_latency_p99_ms"])}

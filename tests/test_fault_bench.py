@@ -16,6 +16,9 @@ def test_the_fault_bench_runs_two_attacks_and_compares_with_a_control_run():
     for run in (control, attack):
         assert run["bystanders"]["during"]["poses"] > 0 and run["bystanders"]["before"]["poses"] > 0
         assert run["service_cpu_per_s"]["during"] > 0
+        slow = run["slowest_during"]  # [s into the attack, ms, service ms, responder], slowest first
+        assert 0 < len(slow) <= 5 and [r[1] for r in slow] == sorted((r[1] for r in slow), reverse=True)
+        assert all(0 <= r[0] <= run["attack_s"] + 0.5 and r[3].startswith("bystander") for r in slow)
         assert len(run["attacks"]) == 2 and run["anon_mb"]["before"] > 0
     assert control["log_growth_bytes"] < attack["log_growth_bytes"]  # the attack's rejects are logged, summarised
     assert attack["honest_status"]["rejected"]  # the hostile frames on the honest key were counted against it
