@@ -36,7 +36,6 @@ the keep, and a service that starts within it fetches them).
 """
 from __future__ import annotations
 
-import logging
 import math
 import queue
 import secrets
@@ -57,9 +56,7 @@ KEEP_FRAMES = 3000  # frames a wearable keeps for resending (5 min at 10 frames/
 KEEP_FIXES = 200  # fixes it keeps
 HEARTBEAT_S = 0.5  # s between announcements of the newest seq (only when it changed)
 FLUSH_S = 5.0  # s an exiting wearable waits for the service to acknowledge its last frame
-RESEND_EVERY_S = 0.5  # s before the same missing run is resent again (the service repeats it in every Status)
-
-log = logging.getLogger("firetrack.wearable")
+RESEND_EVERY_S = 0.5  # s before a frame is resent again (the service repeats what it misses in every Status)
 
 
 class Wearable:

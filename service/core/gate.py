@@ -77,21 +77,22 @@ from collections import Counter, deque
 from service.protocol.wire import ImuBatch
 
 GATE_REASONS = ("duplicate", "late", "time_order", "old_stream", "other_stream", "seq_jump")
+RESEND_WAIT_S = 2.0  # s an asked-for gap is waited for
+MAX_HELD = 64  # frames held while an asked-for gap is waited for
+MAX_HELD_SAMPLES = 8192  # and samples in them (a frame holds up to MAX_SAMPLES)
 
 
 class FrameGate:
     """Per-responder reorder buffer and reject counter: ``released = gate.offer(batch, now)``."""
 
-    _asked: tuple[int, int] | None = None  # the run last asked for (class default: gates restored from a snapshot
-    # taken before resends existed)
-    resend_wait_s = 2.0
-    max_held = 64
-    max_held_samples = 8192
+    # class defaults: gates restored from a snapshot taken before resends existed
+    _asked: tuple[int, int] | None = None  # the run last asked for
+    resend_wait_s, max_held, max_held_samples = RESEND_WAIT_S, MAX_HELD, MAX_HELD_SAMPLES
 
     def __init__(self, reorder_window: int = 4, max_gap_s: float = 0.5, *, max_hold_s: float = 1.0,
                  restart_after_s: float = 30.0, max_events: int = 256, max_seq_jump: int = 100_000,
-                 max_retired: int = 16, takeover_after_s: float = 0.5, resend_wait_s: float = 2.0,
-                 max_held: int = 64, max_held_samples: int = 8192):
+                 max_retired: int = 16, takeover_after_s: float = 0.5, resend_wait_s: float = RESEND_WAIT_S,
+                 max_held: int = MAX_HELD, max_held_samples: int = MAX_HELD_SAMPLES):
         if reorder_window < 0:
             raise ValueError(f"reorder_window must be >= 0, got {reorder_window}")
         if not max_gap_s > 0 or not max_hold_s > 0 or not restart_after_s > 0:
@@ -235,8 +236,8 @@ class FrameGate:
         else:
             self._held[batch.seq] = (batch, receive_time)
             while self._held and self._over_hold():
-                self._skip_to_held(receive_time, out, f"more than {self.max_held} frames arrived after it while its "
-                                   "resend was awaited" if self._waiting() else
+                self._skip_to_held(receive_time, out, f"more than {self.max_held} frames (or {self.max_held_samples} "
+                                   "samples) arrived after it while its resend was awaited" if self._waiting() else
                                    f"more than {self.reorder_window} frames arrived after it")
         return out
 
