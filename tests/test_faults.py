@@ -4,6 +4,7 @@ link that can be cut, and the faults of a normal day, each with its figure (prin
 
 * a flood of hostile messages beside an honest and a bystander wearable;
 * wearable outages of 10 s and 40 s, and a wearable killed mid-run and started again;
+* an outage zenoh cannot fill, filled by the wearable's own resend (``Status.missing``);
 * a router restart (5 s);
 * SIGKILL of ``firetrack serve`` mid-walk and a restart on the same endpoint and recording.
 
