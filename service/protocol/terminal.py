@@ -6,6 +6,7 @@ import logging
 import signal
 import sys
 import threading
+import time
 from collections.abc import Iterable, Iterator
 from typing import TypeVar
 
@@ -97,10 +98,34 @@ class progress_bar:
 # ------------------------------------------------------------------------------------------
 # What every long-running command does the same way
 # ------------------------------------------------------------------------------------------
-def stop_on_signals() -> threading.Event:
+SIGNAL_POLL_S = 0.25  # how long the main thread sleeps at most between looks at a signal
+
+
+class SignalStop(threading.Event):
+    """The stop event of a command. Its ``wait`` sleeps in slices of :data:`SIGNAL_POLL_S`.
+
+    CPython runs a signal's Python handler in the main thread only, and it wakes a main
+    thread that is blocked on a lock only when the signal itself interrupts that thread.
+    The kernel delivers a process's SIGINT to any thread that does not block it, and
+    zenoh's runtime threads (Rust) do not. When one of them takes it, an untimed
+    ``Event.wait()`` in the main thread would never return, and Ctrl-C or systemd's stop
+    would be lost. Timed slices let the main thread run the handler within a slice."""
+
+    def wait(self, timeout: float | None = None) -> bool:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            left = SIGNAL_POLL_S if deadline is None else min(SIGNAL_POLL_S, deadline - time.monotonic())
+            if left <= 0:
+                return self.is_set()
+            if super().wait(left):
+                return True
+
+
+def stop_on_signals() -> SignalStop:
     """An event set by SIGINT or SIGTERM (Ctrl-C, systemd stop). A second Ctrl-C interrupts
-    at once (KeyboardInterrupt, which the commands catch and end quietly)."""
-    stop = threading.Event()
+    at once (KeyboardInterrupt, which the commands catch and end quietly). Its ``wait``
+    returns within :data:`SIGNAL_POLL_S` of a signal, whichever thread the kernel gave it to."""
+    stop = SignalStop()
 
     def handler(signum, frame):
         if stop.is_set():  # a second Ctrl-C: the user means it
