@@ -285,6 +285,9 @@ def _line_or_none(stream, timeout: float) -> str | None:
     return stream.readline().strip() if ready else None
 
 
+DURING_SAMPLES = "_during_samples"  # a run's raw (latency, service latency) pairs in its attack window
+
+
 def _percentile(values, q) -> float | None:
     return float(np.percentile(values, q)) if len(values) else None
 
@@ -324,6 +327,11 @@ class _Poses:
                 "latency_p50_ms": _ms(_percentile(lat, 50)), "latency_p99_ms": _ms(_percentile(lat, 99)),
                 "service_latency_p50_ms": _ms(_percentile(svc, 50)),
                 "service_latency_p99_ms": _ms(_percentile(svc, 99)), "poses": len(lat)}
+
+    def latencies(self, responders: list[str], t0: float, t1: float) -> list[tuple[float, float]]:
+        """Every pose's (latency s, service latency s) in ``[t0, t1)``: for pooling runs."""
+        with self._lock:
+            return [(r[2], r[3]) for r in self.rows if r[0] in responders and t0 <= r[1] < t1]
 
     def worst(self, responders: list[str], t0: float, t1: float, n: int = 5) -> list[list]:
         """The ``n`` slowest poses in ``[t0, t1)``: ``[s since t0, latency ms, service latency ms,
@@ -468,6 +476,7 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
             }
             result["latency_by_10s"] = poses.timeline(by, t_before, t_after1)
             result["slowest_during"] = poses.worst(by, t_attack, t_attack_end)
+            result[DURING_SAMPLES] = poses.latencies(by, t_attack, t_attack_end)
             if mode == "ids":
                 result["ids_with_a_status"] = len(poses.status) - len(names)  # admitted (each had a Status)
             poses.close()
@@ -499,6 +508,27 @@ def against_control(result: dict, control: dict) -> dict:
                         "anon_kept_after_mb": control.get("anon_kept_after_mb"),
                         "latency_by_10s": control.get("latency_by_10s"),
                         "slowest_during": control.get("slowest_during")},
+            "pose_rate_during_over_control": _ratio(a["poses_per_s"], c["poses_per_s"]),
+            "latency_p99_during_over_control": _ratio(a["latency_p99_ms"], c["latency_p99_ms"]),
+            "service_latency_p99_during_over_control": _ratio(a["service_latency_p99_ms"], c["service_latency_p99_ms"])}
+
+
+def pooled(runs: list[dict]) -> dict:
+    """The bystanders' latency over the attack windows of several runs, as one sample: a p99
+    over ~200 poses is the third-slowest pose and moves by more than 20 % between two runs
+    without any attack; over N runs it rests on ~2N poses."""
+    samples = [x for run in runs for x in run[DURING_SAMPLES]]
+    lat, svc = [x[0] for x in samples], [x[1] for x in samples]
+    return {"runs": len(runs), "poses": len(samples),
+            "latency_p50_ms": _ms(_percentile(lat, 50)), "latency_p99_ms": _ms(_percentile(lat, 99)),
+            "service_latency_p50_ms": _ms(_percentile(svc, 50)), "service_latency_p99_ms": _ms(_percentile(svc, 99)),
+            "poses_per_s": round(sum(r["bystanders"]["during"]["poses_per_s"] for r in runs) / len(runs), 3)}
+
+
+def pooled_against_control(attack_runs: list[dict], control_runs: list[dict]) -> dict:
+    """Pooled attack runs against pooled control runs (run alternately in one session)."""
+    a, c = pooled(attack_runs), pooled(control_runs)
+    return {"attack": a, "control": c,
             "pose_rate_during_over_control": _ratio(a["poses_per_s"], c["poses_per_s"]),
             "latency_p99_during_over_control": _ratio(a["latency_p99_ms"], c["latency_p99_ms"]),
             "service_latency_p99_during_over_control": _ratio(a["service_latency_p99_ms"], c["service_latency_p99_ms"])}
@@ -562,6 +592,14 @@ def reject_cost_us(messages: int = 100_000, incident=None) -> dict:
             "decoded_and_rejected_us": kinds, "accounting": core.frame_accounting()}
 
 
+def _pair_summary(run: dict) -> dict:
+    """One pair of ``--pairs``: its figures against its own control, and what it kept."""
+    keys = ("pose_rate_during_over_control", "latency_p99_during_over_control", "service_latency_p99_during_over_control",
+            "rss_growth_mb", "rss_kept_after_mb", "log_growth_bytes", "slowest_during")
+    return {"during": run["bystanders"]["during"], "control_during": run["control"]["bystanders"]["during"],
+            "control_rss_kept_after_mb": run["control"]["rss_kept_after_mb"], **{k: run[k] for k in keys}}
+
+
 def bench_faults_command(
     mode: str = typer.Option("flood", "--mode", help="flood: hostile messages; ids: one valid frame from each of N new ids"),
     messages: int = typer.Option(100_000, "--messages", "-n",
@@ -575,6 +613,8 @@ def bench_faults_command(
                                 "(memory kept after each: what one leaves, the next must not add to)"),
     with_control: bool = typer.Option(False, "--control/--no-control",
                                       help="first run the same walkers and phases without an attack, and compare with it"),
+    pairs: int = typer.Option(1, "--pairs", min=1, help="with --control: this many control and attack runs, "
+                              "alternately, and their bystanders' latency pooled (a p99 that rests on more poses)"),
 ):
     """The service beside an honest and a bystander wearable under a flood (or a storm of new ids): JSON figures."""
     if mode not in ("flood", "ids"):
@@ -583,14 +623,23 @@ def bench_faults_command(
     def say(m):
         err.print(m)
 
-    control = None
-    if with_control and messages > 0:
-        say("a control run first: the same walkers and phases, no attack ...")
-        control = bench_faults(mode, 0, attack_s, phase_s, expire_after, bystanders, log=say, n_attacks=attacks)
-        say("the attack run ...")
-    result = bench_faults(mode, messages, attack_s, phase_s, expire_after, bystanders, log=say, n_attacks=attacks)
-    if control is not None:
-        result.update(against_control(result, control))
+    if pairs > 1 and not (with_control and messages > 0):
+        err.print("--pairs needs --control and an attack (--messages > 0)")
+        raise typer.Exit(2)
+    controls, runs = [], []
+    for k in range(pairs):
+        tag = f" (pair {k + 1} of {pairs})" if pairs > 1 else ""
+        if with_control and messages > 0:
+            say(f"a control run first: the same walkers and phases, no attack{tag} ...")
+            controls.append(bench_faults(mode, 0, attack_s, phase_s, expire_after, bystanders, log=say, n_attacks=attacks))
+            say(f"the attack run{tag} ...")
+        runs.append(bench_faults(mode, messages, attack_s, phase_s, expire_after, bystanders, log=say, n_attacks=attacks))
+        if controls:
+            runs[-1].update(against_control(runs[-1], controls[-1]))
+    result = runs[-1] if pairs == 1 else {"pairs": [_pair_summary(r) for r in runs],
+                                          "pooled": pooled_against_control(runs, controls)}
+    for run in runs + controls:
+        run.pop(DURING_SAMPLES, None)
     if cost and mode == "flood" and messages > 0:
         err.print("the in-process cost of the hostile mix ...")
         result["cost"] = reject_cost_us(messages)

@@ -3,7 +3,10 @@ loopback, two short attacks and a control run compared with it (the figures them
 benchmark's to report; here: that every part of it runs and says what it measured)."""
 from __future__ import annotations
 
-from client.fault_bench import against_control, bench_faults
+import subprocess
+import sys
+
+from client.fault_bench import against_control, bench_faults, pooled, pooled_against_control
 
 
 def test_the_fault_bench_runs_two_attacks_and_compares_with_a_control_run():
@@ -25,3 +28,18 @@ def test_the_fault_bench_runs_two_attacks_and_compares_with_a_control_run():
     cmp = against_control(attack, control)
     assert cmp["latency_p99_during_over_control"] == round(
         attack["bystanders"]["during"]["latency_p99_ms"] / control["bystanders"]["during"]["latency_p99_ms"], 3)
+
+    # pooled over runs (--pairs): one run pooled is that run; two runs pool all their poses
+    for run in (control, attack):
+        one, during = pooled([run]), run["bystanders"]["during"]
+        assert (one["poses"], one["latency_p99_ms"], one["service_latency_p99_ms"]) == (
+            during["poses"], during["latency_p99_ms"], during["service_latency_p99_ms"])
+    assert pooled([control, attack])["poses"] == sum(r["bystanders"]["during"]["poses"] for r in (control, attack))
+    assert pooled_against_control([attack], [control])["latency_p99_during_over_control"] == \
+        cmp["latency_p99_during_over_control"]
+
+
+def test_pairs_without_a_control_run_are_refused_with_the_reason():
+    p = subprocess.run([sys.executable, "-m", "client.cli", "bench", "faults", "--pairs", "2", "--no-cost"],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and "--pairs needs --control" in p.stderr
