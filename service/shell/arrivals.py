@@ -30,7 +30,7 @@ class ArrivalForecast:
 
     def __init__(self, max_streams: int = 1024):
         self.max_streams = max_streams
-        self._streams: dict[str, tuple[float, deque, float | None]] = {}  # last arrival, intervals, period
+        self._streams: dict[str, tuple[float, deque]] = {}
 
     def __len__(self) -> int:
         return len(self._streams)
@@ -39,21 +39,20 @@ class ArrivalForecast:
         """A frame of ``key`` arrived at ``t`` (s, the caller's clock)."""
         s = self._streams.pop(key, None)  # re-inserted: the dict stays in order of last arrival
         if s is None:
-            s = (t, deque(maxlen=INTERVALS), None)
+            s = (t, deque(maxlen=INTERVALS))
             if len(self._streams) >= self.max_streams:
                 del self._streams[next(iter(self._streams))]
         else:
-            last, iv, period = s
+            last, iv = s
             if t > last:
                 iv.append(t - last)
-                period = _median(iv)
-            s = (max(t, last), iv, period)
+            s = (max(t, last), iv)
         self._streams[key] = s
 
     def period(self, key: str) -> float | None:
         """``key``'s period (s): the median of its last intervals, None before three."""
         s = self._streams.get(key)
-        return None if s is None else s[2]
+        return None if s is None else _median(s[1])
 
     def quiet_for(self, now: float) -> float:
         """Seconds from ``now`` until the earliest forecast arrival (0 if one is due or
@@ -61,10 +60,11 @@ class ArrivalForecast:
         :data:`FORGET_S`."""
         quiet = math.inf
         stale = []
-        for key, (last, _, period) in self._streams.items():
+        for key, (last, iv) in self._streams.items():
             if now - last > FORGET_S:
                 stale.append(key)
                 continue
+            period = _median(iv)
             if period is None or not MIN_PERIOD_S <= period <= MAX_PERIOD_S:
                 continue
             due = last + period

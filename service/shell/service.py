@@ -50,9 +50,9 @@ import zenoh.ext as zext
 from service.core.incident_core import CoreSettings, Inbound, IncidentCore, Outbound
 from service.protocol import wire
 from service.protocol.incident import IncidentConfig
-from service.shell.arrivals import ArrivalForecast
 from service.shell.round_intake import RoundIntake
 from service.shell.sharding import in_shard
+from service.shell.arrivals import ArrivalForecast
 from service.shell.snapshots import SnapshotWriter, fix_mmap_threshold, return_memory
 
 log = logging.getLogger("firetrack.service")
