@@ -52,7 +52,6 @@ from service.protocol import wire
 from service.protocol.incident import IncidentConfig
 from service.shell.round_intake import RoundIntake
 from service.shell.sharding import in_shard
-from service.shell.arrivals import ArrivalForecast
 from service.shell.snapshots import SnapshotWriter, fix_mmap_threshold, return_memory
 
 log = logging.getLogger("firetrack.service")
@@ -68,7 +67,6 @@ class ServiceSettings:
     fix_channel: int = 5_000  # fixes zenoh may hold for the worker
     history_frames: int = 3000  # frames asked of a wearable's keep when it is detected or missed some
     snapshot_every_s: float = 5.0  # s between snapshots of the core beside the recording (with a state file)
-    snapshot_quiet_wait_s: float = 1.0  # s a due snapshot may wait for a gap between frames (service/shell/arrivals.py)
     snapshot_batch: int = 32  # responders pickled afresh per round while a snapshot waits (service/shell/snapshots.py)
     idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
     warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
@@ -94,9 +92,6 @@ class IncidentService(RoundIntake, SnapshotWriter):
         self._snapshot_writer: threading.Thread | None = None  # writes (and fsyncs) the newest snapshot's bytes
         self.snapshots_skipped = 0  # snapshots not written because the previous one was still being written
         self.snapshots_deferred = 0  # rounds a due snapshot waited while a crowd's pickles were made
-        self.snapshots_waited = 0  # rounds a due snapshot waited for a gap between the responders' frames
-        self.snapshot_cost_s = 0.005  # running estimate of what taking a snapshot costs the worker
-        self.arrivals = ArrivalForecast(self.settings.core.intake.max_responders)  # when frames are due next
         self._expired_seen = 0
         self.queue_dropped = 0  # callbacks' messages dropped because the worker's queue was full
         self.incident = incident
@@ -332,7 +327,6 @@ class IncidentService(RoundIntake, SnapshotWriter):
                 if ticks:
                     out += self.core.tick(self.clock())
             self._publish(out)
-            self._note_arrivals(items)
             if ticks:
                 self._forget_publishers()
                 gone = self.core.counters.expired + self.core.counters.newcomers_forgotten
@@ -342,14 +336,6 @@ class IncidentService(RoundIntake, SnapshotWriter):
             self._snapshot_if_due()
         finally:
             self.busy_s += time.perf_counter() - started
-
-    def _note_arrivals(self, items: list[Inbound]) -> None:
-        """The frame arrivals of the core's responders, for the snapshot's timing (bounded:
-        ids the core refused or never placed are not followed)."""
-        responders, saw = self.core.responders, self.arrivals.saw
-        for m in items:
-            if m.kind == "imu" and m.key.split("/")[2] in responders:
-                saw(m.key, m.received)
 
     def _forget_publishers(self) -> None:
         """Publishers of responders the core let go (expired) are undeclared: bounded state."""

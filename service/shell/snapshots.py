@@ -12,10 +12,6 @@ import time
 
 log = logging.getLogger("firetrack.service")
 
-QUIET_MARGIN = 1.5  # a snapshot starts when no frame is due for this many times its usual cost ...
-QUIET_SLACK_S = 0.002  # ... plus this (s: the frames' jitter)
-COST_GAIN = 0.2  # weight of the newest snapshot's cost in its running estimate
-
 
 class SnapshotWriter:
     """The core's snapshots: taken by the worker, written by a thread of their own."""
@@ -32,14 +28,6 @@ class SnapshotWriter:
         if self._snapshot_writer is not None and self._snapshot_writer.is_alive():
             self.snapshots_skipped += 1  # the disk is slower than the snapshots: the next one will do
             return
-        # in a gap between frames: none due before the snapshot is done (service/shell/arrivals.py),
-        # for at most snapshot_quiet_wait_s
-        late = now - self._last_snapshot - self.settings.snapshot_every_s
-        if late < self.settings.snapshot_quiet_wait_s \
-                and self.arrivals.quiet_for(self.clock()) < QUIET_MARGIN * self.snapshot_cost_s + QUIET_SLACK_S:
-            self.snapshots_waited += 1
-            return
-        started = time.perf_counter()
         # a crowd of responders to pickle afresh (ids just admitted) is pickled a batch per round,
         # and the snapshot taken when few are left (or once it is a whole period late)
         with self._core_lock:
@@ -57,7 +45,6 @@ class SnapshotWriter:
         except Exception as e:
             self._snapshot_failed(sf, e)
             return
-        self.snapshot_cost_s += COST_GAIN * (time.perf_counter() - started - self.snapshot_cost_s)
         # writing and fsyncing megabytes is the disk's time, not the worker's: a thread of its own
         # (the state file is replaced whole, so a crash meanwhile leaves the previous snapshot)
         self._snapshot_writer = threading.Thread(target=self._write_snapshot, args=(sf, blob, position, self.clock()),
