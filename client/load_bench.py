@@ -53,7 +53,7 @@ import numpy as np
 import typer
 
 from service.protocol.session import free_local_port
-from service.protocol.terminal import err, print_json
+from service.protocol.terminal import err, leave_process, print_json
 from service.shell.sharding import in_shard
 from service.shell.workers import WorkerPool
 
@@ -83,6 +83,7 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
     np.savez(out, send_t=send_t, frames_per_walker=sent, cpu=time.process_time() - cpu0)
     pub.close()
     session.close()
+    leave_process(0)  # a thousand wearables' zenoh threads must not outlive the interpreter
 
 
 def _p99(ms: np.ndarray) -> float | None:

@@ -57,6 +57,7 @@ KEEP_FIXES = 200  # fixes it keeps
 HEARTBEAT_S = 0.5  # s between announcements of the newest seq (only when it changed)
 FLUSH_S = 5.0  # s an exiting wearable waits for the service to acknowledge its last frame
 RESEND_EVERY_S = 0.5  # s before a frame is resent again (the service repeats what it misses in every Status)
+RESEND_JOIN_S = 2.0  # s closing waits for the resend thread to leave its current put
 
 
 class Wearable:
@@ -102,8 +103,8 @@ class Wearable:
         self.resent = 0  # frames put again on the service's request
         self._resends: queue.Queue = queue.Queue(maxsize=8)
         self._closing = threading.Event()
-        self._resender = threading.Thread(target=self._resend_loop, name=f"resend-{responder}", daemon=True)
-        self._resender.start()
+        # started on the first resend request: a simulator with a thousand wearables keeps no idle threads
+        self._resender: threading.Thread | None = None
         self._device: str | None = None
         self.acked_seq: int | None = None  # newest seq the service said it took (or counted lost)
         self.service_lost = 0  # frames the service counts lost for this responder (its Status)
@@ -164,11 +165,15 @@ class Wearable:
         for q in seqs:
             self._resent_at[q] = now
         payloads = [self._kept[q] for q in seqs]
-        if payloads:
+        if payloads and not self._closing.is_set():
             try:
                 self._resends.put_nowait(payloads)
             except queue.Full:  # the service asks again in its next Status
                 pass
+            if self._resender is None:
+                self._resender = threading.Thread(target=self._resend_loop, name=f"resend-{self.responder}",
+                                                  daemon=True)
+                self._resender.start()
 
     def _resend_loop(self) -> None:
         while not self._closing.is_set():
@@ -177,6 +182,8 @@ class Wearable:
             except queue.Empty:
                 continue
             for p in payloads:
+                if self._closing.is_set():
+                    return
                 try:
                     self._pub["imu"].put(p)
                 except Exception:  # closed under us
@@ -241,14 +248,27 @@ class Wearable:
         flushed = self.flush(flush_s) if flush_s > 0 else None
         report = {**self.delivery(), "flushed": flushed, "resent": self.resent}
         self._closing.set()
-        for d in (self._orders, self._ack, self._listener, self._status, self._token, self._probe, *self._pub.values()):
-            if d is None:
-                continue
-            try:
-                d.undeclare()
-            except Exception:  # a closed session took it already
-                pass
+        # Teardown order (issue 29): first what makes zenoh's threads call into Python (the
+        # subscribers, the matching listener), then the resend thread, which may be inside a
+        # put; only then the publishers. A put or callback still running when the interpreter
+        # finalises is ended by CPython with pthread_exit, a forced unwind that the Rust
+        # frames around it cannot pass: glibc aborts ("FATAL: exception not rethrown").
+        for d in (self._orders, self._status, self._listener):
+            _undeclare(d)
+        if self._resender is not None:
+            self._resender.join(RESEND_JOIN_S)
+        for d in (self._ack, self._token, self._probe, *self._pub.values()):
+            _undeclare(d)
         return report
+
+
+def _undeclare(entity) -> None:
+    if entity is None:
+        return
+    try:
+        entity.undeclare()
+    except Exception:  # a closed session took it already
+        pass
 
 
 def replay(path, responder: str, session: zenoh.Session, incident, speed: float = 1.0, landmark_every: int = 0,

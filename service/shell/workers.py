@@ -59,6 +59,9 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
     session.close()
     if stats_path:
         Path(stats_path).write_text(json.dumps(stats))
+    from service.protocol.terminal import leave_process
+
+    leave_process(0)  # not the interpreter's finalisation under zenoh's threads
 
 
 def _drain(svc, quiet_s: float, timeout: float) -> None:
