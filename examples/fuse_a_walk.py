@@ -5,7 +5,7 @@
 The graph, in plain view (the service's is service/fusion/graph.py, with more evidence and a
 fixed-lag smoother; this one is solved once, as a batch):
 
-    prior ── x0 ──step── x1 ──step── x2 ── ... ── xn        x_k ∈ SE(2): (x, y, θ), θ the heading
+    prior ── x0 ──step── x1 ──step── x2 ── ... ── xn   x_k ∈ SE(2): (x, y, θ), θ the heading
                           │                        │
                       checkpoint               checkpoint
 
