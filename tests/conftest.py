@@ -44,11 +44,12 @@ def shared_data():
 #                live part: a zenoh session or router, a subprocess, the service's zenoh shell
 #                (service.shell), the console's HTTP server, a network client; or it is listed in
 #                INTEGRATION below (what that look cannot see, with the reason);
-#   slow         a unit test listed in SLOW below (measured: ``pytest -m unit --durations=30``);
+#   slow         a unit test listed in SLOW below, with the CPU time it was measured to take;
 #   unit         everything else: in process, no network, no child process.
 # ``recording`` is added to every test that reads ../shared/data (the ``shared_data`` fixture,
-# ``shared_data_path`` or ``SHARED_DATA``). A unit test that opens a zenoh session anyway fails
-# with a message saying so (``_unit_stays_in_process``), so the tier cannot silently be wrong.
+# ``shared_data_path`` or ``SHARED_DATA``). A unit test that opens a zenoh session or starts one
+# of the project's processes anyway fails saying so (``_unit_stays_in_process``), so a tier
+# cannot silently be wrong.
 # ---------------------------------------------------------------------------------------------
 import inspect  # noqa: E402
 import types  # noqa: E402
@@ -61,7 +62,8 @@ _LIVE_NAMES = {"zenoh", "subprocess", "Popen", "playwright", "sync_playwright", 
 _LIVE_MODULES = ("zenoh", "playwright", "subprocess", "service.shell", "client.console.server")
 _RECORDING_NAMES = {"shared_data", "shared_data_path", "SHARED_DATA"}
 
-# Tests the code look cannot classify (they reach a router through a command run in process).
+# Tests the look at the code cannot classify, nodeid -> why (e.g. a command run in process that
+# starts a router): none at the time of writing; the guard below names any that appears.
 INTEGRATION: dict[str, str] = {
 }
 
