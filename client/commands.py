@@ -155,7 +155,7 @@ def demo_command(
     """The whole system on this machine: router, service, console, replayed IPIN walks and simulated walkers.
 
     No certificates: the demo is insecure by design (plain TCP, no access control, no login)
-    and says so. An incident runs `firetrack serve --tls` (README, Security)."""
+    and says so. An incident runs `firetrack serve --tls` (docs/security.md)."""
     from client.simulate import SimulationPublisher, building_bounds
     from client.wearable import replay
     from service.protocol.incident import default_incident

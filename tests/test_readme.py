@@ -27,3 +27,23 @@ def test_ci_runs_the_readme_test_command():
 
 def test_ci_checks_the_layers():
     assert "lint-imports" in (ROOT / ".ci" / "run").read_text()
+
+
+def _links(md: Path) -> list[str]:
+    """The relative targets of a Markdown file's links and images, without their #anchors."""
+    targets = re.findall(r"\]\(([^)\s]+)\)", md.read_text())
+    return [t.split("#", 1)[0] for t in targets if not re.match(r"[a-z]+:", t) and not t.startswith("#")]
+
+
+def test_every_link_of_the_readme_and_docs_leads_to_a_file():
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    broken = [f"{md.relative_to(ROOT)} -> {t}" for md in pages for t in _links(md) if not (md.parent / t).exists()]
+    assert not broken, broken
+
+
+def test_docs_index_names_every_page_and_picture_of_docs():
+    """docs/README.md is the index: a page or a screenshot nobody links is either linked there or removed."""
+    index = {(ROOT / "docs" / t).resolve() for t in _links(ROOT / "docs" / "README.md")}
+    files = [p for p in (ROOT / "docs").rglob("*") if p.is_file() and p.suffix in (".md", ".png") and p.name != "README.md"]
+    assert files and not [str(p.relative_to(ROOT)) for p in files if p.resolve() not in index]
+    assert (ROOT / "docs" / "README.md").resolve() in {(ROOT / t).resolve() for t in _links(ROOT / "README.md")}

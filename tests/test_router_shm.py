@@ -21,9 +21,12 @@ SENDER = textwrap.dedent("""
     import sys, time, zenoh
     from service.protocol.session import client_config
     s = zenoh.open(client_config(sys.argv[1]))
-    time.sleep(0.5)
+    pub = s.declare_publisher("firetrack/demo/big/imu", congestion_control=zenoh.CongestionControl.BLOCK)
+    deadline = time.monotonic() + 10.0
+    while not pub.matching_status.matching and time.monotonic() < deadline:  # the route to the subscriber
+        time.sleep(0.01)
     for i in range(20):
-        s.put("firetrack/demo/big/imu", bytes(200_000), congestion_control=zenoh.CongestionControl.BLOCK)
+        pub.put(bytes(200_000))
     time.sleep(0.5)
     s.close()
 """)

@@ -183,7 +183,15 @@ def test_bad_frames_are_counted_and_harm_no_one(live):
         elif k > 20:
             wb.send("imu", bad_frames[k])
     assert wait_until(lambda: svc.frames_processed >= len(good) + len(bad_frames) - 12, 30)
-    time.sleep(0.3)
+
+    def all_judged():  # every good frame taken, the five attacks and the duplicate counted
+        try:
+            return (svc.responders["good"].gate.accepted == len(good)
+                    and sum(svc.responders["bad"].gate.counts.values())
+                    + sum(svc.core.intake.dropped_of("bad").values()) >= len(attacks) + 1)
+        except RuntimeError:  # the worker changed a count while it was read: look again
+            return False
+    assert wait_until(all_judged, 10)
     st = svc.core.status_of(svc.responders["bad"], time.time())
     counts = st.rejected
     for reason in ("msgpack", "schema", "nonfinite", "oversize", "kind"):

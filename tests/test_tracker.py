@@ -42,8 +42,19 @@ def test_a_second_checkpoint_before_the_first_step_is_where_the_track_starts():
 
 
 def test_gnss_with_nothing_to_correct_is_counted_not_dropped():
-    tr = ResponderTracker("r", FloorElevations.uniform(3.0, 0, 0), 0, TrackerSettings(engine="dr"))
-    tr.on_fix(CheckpointFix(0.0, 0.0, 0.0))
-    _poses(tr, _walk_frames(10.0))
-    tr.on_fix(GnssFix(t=1.0, x=3.0, y=0.0, accuracy=5.0))
-    assert tr.fixes_unused == 1
+    """With the fusion engine, which takes every GNSS fix it can place: a fix that comes while the
+    responder has no track (walking, but not yet placed by a checkpoint) is counted as unused,
+    neither applied nor rejected; the same kind of fix once the track exists is applied."""
+    tr = ResponderTracker("r", FloorElevations.uniform(3.0, 0, 0), 0, TrackerSettings(engine="fusion"))
+    frames = _walk_frames(20.0)
+    first, second = frames[:len(frames) // 2], frames[len(frames) // 2:]
+    assert _poses(tr, first) == [] and tr.last_step is not None  # steps taken, no track to put them on
+    tr.on_fix(GnssFix(t=1.0, x=3.0, y=0.0, accuracy=5.0))  # covered by the steps: decided now
+    assert (tr.fixes_unused, tr.fixes_applied, tr.fixes_rejected) == (1, 0, 0)
+
+    tr.on_fix(CheckpointFix(float(second[0].t[0]), 0.0, 0.0, sigma=0.3))  # placed: the track starts here
+    poses = _poses(tr, second)
+    assert len(poses) > 5 and tr.fixes_applied == 1
+    last = poses[-1]
+    tr.on_fix(GnssFix(t=last.t, x=last.x + 1.0, y=last.y, accuracy=5.0))
+    assert (tr.fixes_unused, tr.fixes_applied, tr.fixes_rejected) == (1, 2, 0)

@@ -247,7 +247,7 @@ def insecure(what: str) -> None:
     """Say, every time, that this runs without TLS or access control."""
     warn(f"INSECURE: {what} runs without TLS and without access control: any program that reaches its endpoint "
          "can read every position and forge frames, fixes and poses. Fine on one laptop for a demo; at an "
-         "incident use --tls (README, Security)")
+         "incident use --tls (docs/security.md)")
 
 
 def warn_plan_problems(cfg) -> None:
