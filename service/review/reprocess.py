@@ -50,7 +50,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
     check_is_recording(path)
     replay = SegmentReplay(path, incident_cfg)
     published: list = []
-    timed: list = []  # (receive time of the input, Status or Audit) for the event log
+    timed: list = []  # (time, Status recorded live or Audit answered now) for the event log
     recorded: dict[str, list[tuple[float, int, float, float]]] = {}
     n_inputs = 0
     cpu0 = time.process_time()
@@ -62,8 +62,13 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         elif m.kind == "pose":
             p = wire.decode(m.payload, expect=wire.Pose)
             recorded.setdefault(p.responder, []).append((p.t, p.steps, p.x, p.y))
+        elif m.kind == "status":  # the alarms as raised live (offline there is no timer: no Status is answered)
+            try:
+                timed.append((m.receive_time, wire.decode(m.payload, expect=wire.Status)))
+            except wire.WireError:
+                pass  # a record the reader could not decode: the alarms of the others still count
         published += answers
-        timed += [(m.receive_time, o.message) for o in answers if isinstance(o.message, (wire.Status, wire.Audit))]
+        timed += [(m.receive_time, o.message) for o in answers if isinstance(o.message, wire.Audit)]
     core = replay.core
     cpu = time.process_time() - cpu0
     out: dict[str, ResponderReview] = {}
