@@ -226,3 +226,30 @@ def test_the_exported_mcap_has_a_foxglove_schema_on_every_channel_and_every_mess
     assert f"{FALLEN}: man_down" in alarms, alarms
     ops = [m.message for m in decoded.get("/operator", [])]
     assert any("alice" in m and "ack" in m and FALLEN in m for m in ops), ops
+
+
+def _serve(args):
+    from client.cli import app
+    from service.protocol.session import free_local_port
+    from typer.testing import CliRunner
+
+    return CliRunner().invoke(app, ["serve", "--no-console", "--listen", f"tcp/127.0.0.1:{free_local_port()}",
+                                    "--seconds", "0.5", *args])
+
+
+def test_serve_foxglove_prints_where_to_connect():
+    r = _serve(["--foxglove", "0"])
+    assert r.exit_code == 0, r.output
+    assert "foxglove: ws://127.0.0.1:" in r.output
+
+
+def test_serve_foxglove_without_the_package_names_the_extra(monkeypatch):
+    import sys
+
+    for name in ("foxglove", "foxglove.messages", "foxglove.channels"):  # as if foxglove-sdk were not installed
+        monkeypatch.setitem(sys.modules, name, None)
+    for name in ("service.shell.foxglove_live", "service.review.foxglove_scene"):
+        monkeypatch.delitem(sys.modules, name, raising=False)
+    r = _serve(["--foxglove", "0"])
+    assert r.exit_code == 1
+    assert "pip install 'firetrack[foxglove]'" in r.output

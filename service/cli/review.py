@@ -103,7 +103,7 @@ def _export(tracks: dict, cfg, folder: Path, live: dict | None = None, events: l
     try:
         from service.review.foxglove_export import write_foxglove_mcap
     except ImportError:
-        warn("foxglove.mcap not written: the Foxglove export needs the foxglove extra (pip install 'firetrack[foxglove]')")
+        warn("foxglove.mcap not written: the Foxglove export needs the foxglove extra (pip install 'firetrack\\[foxglove]')")
         return
     counts = write_foxglove_mcap(folder / "foxglove.mcap", cfg, live or {}, tracks, events or [])
     err.print(f"wrote {folder}/foxglove.mcap: {sum(counts.values())} messages on {len(counts)} topics (open it in Foxglove)")

@@ -252,7 +252,7 @@ class running_service:
             from service.shell.foxglove_live import FoxgloveLive
         except ImportError:
             self.__exit__(None, None, None)
-            fail("--foxglove needs the foxglove extra: pip install 'firetrack[foxglove]'")
+            fail("--foxglove needs the foxglove extra: pip install 'firetrack\\[foxglove]'")
             raise typer.Exit(1)
         host, port = self.foxglove
         try:

@@ -19,7 +19,9 @@ import logging
 import math
 import threading
 
+import foxglove
 import zenoh
+from foxglove.channels import FrameTransformsChannel, GridChannel, LocationFixChannel, LogChannel, PoseInFrameChannel, SceneUpdateChannel
 
 from service.protocol import wire
 from service.review import foxglove_scene as fx
@@ -32,9 +34,6 @@ class FoxgloveLive:
     """``FoxgloveLive(session, incident, port, host).close()``; ``port`` 0 takes a free one (see ``.port``)."""
 
     def __init__(self, session: zenoh.Session, incident, port: int = 8765, host: str = "127.0.0.1"):
-        import foxglove
-        from foxglove.channels import FrameTransformsChannel, GridChannel, LogChannel, SceneUpdateChannel
-
         self.incident, self.host = incident, host
         self._frame = fx.enu_frame(incident.id)
         self._elevation = incident.elevations()
@@ -87,8 +86,6 @@ class FoxgloveLive:
             return ch
 
     def _on_pose(self, sample: zenoh.Sample) -> None:
-        from foxglove.channels import LocationFixChannel, PoseInFrameChannel
-
         try:
             p = wire.decode(sample.payload.to_bytes(), expect=wire.Pose)
             unix = p.utc if p.utc is not None else p.published_at
