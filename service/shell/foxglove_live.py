@@ -18,10 +18,18 @@ from __future__ import annotations
 import logging
 import math
 import threading
+from collections.abc import Callable
 
 import foxglove
 import zenoh
-from foxglove.channels import FrameTransformsChannel, GridChannel, LocationFixChannel, LogChannel, PoseInFrameChannel, SceneUpdateChannel
+from foxglove.channels import (
+    FrameTransformsChannel,
+    GridChannel,
+    LocationFixChannel,
+    LogChannel,
+    PoseInFrameChannel,
+    SceneUpdateChannel,
+)
 
 from service.protocol import wire
 from service.review import foxglove_scene as fx
@@ -43,7 +51,7 @@ class FoxgloveLive:
         self._colors: dict[str, int] = {}
         self.poses = 0  # poses passed on
         self.ctx = foxglove.Context()
-        self._static: dict[str, tuple[object, callable]] = {}  # topic -> (channel, message maker)
+        self._static: dict[str, tuple[object, Callable]] = {}  # topic -> (channel, message maker)
         self._static["/tf"] = (FrameTransformsChannel("/tf", context=self.ctx), lambda now: fx.floor_transforms(incident, now))
         self._static["/building"] = (SceneUpdateChannel("/building", context=self.ctx),
                                      lambda now: fx.building_scene(incident, now))
