@@ -178,19 +178,27 @@ def test_the_live_server_sends_a_walking_responders_location_fix_with_its_covari
     assert incident_run["bridge_poses"] > 20
 
 
-def test_the_exported_mcap_has_a_foxglove_schema_on_every_channel_and_every_message_decodes_with_it(incident_run, tmp_path):
-    from mcap.reader import make_reader
+@pytest.fixture(scope="module")
+def exported(incident_run, tmp_path_factory):
+    """``firetrack reprocess REC --export DIR`` of the live incident: DIR."""
     from typer.testing import CliRunner
 
     from client.cli import app
 
-    r = CliRunner().invoke(app, ["reprocess", str(incident_run["recording"]), "--export", str(tmp_path)])
+    folder = tmp_path_factory.mktemp("export")
+    r = CliRunner().invoke(app, ["reprocess", str(incident_run["recording"]), "--export", str(folder)])
     assert r.exit_code == 0, r.output
+    return folder
+
+
+def test_the_exported_mcap_has_a_foxglove_schema_on_every_channel_and_every_message_decodes_with_it(incident_run, exported):
+    from mcap.reader import make_reader
+
     known = foxglove_schema_names()
     classes: dict[int, object] = {}
     counts: dict[str, int] = {}
     decoded: dict[str, list] = {}
-    with open(tmp_path / "foxglove.mcap", "rb") as f:
+    with open(exported / "foxglove.mcap", "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
         for ch in summary.channels.values():
@@ -253,3 +261,19 @@ def test_serve_foxglove_without_the_package_names_the_extra(monkeypatch):
     r = _serve(["--foxglove", "0"])
     assert r.exit_code == 1
     assert "pip install 'firetrack[foxglove]'" in r.output
+
+
+def test_the_same_export_writes_a_kml_track_per_responder_and_kind(exported):
+    import xml.etree.ElementTree as ET
+
+    from service.review.kml import GX_NS, KML_NS
+
+    ns = {"k": KML_NS, "gx": GX_NS}
+    root = ET.parse(exported / "tracks.kml").getroot()
+    tracks = {p.find("k:name", ns).text: p.find("gx:Track", ns) for p in root.findall(".//k:Placemark", ns)}
+    assert set(tracks) == {f"{rid} {kind}" for rid in (WALKER, FALLEN) for kind in ("live", "smoothed")}
+    for name, tr in tracks.items():
+        when = [np.datetime64(w.text.rstrip("Z")) for w in tr.findall("k:when", ns)]
+        assert len(when) == len(tr.findall("gx:coord", ns)) > 20, name
+        assert all(b > a for a, b in zip(when, when[1:])), name
+        assert abs((when[0] - np.datetime64(int(time.time() * 1000), "ms")) / np.timedelta64(1, "s")) < 3600
