@@ -277,3 +277,31 @@ def test_the_same_export_writes_a_kml_track_per_responder_and_kind(exported):
         assert len(when) == len(tr.findall("gx:coord", ns)) > 20, name
         assert all(b > a for a, b in zip(when, when[1:])), name
         assert abs((when[0] - np.datetime64(int(time.time() * 1000), "ms")) / np.timedelta64(1, "s")) < 3600
+
+
+def test_a_plan_grid_puts_each_pixel_where_the_plans_georeference_does(tmp_path):
+    from PIL import Image
+
+    from service.protocol.floorplan import plan_pixel_to_enu
+    from service.protocol.incident import incident_from_dict
+    from service.review.foxglove_scene import plan_grids
+
+    img = np.zeros((30, 40, 4), dtype=np.uint8)  # 40 x 30 pixels, all transparent but one 4 x 4 block
+    img[4:8, 28:32] = (255, 0, 0, 255)  # rows (v) 4-7, columns (u) 28-31
+    Image.fromarray(img, "RGBA").save(tmp_path / "plan.png")
+    cfg = incident_from_dict({"origin": {"lat": 49.46, "lon": 11.11}, "floor_plans": [{
+        "floor": 0, "image": "plan.png",
+        "georeference": {"centre_lat": 49.4601, "centre_lon": 11.1102, "rotation_deg": -30.0, "metres_per_pixel": 0.5}}]},
+        base_dir=tmp_path)
+    made = plan_grids(cfg, 0.0, cell_m=2.0)[0]  # 4 x 4 pixels a cell
+    grid = decode_strictly(message_class("foxglove.Grid", made.get_schema().data), made.encode())
+    assert grid.column_count == 10 and abs(grid.cell_size.x - 2.0) < 1e-9
+    cells = np.frombuffer(grid.data, dtype=np.uint8).reshape(-1, grid.column_count, 4)
+    (row, col), = np.argwhere(cells[:, :, 0] == 255)
+    q = grid.pose.orientation
+    yaw = 2 * math.atan2(q.z, q.w)
+    cx, cy = (col + 0.5) * grid.cell_size.x, (row + 0.5) * grid.cell_size.y  # the cell's centre in the grid's frame
+    x = grid.pose.position.x + math.cos(yaw) * cx - math.sin(yaw) * cy
+    y = grid.pose.position.y + math.sin(yaw) * cx + math.cos(yaw) * cy
+    ex, ey = plan_pixel_to_enu(cfg.floor_plan(0), 30.0, 6.0)  # the block's centre in pixels
+    assert math.hypot(x - ex, y - ey) < 1e-6

@@ -229,7 +229,7 @@ def _plan_cells(plan, cell_m: float):
     px = float(np.hypot(*a))
     k = max(1, int(round(cell_m / px)))
     with Image.open(plan.path) as im:
-        im = im.convert("RGBA")
+        im = im if im.mode == "RGBA" else im.convert("RGBA")  # a large plan: no second full-size copy
         cols, rows = max(1, im.size[0] // k), max(1, im.size[1] // k)
         small = im.resize((cols, rows), Image.Resampling.BOX, box=(0, 0, cols * k, rows * k))
     rgba = np.asarray(small, dtype=np.uint8)[::-1]  # bottom row first
