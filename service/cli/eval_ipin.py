@@ -39,6 +39,9 @@ def eval_ipin(
     cv: bool = typer.Option(False, "--cv", help="leave-one-route-out cross-validation of the tuned settings (routes: trial numbers)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
     plot: Path = typer.Option(None, "--plot", help="write a PNG per file (track, heading evidence, floors over time) into this folder"),
+    submit: Path = typer.Option(None, "--submit", help="write each walk's live estimate in the IPIN 2023 Track 3 result format "
+                                                       "(<walk>.est, with its ground truth GT_<walk>.csv) into this folder and "
+                                                       "score those files the organisers' way"),
 ):
     """Error at each scored landmark = horizontal distance + 15 m x |floor error|; p75 and median pooled over all files."""
     from service.core.tracker import tracker_settings_for
@@ -87,6 +90,8 @@ def eval_ipin(
         for rec in progress(recordings, "tracking"):
             runs.append(run_ipin(rec, cfg, fix_every, not no_gnss, settings, pdr_cache=cache))
         report = _report(runs, fix_every, not no_gnss, engine)
+    if submit is not None:
+        report["submission"] = _submit(runs, cfg, submit)
     report["cpu_s"] = time.process_time() - started
     if plot is not None:
         from service.review.ipin_plot import plot_run
@@ -101,8 +106,21 @@ def eval_ipin(
         if cv:
             for t in _cv_tables(report):
                 out.print(t)
+        if submit is not None:
+            s = report["submission"]
+            out.print(f"IPIN submission in {submit}/: {len(s['walks'])} walk(s); from those files, the organisers' metric: "
+                      f"p75 {_fmt(s['p75_m'])} m pooled (numpy's percentile, as above), "
+                      f"{_fmt(s['p75_organisers_m'])} m with MATLAB's quantile; n = {s['n_eval']}")
     if bad:
         raise typer.Exit(1)
+
+
+def _submit(runs: list[IpinRun], cfg, folder: Path) -> dict:
+    """Each run's result file and ground truth written, then scored from the files alone."""
+    from service.review.ipin_submission import score_files, write_submission
+
+    pairs = [write_submission(r, cfg, folder) for r in runs]
+    return {"folder": str(folder), **score_files(pairs)}
 
 
 def _has_landmarks(rec) -> bool:

@@ -29,7 +29,10 @@ def reprocess_command(
     file: Path = typer.Argument(..., help="an incident recording (.mcap) from serve --record, record or exercise"),
     config: Path = typer.Option(None, "--config", help="incident config (default: the IPIN museum demo)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON"),
-    export: Path = typer.Option(None, "--export", help="write the smoothed tracks here (tracks.geojson, tracks.csv, <responder>.tum) and the live poses with their covariance (live.csv)"),
+    export: Path = typer.Option(None, "--export", help="write the tracks here: tracks.geojson, tracks.csv, <responder>.tum "
+                                                        "(smoothed), live.csv (the live poses with their covariance), "
+                                                        "tracks.kml (Google Earth, live and smoothed) and foxglove.mcap "
+                                                        "(Foxglove; needs the [foxglove] extra)"),
 ):
     """Run the service pipeline offline over the recorded inputs and compare with the poses recorded live."""
     from service.review.reprocess import reprocess
@@ -51,12 +54,14 @@ def reprocess_command(
         warn(str(w.message))
     tracks = rep.pop("tracks")
     live = rep.pop("live_tracks")
+    events = rep.pop("events")
+    rep["events"] = len(events)
     if rep["errors"]:
         fail(f"{file}: {rep['errors']} message(s) raised an error while reprocessing (see the log above); "
              "the other messages were processed")
     if export is not None:
         try:
-            _export(tracks, cfg, export, live)
+            _export(tracks, cfg, export, live, events)
         except (ValueError, OSError) as e:
             fail(f"export to {export}: {e}")
             raise typer.Exit(1)
@@ -76,9 +81,10 @@ def reprocess_command(
     out.print(table)
 
 
-def _export(tracks: dict, cfg, folder: Path, live: dict | None = None) -> None:
+def _export(tracks: dict, cfg, folder: Path, live: dict | None = None, events: list | None = None) -> None:
     from pdr.floors import FloorElevations
     from service.review.export import to_csv, to_geojson, to_tum
+    from service.review.kml import write_kml
 
     folder.mkdir(parents=True, exist_ok=True)
     origin = (cfg.origin.lat, cfg.origin.lon, cfg.origin.alt_m)
@@ -89,8 +95,18 @@ def _export(tracks: dict, cfg, folder: Path, live: dict | None = None) -> None:
         to_tum(tr, folder / f"{rid}.tum", floors)
     if live:  # the smoother keeps no covariance in hindsight; the live poses carry the one the console showed
         to_csv(live, folder / "live.csv", origin, floors)
-    err.print(f"wrote {len(tracks)} smoothed track(s) to {folder}/ (tracks.geojson, tracks.csv, <responder>.tum)"
+    skipped = write_kml(tracks, folder / "tracks.kml", origin, floors, live=live, name=f"{cfg.id}: {cfg.name}")
+    if skipped:
+        warn(f"tracks.kml leaves out {', '.join(skipped)}: no UTC time known for them")
+    err.print(f"wrote {len(tracks)} smoothed track(s) to {folder}/ (tracks.geojson, tracks.csv, <responder>.tum, tracks.kml)"
               + (f" and {len(live)} live track(s) with covariance (live.csv)" if live else ""))
+    try:
+        from service.review.foxglove_export import write_foxglove_mcap
+    except ImportError:
+        warn("foxglove.mcap not written: the Foxglove export needs the foxglove extra (pip install 'firetrack\\[foxglove]')")
+        return
+    counts = write_foxglove_mcap(folder / "foxglove.mcap", cfg, live or {}, tracks, events or [])
+    err.print(f"wrote {folder}/foxglove.mcap: {sum(counts.values())} messages on {len(counts)} topics (open it in Foxglove)")
 
 
 def exercise_command(

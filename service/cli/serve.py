@@ -64,6 +64,10 @@ def serve_command(
     tls: Path = typer.Option(None, "--tls", help="mutual TLS with this service identity (firetrack certs issue "
                                                  "--role service): TLS only, access control from the roster"),
     roster: Path = typer.Option(None, "--roster", help="the incident roster (default: roster.json beside the --tls directory)"),
+    foxglove: int = typer.Option(None, "--foxglove", help="also run a live Foxglove WebSocket server on this port (8765 is "
+                                                          "Foxglove's usual; 0: any free port): connect Foxglove to "
+                                                          "ws://HOST:PORT; needs the [foxglove] extra"),
+    foxglove_host: str = typer.Option("127.0.0.1", "--foxglove-host", help="address the Foxglove server listens on"),
 ):
     """Run the service for one incident: one pipeline per responder, poses and status out."""
     setup_logging(verbose)
@@ -81,12 +85,17 @@ def serve_command(
     if security is None:
         insecure("firetrack serve")
     stop = stop_on_signals()
+    if foxglove is not None and not 0 <= foxglove <= 65535:
+        fail(f"--foxglove must be a port number (0-65535), got {foxglove}")
+        raise typer.Exit(2)
     with running_service(cfg, listen, connect, record, console, port, settings=settings, workers=workers,
-                         security=security) as (svc, where):
+                         security=security, foxglove=(foxglove_host, foxglove) if foxglove is not None else None) as (svc, where):
         out.print(f"[bold]firetrack[/] serving incident [bold]{cfg.id}[/] ({cfg.name}) on {where}"
                   + (f" as {identity.name}, mutual TLS" if identity else ""))
         if console:
             out.print(f"console: {svc.console_url or f'http://127.0.0.1:{port}/'}")
+        if svc.foxglove_url:
+            out.print(f"foxglove: {svc.foxglove_url} (Foxglove: Open connection, Foxglove WebSocket)")
         stop.wait(None if math.isinf(seconds) else seconds)
     out.print(f"stopped; {len(svc.responders)} responder(s), {svc.frames_processed} frames processed")
 
@@ -175,8 +184,10 @@ class running_service:
     """Context manager: session (router or client), service, optional recorder and console."""
 
     def __init__(self, cfg, listen=None, connect=None, record: Path | None = None, console: bool = False,
-                 port: int = 8080, settings=None, workers: int = 1, security: Security | None = None):
+                 port: int = 8080, settings=None, workers: int = 1, security: Security | None = None,
+                 foxglove: tuple[str, int] | None = None):
         self.cfg, self.listen, self.connect, self.workers = cfg, listen, connect, workers
+        self.foxglove = foxglove  # (host, port) of the live Foxglove server, or None
         self.record, self.console, self.port, self.settings = record, console, port, settings
         self.security = security
         self._closers: list = []
@@ -230,9 +241,28 @@ class running_service:
                 raise typer.Exit(1)
             self._closers.append(handle.close)
             svc.console_url = getattr(handle, "url", None)
+        svc.foxglove_url = self._foxglove(session) if self.foxglove is not None else None
         where = ", ".join(self.connect) if self.connect else ", ".join(self.listen or [default_endpoint(tls)])
         self.service = svc
         return svc, where
+
+    def _foxglove(self, session) -> str:
+        """The live Foxglove server on the service's session; its ws:// address."""
+        try:
+            from service.shell.foxglove_live import FoxgloveLive
+        except ImportError:
+            self.__exit__(None, None, None)
+            fail("--foxglove needs the foxglove extra: pip install 'firetrack\\[foxglove]'")
+            raise typer.Exit(1)
+        host, port = self.foxglove
+        try:
+            bridge = FoxgloveLive(session, self.cfg, port, host)
+        except Exception as e:  # the port in use, a bad address: the server's own message
+            self.__exit__(None, None, None)
+            fail(f"--foxglove {port}: the Foxglove server did not start on {host}:{port}: {e}")
+            raise typer.Exit(1)
+        self._closers.append(bridge.close)
+        return bridge.url
 
     def _recording(self):
         """The recorder (a new recording, or the next segment of one that exists), the core to

@@ -53,6 +53,7 @@ class IpinRun:
     gnss_used: int
     gnss_rejected: int
     diagnostics: dict = field(default_factory=dict)  # for plots: heading evidence, floors over time
+    app_to_sensor_offset_s: float = 0.0  # s: the logger's app clock (AppTs, the organisers' time) + this = the device clock
 
     def scored(self) -> np.ndarray:
         return np.setdiff1d(np.arange(self.lm_t.size), self.fixes)
@@ -234,7 +235,8 @@ def run_ipin(rec: Recording, incident, fix_every: int = 0, use_gnss: bool = True
     }
     gnss_n = sum(m.kind == "fix" and m.msg.source == "gnss" for m in msgs)
     return IpinRun(rec.source, lm.t, np.asarray(lx, float), np.asarray(ly, float), lm.floor.astype(int), fixes, live,
-                   smoothed, _columns(tracker.pdr_track), gnss_n, tracker.fixes_rejected, diagnostics)
+                   smoothed, _columns(tracker.pdr_track), gnss_n, tracker.fixes_rejected, diagnostics,
+                   float(rec.meta.get("app_to_sensor_offset_s", 0.0) or 0.0))
 
 
 def _columns(rows) -> dict[str, np.ndarray]:

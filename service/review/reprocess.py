@@ -28,6 +28,7 @@ import numpy as np
 
 from service.core.incident_core import INBOUND_KINDS
 from service.protocol import wire
+from service.review.incident_events import review_events
 from service.review.recorder import IncidentRecorder
 from service.review.resume import SegmentReplay
 
@@ -41,7 +42,7 @@ class ResponderReview:
     max_deviation_m: float | None = None
     unmatched: int = 0
     xy: list = field(default_factory=list)
-    live: list = field(default_factory=list)  # (t, x, y, floor, yaw, cov_xx, cov_xy, cov_yy) per published pose
+    live: list = field(default_factory=list)  # (t, x, y, floor, yaw, cov_xx, cov_xy, cov_yy, unix) per published pose
     utc_offset: float | None = None
 
 
@@ -49,6 +50,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
     check_is_recording(path)
     replay = SegmentReplay(path, incident_cfg)
     published: list = []
+    timed: list = []  # (time, Status recorded live or Audit answered now) for the event log
     recorded: dict[str, list[tuple[float, int, float, float]]] = {}
     n_inputs = 0
     cpu0 = time.process_time()
@@ -60,7 +62,13 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         elif m.kind == "pose":
             p = wire.decode(m.payload, expect=wire.Pose)
             recorded.setdefault(p.responder, []).append((p.t, p.steps, p.x, p.y))
+        elif m.kind == "status":  # the alarms as raised live (offline there is no timer: no Status is answered)
+            try:
+                timed.append((m.receive_time, wire.decode(m.payload, expect=wire.Status)))
+            except wire.WireError:
+                pass  # a record the reader could not decode: the alarms of the others still count
         published += answers
+        timed += [(m.receive_time, o.message) for o in answers if isinstance(o.message, wire.Audit)]
     core = replay.core
     cpu = time.process_time() - cpu0
     out: dict[str, ResponderReview] = {}
@@ -76,7 +84,8 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         r.xy.append((p.t, p.x, p.y))
         mine.setdefault(rid, []).append((p.t, p.steps, p.x, p.y))
         c = p.cov
-        r.live.append((p.t, p.x, p.y, p.floor, math.radians(90.0 - p.heading_deg), c[0, 0], c[0, 1], c[1, 1]))
+        r.live.append((p.t, p.x, p.y, p.floor, math.radians(90.0 - p.heading_deg), c[0, 0], c[0, 1], c[1, 1],
+                       p.utc if p.utc is not None else p.published_at))
         if p.utc is not None:
             r.utc_offset = p.utc - p.t  # the offset the service used for this pose
         r.steps = max(r.steps, p.steps)
@@ -109,6 +118,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
                        for rid, r in sorted(out.items())},
         "max_deviation_m": worst,
         "audits": [o.message.model_dump() for o in published if isinstance(o.message, wire.Audit)],  # who did what
+        "events": review_events(timed),  # alarms began and ended, operator actions: for the exports
         "inputs": n_inputs,
         "errors": core.counters.errors,
         "cpu_s": cpu,
@@ -135,13 +145,19 @@ def _compare(live: list, mine: list) -> tuple[float, int]:
         j = k + 1
     return (math.inf if unmatched else worst), unmatched
 def _live_track(rows: list, utc_offset) -> dict:
-    """The poses as the service published them, with their covariance (m², ENU), as a track."""
+    """The poses as the service published them, with their covariance (m², ENU) and the UTC
+    time each is at (``unix``: its device time + the wearable's UTC offset; without one, +
+    the median of publication time − device time, so times keep the device clock's order),
+    as a track."""
     a = np.array(rows, dtype=np.float64)
     a = a[np.concatenate(([True], np.diff(a[:, 0]) > 0))] if len(a) else a  # one pose per time: the last fix's jump
-    cols = ("t", "x", "y", "floor", "heading", "cov_xx", "cov_xy", "cov_yy")
+    cols = ("t", "x", "y", "floor", "heading", "cov_xx", "cov_xy", "cov_yy", "unix")
     track = {k: a[:, j] for j, k in enumerate(cols)}
     track["floor"] = track["floor"].astype(np.int64)
     track["utc_offset"] = utc_offset
+    if len(a):  # one clock for the whole track: the wearable's offset, else the typical publication delay
+        off = utc_offset if utc_offset is not None else float(np.median(track["unix"] - track["t"]))
+        track["unix"] = track["t"] + off
     return track
 
 
