@@ -60,7 +60,7 @@ def _interp_columns(at: np.ndarray, t: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def browser_stamps(t: np.ndarray, seed, jitter_s: float = 0.003, late_per_s: float = 0.2,
-                   late_s: tuple[float, float] = (0.02, 0.1), min_step_s: float = 1e-4) -> np.ndarray:
+                   late_s: tuple[float, float] = (0.02, 0.1), min_step_s: float = 1e-3) -> np.ndarray:
     """Timestamps a web page would give samples taken at ``t``: each event's arrival time.
 
     A browser stamps a motion event when the page's event loop handles it, not when the sensor

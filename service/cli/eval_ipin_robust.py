@@ -47,10 +47,15 @@ def table(report: dict) -> Table:
               _worst(base["worst_walk"], base["worst_p75_m"]), "", "", "", end_section=True)
     for r in report["perturbations"]:
         broken = ", ".join(short_walk(b["walk"]) for b in r["broken"][:3]) + (" ..." if len(r["broken"]) > 3 else "")
+        broken = f"{len(r['broken'])}" + (f": {broken}" if broken else "")
+        if r.get("errors"):
+            broken += f"; {len(r['errors'])} failed to run"
+        if r.get("p75_m") is None:
+            t.add_row(r["name"], "—", "", "—", "—", "—", "", broken, "[red]FAIL[/]")
+            continue
         t.add_row(r["name"], f"{r['p75_m']:.2f}", f"{r['pooled_change']:+.0%}", f"{r['pdr_p75_m']:.2f}",
                   f"{r['floor_accuracy']:.0%}", _worst(r["worst_walk"], r["worst_p75_m"]),
-                  f"{r['worst_unperturbed_p75_m']:.1f}", f"{len(r['broken'])}" + (f": {broken}" if broken else ""),
-                  "[green]pass[/]" if r["passes"] else "[red]FAIL[/]")
+                  f"{r['worst_unperturbed_p75_m']:.1f}", broken, "[green]pass[/]" if r["passes"] else "[red]FAIL[/]")
     t.caption = (f"pooled live p75 (m) and its change; worst walk: its p75 (m), 'was' the same walk as logged; "
                  f"pass: pooled p75 at most {POOLED_TOLERANCE:.0%} worse than as logged and no walk broken "
                  f"(p75 > {BROKEN_FACTOR:g} x its own as logged + {BROKEN_MARGIN_M:g} m)")

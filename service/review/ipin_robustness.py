@@ -45,21 +45,35 @@ def run_suite(recordings: list[Recording], incident, names: list[str], fix_every
     line per finished perturbation (for logs that are not terminals)."""
     jobs = [(name, rec) for name in [UNPERTURBED, *names] for rec in recordings]
     runs: dict[str, list[IpinRun]] = {}
+    errors: dict[str, list[dict]] = {}
     rows: list[dict] = []
     for name, rec in progress(jobs, "robustness suite", len(jobs)):
         r = rec if name == UNPERTURBED else perturbed(rec, name, seed)
-        runs.setdefault(name, []).append(run_ipin(r, incident, fix_every, use_gnss, settings))
-        if len(runs[name]) < len(recordings):
+        try:
+            runs.setdefault(name, []).append(run_ipin(r, incident, fix_every, use_gnss, settings))
+        except Exception as e:  # noqa: BLE001 -- a perturbation that breaks the pipeline is a finding, not the end
+            if name == UNPERTURBED:
+                raise
+            errors.setdefault(name, []).append({"walk": walk_name(rec.source), "error": f"{type(e).__name__}: {e}"[:300]})
+            runs.setdefault(name, [])
+            log(f"{name}: {walk_name(rec.source)} failed: {errors[name][-1]['error']}")
+        if len(runs[name]) + len(errors.get(name, [])) < len(recordings):
             continue
         fig = figures(runs.pop(name))
+        fig["errors"] = errors.get(name, [])
         if name == UNPERTURBED:
             base = fig
             base["worst_walk"] = max(fig["walks"], key=fig["walks"].get)
             base["worst_p75_m"] = fig["walks"][base["worst_walk"]]
             log(f"unperturbed: pooled p75 {fig['p75_m']:.2f} m, worst {base['worst_walk']} {base['worst_p75_m']:.2f} m")
             continue
+        if not fig["walks"]:
+            rows.append({"name": name, "what": PERTURBATIONS[name].what, **fig, "passes": False, "broken": []})
+            log(f"{name}: no walk could be run: FAIL")
+            continue
         row = {"name": name, "what": PERTURBATIONS[name].what, **fig,
                **verdict(base["p75_m"], base["walks"], fig["p75_m"], fig["walks"])}
+        row["passes"] = row["passes"] and not fig["errors"]  # a walk the pipeline could not run is broken
         rows.append(row)
         log(f"{name}: pooled p75 {row['p75_m']:.2f} m ({row['pooled_change']:+.0%}), worst {row['worst_walk']} "
             f"{row['worst_p75_m']:.2f} m, {len(row['broken'])} broken: {'pass' if row['passes'] else 'FAIL'}")
