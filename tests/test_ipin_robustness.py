@@ -43,6 +43,23 @@ def test_the_suite_scores_each_perturbation_as_eval_ipin_would(walks):
     assert len(lines) == 3 and lines[1].startswith("grip_z: pooled p75")
 
 
+def test_a_perturbation_the_pipeline_cannot_run_fails_and_the_suite_goes_on(walks, monkeypatch):
+    import dataclasses
+
+    from pdr.evaluation import robustness
+    from pdr.recording import Series
+
+    def too_fast(rec, seed):  # a clock 100 x too fast: 5 kHz, which the wire refuses
+        return dataclasses.replace(rec, acc=Series(rec.acc.t[0] + (rec.acc.t - rec.acc.t[0]) / 100, rec.acc.values))
+
+    monkeypatch.setitem(robustness.PERTURBATIONS, "too_fast", robustness.Perturbation("too_fast", "test", too_fast))
+    rep = run_suite(walks[:1], CFG, ["too_fast", "gaps"], settings=SETTINGS)
+    bad, gaps = rep["perturbations"]
+    assert bad["name"] == "too_fast" and not bad["passes"] and bad["p75_m"] is None
+    assert bad["errors"][0]["walk"] == "sim_route01_rep01" and "Hz" in bad["errors"][0]["error"]
+    assert gaps["p75_m"] is not None and not rep["passes"]
+
+
 def test_the_baseline_names_each_walk_and_figure_that_got_worse(walks, tmp_path):
     now = B.compute(walks, CFG, SETTINGS, ks=(0, 3))
     assert set(now) == {"sim_route01_rep01", "sim_route02_rep01"}
