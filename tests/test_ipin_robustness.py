@@ -30,7 +30,7 @@ def test_the_suite_scores_each_perturbation_as_eval_ipin_would(walks):
     rep = run_suite(walks, CFG, ["grip_z", "gaps"], settings=SETTINGS, log=lines.append)
     assert rep["unperturbed"] == {**figures([run_ipin(w, CFG, 0, True, SETTINGS) for w in walks]),
                                   "worst_walk": rep["unperturbed"]["worst_walk"],
-                                  "worst_p75_m": rep["unperturbed"]["worst_p75_m"]}
+                                  "worst_p75_m": rep["unperturbed"]["worst_p75_m"], "errors": []}
     assert [r["name"] for r in rep["perturbations"]] == ["grip_z", "gaps"]
     grip = rep["perturbations"][0]
     direct = figures([run_ipin(perturbed(w, "grip_z"), CFG, 0, True, SETTINGS) for w in walks])
