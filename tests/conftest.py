@@ -1,7 +1,8 @@
 """Shared pytest fixtures.
 
 Real recordings live outside the repository, in ``../shared/data`` next to the project root
-(see that folder's README); tests that need one ask the ``shared_data`` fixture, which skips
+(see that folder's README; ``FIRETRACK_SHARED_DATA`` names another folder, e.g. from a git
+worktree); tests that need one ask the ``shared_data`` fixture, which skips
 the test with the missing path when the recording is absent.
 """
 from __future__ import annotations
@@ -18,7 +19,7 @@ from hypothesis import settings
 settings.register_profile("firetrack", deadline=None)
 settings.load_profile("firetrack")
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+SHARED_DATA = Path(os.environ.get("FIRETRACK_SHARED_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data")
 
 
 def shared_data_path(relpath: str | Path) -> Path:

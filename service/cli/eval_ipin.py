@@ -42,6 +42,13 @@ def eval_ipin(
     submit: Path = typer.Option(None, "--submit", help="write each walk's live estimate in the IPIN 2023 Track 3 result format "
                                                        "(<walk>.est, with its ground truth GT_<walk>.csv) into this folder and "
                                                        "score those files the organisers' way"),
+    perturb: str = typer.Option(None, "--perturb", help="robustness suite: run every walk as logged and under each "
+                                "perturbation NAME[,NAME...] or 'all' (names: pdr/evaluation/robustness.py)"),
+    seed: int = typer.Option(27, "--seed", help="the robustness suite's random seed"),
+    write_baseline: Path = typer.Option(None, "--write-baseline", help="track every walk at K = 0 and 3 and write "
+                                        "the per-walk regression baseline (JSON) to this path"),
+    check_baseline: Path = typer.Option(None, "--check-baseline", help="track every walk of this baseline at K = 0 "
+                                        "and 3 and name each figure worse by more than 0.5 m (exit 1 if any)"),
 ):
     """Error at each scored landmark = horizontal distance + 15 m x |floor error|; p75 and median pooled over all files."""
     from service.core.tracker import tracker_settings_for
@@ -62,6 +69,19 @@ def eval_ipin(
     except IncidentConfigError as e:
         fail(str(e))
         raise typer.Exit(2)
+    modes = [o for o, v in (("--cv", cv), ("--perturb", perturb), ("--write-baseline", write_baseline),
+                            ("--check-baseline", check_baseline)) if v]
+    if len(modes) > 1:
+        fail(f"{' and '.join(modes)} cannot be combined")
+        raise typer.Exit(2)
+    if perturb is not None:
+        from pdr.evaluation.robustness import names_from
+
+        try:
+            names = names_from(perturb)
+        except ValueError as e:
+            fail(str(e))
+            raise typer.Exit(2)
     started = time.process_time()
     walks, skipped = walk_files(files)
     if skipped:
@@ -72,6 +92,16 @@ def eval_ipin(
     if not recordings:
         fail("no walk with landmarks to score")
         raise typer.Exit(2)
+    if perturb is not None:
+        from service.cli.eval_ipin_robust import robustness
+
+        robustness(recordings, cfg, names, fix_every, not no_gnss, settings, seed, as_json)
+        raise typer.Exit(1 if bad else 0)
+    if write_baseline is not None or check_baseline is not None:
+        from service.cli.eval_ipin_baseline import baseline_command
+
+        code = baseline_command(recordings, cfg, settings, not no_gnss, write_baseline, check_baseline, incident)
+        raise typer.Exit(code or (1 if bad else 0))
     cache = PdrCache()
     if cv:
         from service.review.ipin_cv import cross_validate, default_candidate
