@@ -344,3 +344,43 @@ def test_freed_big_buffers_go_back_to_the_system_with_the_services_mmap_threshol
     grown, back = map(float, subprocess.run([sys.executable, "-c", _CHURN, "fixed"], capture_output=True, text=True,
                                             check=True).stdout.split())
     assert grown > 50 and back > 0.9 * grown
+
+
+def test_garbage_fixes_on_a_responders_key_never_throttle_its_frames():
+    """Issue 32, attack 4: an anchor sends 25 malformed fixes/s on ff2's fix key for 30 s while
+    ff2's wearable sends its 10 frames/s. Zenoh cannot tell the subscriber who sent a sample,
+    but the router lets only ff2's wearable put on ``ff2/imu``: the fixes spend the ``fix`` lane
+    of ff2, held to the bad-sender budget, named ``ff2/fix``; every frame of ff2 is taken and ff2
+    carries no ``flooding`` alarm."""
+    core = IncidentCore(CFG)
+    garbage = msgpack.packb({"v": 1, "kind": "fix", "responder": "ff2", "t": "soon", "source": "checkpoint"})
+    frames_taken = fixes_taken = fixes_refused = 0
+    for k in range(300):  # 30 s
+        now = 1000.0 + 0.1 * k
+        p = frame_payload("ff2", k, 10.0 + 0.1 * k)
+        if core.admit("imu", key("ff2"), len(p), now) is None:
+            core.feed(Inbound("imu", key("ff2"), p, now))
+            frames_taken += 1
+        for j in range(2 + (k % 2)):  # 25 per second
+            t = now + 0.03 * (j + 1)
+            if core.admit("fix", key("ff2", "fix"), len(garbage), t) is None:
+                core.feed(Inbound("fix", key("ff2", "fix"), garbage, t))
+                fixes_taken += 1
+            else:
+                fixes_refused += 1
+    st = core.status_of(core.responders["ff2"], 1030.0)
+    assert frames_taken == 300 and st.frames == 300 and "throttled" not in st.rejected
+    assert fixes_refused > 500 and st.rejected["fix_throttled"] == fixes_refused  # the bad-sender budget: ~5/s
+    assert "flooding" not in st.alarms and core.flooding_sources(1030.0) == ["ff2/fix"]
+    # a flood on the frames' key throttles the frames' lane: that is ff2's own wearable
+    for i in range(5000):
+        core.admit("imu", key("ff2"), 3, 1030.0 + i * 1e-4)
+    assert core.intake.flooding("ff2", 1031.0) and "flooding" in core.status_of(core.responders["ff2"], 1031.0).alarms
+
+
+def test_budgets_are_per_lane():
+    it = Intake(IntakeSettings(source_rate=10.0, source_burst=10.0))
+    assert [it.admit(key("ff1", "fix"), 10, 0.0)[0] for _ in range(20)].count("throttled") == 10
+    assert [it.admit(key("ff1"), 10, 0.0)[0] for _ in range(10)] == [None] * 10
+    assert it.flooding("ff1", 0.0, lane="fix") and not it.flooding("ff1", 0.0)
+    assert it.flooding_sources(0.0) == ["ff1/fix"] and it.dropped_of("ff1") == {"fix_throttled": 10}

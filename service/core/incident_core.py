@@ -228,7 +228,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
                     r.rejects.append(now)
                 else:
                     self._newcomer(source, now).rejects.append(now)
-                self.intake.note_reject(source, now)
+                self.intake.note_reject(source, now, kind)
         return reason
 
     # ------------------------------------------------------------------ queries
@@ -305,6 +305,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
     def _take(self, item: Inbound) -> None:
         kind, key, payload, now = item
         self._now = now
+        self.intake.in_hand = kind  # a reject of this message is charged to its lane (service.core.intake)
         if now - self._expiry_checked >= 1.0 or now < self._expiry_checked:
             self._expire(now)
         if kind in self.counters.received:
@@ -391,7 +392,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         book[reason] = book.get(reason, 0) + 1
         if reason != "duplicate":
             n.rejects.append(now)
-            self.intake.note_reject(rid, now)
+            self.intake.note_reject(rid, now, "imu" if counts == "frames" else "fix")
         self.reject_log.note(rid, reason if counts == "frames" else f"fix_{reason}", detail, now)
 
     def _new_responder(self, rid: str, now: float) -> Responder:
@@ -453,7 +454,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         retransmission makes, does neither); the log gets a few lines per window."""
         if reason != "duplicate":
             r.rejects.append(now)
-            self.intake.note_reject(r.id, now)
+            self.intake.note_reject(r.id, now, "imu")
         self.reject_log.note(r.id, reason, detail, now)
 
     def _error(self, what: str) -> None:
