@@ -451,10 +451,12 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
 
     def _note_reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
         """Every reject feeds the burst alarm and the source's budget (a duplicate, which
-        retransmission makes, does neither); the log gets a few lines per window."""
+        retransmission makes, does neither; frames of a contested stream feed the alarm only:
+        the budget of the key is the real stream's too); the log gets a few lines per window."""
         if reason != "duplicate":
             r.rejects.append(now)
-            self.intake.note_reject(r.id, now, "imu")
+            if reason not in ("other_stream", "old_stream"):
+                self.intake.note_reject(r.id, now, "imu")
         self.reject_log.note(r.id, reason, detail, now)
 
     def _error(self, what: str) -> None:
