@@ -9,6 +9,10 @@ message however hostile its payloads are:
 
 * **Size.** A payload over :data:`service.protocol.wire.MAX_PAYLOAD_BYTES` is refused by its
   length (``oversize``), before zenoh copies it into Python.
+* **Fixes make no responder.** A fix for an id the incident does not know is charged to
+  ``<new ids>``'s budget, keeps no state here and is no admission: only a wearable's frames
+  bring a responder (the core holds such a fix a few seconds for a wearable whose door fix
+  came before its first frame).
 * **Admission.** A responder id the incident does not know yet is admitted from a token bucket
   (``admit_burst`` at once, ``admit_per_s`` after that) while fewer than ``max_responders`` are
   known; ids on the roster always are, and with ``roster_only`` nobody else is. Refused ids are
@@ -160,6 +164,9 @@ class Intake:
                 src = self._source(rid)
             elif not _ID_RE.match(rid) or rid in self.pseudo:
                 return self._refuse(BAD_KEY, "bad_key", now), BAD_KEY
+            elif parts[3] == "fix":  # a fix for an id nobody has made yet: it makes nobody
+                pseudo = self.sources.get(NEW_IDS) or self._source(NEW_IDS)
+                return self._charge(pseudo, "fix", size, now), NEW_IDS
             else:
                 if not self._may_admit(rid, now):
                     return self._refuse(NEW_IDS, "not_admitted", now), NEW_IDS
