@@ -222,7 +222,10 @@ def _walk(path: Path, report: RecordingReader | None) -> Iterator[tuple[object, 
             if report is not None:
                 # the file ends inside a record (a short read, or a length longer than what is left)
                 cut = isinstance(e, (EndOfFile, RecordLengthLimitExceeded, struct.error, EOFError))
-                report._stopped(good, f"{'cut off' if cut else 'corrupt'} at byte {good} of {size}: {_describe(e)}")
+                if good == size:  # between two records: the writer stopped before its footer
+                    report._stopped(good, f"cut off at byte {good} of {size}: no footer (the writer was stopped)")
+                else:
+                    report._stopped(good, f"{'cut off' if cut else 'corrupt'} at byte {good} of {size}: {_describe(e)}")
 
 
 def read_recording(path, kinds: Iterable[str] | None = None, responders: Iterable[str] | None = None,
