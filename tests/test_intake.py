@@ -416,3 +416,20 @@ def test_fixes_for_unknown_responders_make_no_responder():
     core2.feed(Inbound("imu", key("ff7"), p, 1011.0))
     tr = core2.responders["ff7"].tracker
     assert tr.fixes_applied + tr.fixes_queued == 1 and "fix_unknown_responder" not in core2.frame_accounting()
+
+
+def test_a_source_pickled_before_lanes_resumes_as_its_frames_lane():
+    """A snapshot of an older service (one bucket per source) still resumes."""
+    import pickle
+    from collections import deque
+
+    from service.core.intake import SourceState, TokenBucket
+
+    it = Intake()
+    old = SourceState.__new__(SourceState)
+    old.__dict__.update({"bucket": TokenBucket(100.0, 4000.0, 0.0), "rejects": deque(), "bad": False, "throttled": 3,
+                         "last_throttled": 5.0, "dropped": {"throttled": 3}})
+    it.sources["ff2"] = old
+    back = pickle.loads(pickle.dumps(it))
+    assert back.flooding("ff2", 10.0) and back.admit(key("ff2"), 10, 11.0) == (None, "ff2")
+    assert back.dropped_of("ff2") == {"throttled": 3}

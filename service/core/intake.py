@@ -136,9 +136,19 @@ class SourceState:
     def last_throttled(self) -> float:
         return max((ln.last_throttled for ln in self.lanes.values()), default=-math.inf)
 
+    def __setstate__(self, state: dict) -> None:
+        """A source pickled before lanes (one bucket per source) becomes one with that bucket as
+        its frames' lane, so a snapshot of an older service still resumes."""
+        if "bucket" in state:
+            old = {k: state.pop(k) for k in ("bucket", "rejects", "bad", "throttled", "last_throttled") if k in state}
+            state["lanes"] = {ALARM_LANE: Lane(**old)}
+        self.__dict__.update(state)
+
 
 class Intake:
     """Per-source budgets and admission (see the module docstring); ``reason = intake.admit(...)``."""
+
+    in_hand = ALARM_LANE  # (class default: an intake pickled before lanes)
 
     def __init__(self, settings: IntakeSettings | None = None):
         self.settings = settings or IntakeSettings()
