@@ -56,6 +56,8 @@ NEW_IDS = "<new ids>"
 OPERATORS = "<operators>"
 INTAKE_REASONS = ("oversize", "not_admitted", "throttled", "bad_key")
 LANES = ("imu", "fix", "ack", "command", "op")  # the kinds with a budget of their own; any other shares "other"
+_LANE_SET = frozenset(LANES)
+_UNLANED = frozenset(("bad_key", "not_admitted"))  # reasons counted under their own name whatever the lane
 ALARM_LANE = "imu"  # the lane whose flooding is the responder's own ``flooding`` alarm (its wearable's frames)
 _ID_RE = re.compile(ID_PATTERN)
 
@@ -182,7 +184,17 @@ class Intake:
                     return self._refuse(NEW_IDS, "not_admitted", now), NEW_IDS
                 src = self._source(rid)
                 self.admitted += 1
-        return self._charge(src, lane_of(parts[3]), size, now), rid
+        lane = parts[3] if parts[3] in _LANE_SET else "other"
+        if size > self.settings.max_payload_bytes:
+            return self._drop(src, "oversize", lane), rid
+        ln = src.lanes.get(lane) or self._lane(src, lane, now)  # _charge, inlined: the flood's hot path
+        if ln.bad:
+            self._maybe_rehabilitate(ln, now)
+        if not ln.bucket.take(now):
+            ln.throttled += 1
+            ln.last_throttled = now
+            return self._drop(src, "throttled", lane), rid
+        return None, rid
 
     def admit_shared(self, source: str, size: int, now: float, lane: str = "op") -> str | None:
         """A message charged to a pseudo-source (``<operators>``): its size and that source's
@@ -196,7 +208,7 @@ class Intake:
         """The size check, then one token of the lane's bucket."""
         if size > self.settings.max_payload_bytes:
             return self._drop(src, "oversize", lane)
-        ln = self._lane(src, lane, now)
+        ln = src.lanes.get(lane) or self._lane(src, lane, now)
         if ln.bad:
             self._maybe_rehabilitate(ln, now)
         if not ln.bucket.take(now):
@@ -301,7 +313,7 @@ class Intake:
         return self._drop(src, reason, ALARM_LANE)
 
     def _drop(self, src: SourceState, reason: str, lane: str) -> str:
-        name = reason if lane == ALARM_LANE or reason in ("bad_key", "not_admitted") else f"{lane}_{reason}"
+        name = reason if lane == ALARM_LANE or reason in _UNLANED else f"{lane}_{reason}"
         src.dropped[name] = src.dropped.get(name, 0) + 1
         self.counts[reason] = self.counts.get(reason, 0) + 1
         return reason
