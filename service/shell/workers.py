@@ -146,6 +146,9 @@ class WorkerPool:
         """Stop every worker: ``timeout`` s for all of them together to drain and end, then the
         rest are killed; none is left behind."""
         self.stop.set()
+        for p, ready in self.procs:  # still starting: it serves nobody yet, nothing to drain
+            if not ready.is_set() and p.is_alive():
+                p.kill()
         deadline = time.monotonic() + timeout
         for p, _ in self.procs:
             p.join(max(0.0, deadline - time.monotonic()))
