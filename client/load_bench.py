@@ -241,7 +241,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         svc.wait_idle(5.0)
         svc_frames = svc.frames_processed
         svc_steps = sum(r.tracker.steps for r in list(svc.responders.values()))
-        others = pool.close()
+        others = pool.close(timeout=30.0)  # a loaded worker drains its backlog
         wall = time.monotonic() - t0
         accounting = [svc.frame_accounting()] + [s.get("frames_not_processed", {}) for s in others]
     per_sample = rate / 10.0

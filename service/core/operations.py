@@ -134,6 +134,12 @@ class OperatorDesk:
                               ("unknown_responder", f"no frame of {op.responder!r} has been taken yet"))
             self._audit(wire.Audit(outcome="refused", reason=reason, detail=detail, **base))
             return
+        x, y = getattr(fix, "x", None), getattr(fix, "y", None)
+        if x is not None and y is not None and not self.incident.within_extent(x, y):  # a slip of the hand
+            self._audit(wire.Audit(outcome="refused", reason="outside_extent", t=fix.t, **base,
+                                   detail=f"({x:.6g}, {y:.6g}) m is outside the incident's extent "
+                                          f"({self.incident.extent_m:g} m from the origin)"))
+            return
         self._touch(r)
         outcome, reason, detail, verdict = self._take_fix(r, fix)
         flagged = verdict is not None and verdict.implausible
