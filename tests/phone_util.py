@@ -1,0 +1,72 @@
+"""A phone in the test's Chromium: the wearable page (/wear) enrolled through the console,
+its motion sensors and position driven by the DevTools protocol's overrides."""
+from __future__ import annotations
+
+import json
+import urllib.request
+
+SENSORS = ("accelerometer", "gyroscope", "magnetometer")
+SENSOR_FLAGS = ("--enable-features=GenericSensorExtraClasses",)  # Magnetometer is behind this flag in Chromium
+PAGE_TIMEOUT_MS = 15_000
+
+
+def post(url: str, body: dict, origin: str) -> tuple[int, dict]:
+    req = urllib.request.Request(url, data=json.dumps(body).encode(), method="POST",
+                                 headers={"Content-Type": "application/json", "Origin": origin})
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            return r.status, json.loads(r.read())
+    except urllib.error.HTTPError as e:
+        return e.code, json.loads(e.read() or b"{}")
+
+
+def enrol(console_url: str, responder: str) -> dict:
+    """An operator enrols a phone for ``responder`` (the demo console: no login)."""
+    base = console_url.rstrip("/")
+    status, body = post(base + "/api/phones", {"responder": responder}, base)
+    assert status == 201, body
+    return body
+
+
+class Phone:
+    """A browser tab on /wear with overridden sensors; ``reading(type, x, y, z)`` sets one."""
+
+    def __init__(self, browser, console_url: str, code: str, geolocation: dict | None = None):
+        base = console_url.rstrip("/")
+        self.context = browser.new_context(viewport={"width": 412, "height": 915}, device_scale_factor=1,
+                                           is_mobile=True, has_touch=True, geolocation=geolocation)
+        self.context.grant_permissions(["accelerometer", "gyroscope", "magnetometer", "geolocation"], origin=base)
+        self.page = self.context.new_page()
+        self.errors: list[str] = []
+        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        self.cdp = self.context.new_cdp_session(self.page)
+        for typ in SENSORS:
+            self.cdp.send("Emulation.setSensorOverrideEnabled",
+                          {"enabled": True, "type": typ,
+                           "metadata": {"available": True, "minimumFrequency": 1, "maximumFrequency": 60}})
+        self.page.goto(f"{base}/wear#code={code}")
+        self.wait("window.__wear && window.__wear.ready && window.__wear.link && window.__wear.link.ready")
+
+    def reading(self, typ: str, x: float, y: float, z: float) -> None:
+        self.cdp.send("Emulation.setSensorOverrideReadings", {"type": typ, "reading": {"xyz": {"x": x, "y": y, "z": z}}})
+
+    def still(self) -> None:
+        """A phone lying face up: gravity on z, no rotation, a field pointing north and down."""
+        self.reading("accelerometer", 0.0, 0.0, 9.81)
+        self.reading("gyroscope", 0.0, 0.0, 0.0)
+        self.reading("magnetometer", 0.0, 20.0, -40.0)
+
+    def start(self, carry: str = "hand") -> None:
+        self.page.click(f"#carry button[data-carry={carry}]")
+        self.page.click("#start")
+        self.wait("window.__wear.tracking")
+
+    def js(self, expression: str, arg=None):
+        return self.page.evaluate(expression, arg)
+
+    def wait(self, expression: str, arg=None, timeout_ms: int = PAGE_TIMEOUT_MS):
+        return self.page.wait_for_function(expression, arg=arg, timeout=timeout_ms)
+
+    def close(self) -> None:
+        self.context.close()
+        assert self.errors == [], f"errors on the page: {self.errors}"
