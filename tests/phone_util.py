@@ -70,3 +70,47 @@ class Phone:
     def close(self) -> None:
         self.context.close()
         assert self.errors == [], f"errors on the page: {self.errors}"
+
+
+class Feed:
+    """Plays a recording's motion samples into the phone's sensor overrides at the recording's
+    own pace: at wall time ``w`` the sensors read the newest sample at or before file time
+    ``f0 + (w - w0)`` (the browser samples them at its own rate, as a phone's sensors are).
+    GNSS fixes become geolocation overrides at their times. ``w0`` (Unix s) maps back:
+    file time = UTC - w0 + f0."""
+
+    def __init__(self, phone: Phone, rec, f0: float, f1: float, mag_every_s: float = 0.05):
+        self.phone, self.rec, self.f0, self.f1, self.mag_every_s = phone, rec, f0, f1, mag_every_s
+        self.calls = 0
+        self.fixes_set = 0
+
+    def run(self) -> None:
+        import time
+
+        import numpy as np
+        rec, p = self.rec, self.phone
+        series = [("accelerometer", rec.acc, 0.0), ("gyroscope", rec.gyr, 0.0)]
+        if rec.mag is not None:
+            series.append(("magnetometer", rec.mag, self.mag_every_s))
+        last = {typ: -1 for typ, _, _ in series}
+        last_at = {typ: -np.inf for typ, _, _ in series}
+        gnss = rec.gnss
+        g_next = 0 if gnss is None else int(np.searchsorted(gnss.t, self.f0))
+        self.w0 = time.time()
+        while True:
+            f = self.f0 + (time.time() - self.w0)
+            if f > self.f1:
+                break
+            for typ, s, every in series:
+                i = int(np.searchsorted(s.t, f, side="right")) - 1
+                if i != last[typ] and i >= 0 and f - last_at[typ] >= every:
+                    x, y, z = (float(v) for v in s.values[i])
+                    p.reading(typ, x, y, z)
+                    last[typ], last_at[typ] = i, f
+                    self.calls += 1
+            while gnss is not None and g_next < len(gnss) and gnss.t[g_next] <= f:
+                p.cdp.send("Emulation.setGeolocationOverride", {
+                    "latitude": float(gnss.lat[g_next]), "longitude": float(gnss.lon[g_next]),
+                    "accuracy": float(gnss.accuracy_m[g_next])})
+                g_next += 1
+                self.fixes_set += 1

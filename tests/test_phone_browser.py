@@ -3,15 +3,23 @@ protocol's overrides, publishing through the console's gateway to a live service
 zenoh router on loopback."""
 from __future__ import annotations
 
+import dataclasses
+import threading
 import time
 
+import numpy as np
 import pytest
 
 from client.console.server import start_console
+from pdr.io import load
+from pdr.recording import Landmarks, Series
+from service.protocol import wire
 from service.protocol.incident import default_incident
+from service.review.ipin_run import run_ipin
 from service.shell.service import IncidentService, ServiceSettings
 from tests.browser_util import launch_chromium
-from tests.phone_util import SENSOR_FLAGS, Phone, enrol
+from tests.conftest import shared_data_path
+from tests.phone_util import SENSOR_FLAGS, Feed, Phone, enrol
 from tests.zenoh_util import client, free_port, router, wait_until
 
 
@@ -63,3 +71,92 @@ def test_an_enrolled_phone_is_tracked_and_every_frame_is_acknowledged(stack, bro
         assert "ff1" in console.board.responders()
     finally:
         phone.close()
+
+
+IPIN_TRIAL01 = "ipin2023/IPIN2023_T3_TrainingTrial01_repetition01.txt.gz"
+STRETCH_S = (50.0, 130.0)  # s after the walk's first sample: landmarks 0 (the start fix) to 6, 88 steps
+
+
+def _cut(s, a, b):
+    m = (s.t >= a) & (s.t <= b)
+    return Series(s.t[m], s.values[m])
+
+
+def _stretch(rec, a, b, **series):
+    """The recording between device times a and b, without pressure (a phone's browser gives
+    none), GNSS or the phone's own orientation; ``series`` replace its motion samples."""
+    lm = rec.landmarks
+    m = (lm.t >= a) & (lm.t <= b)
+    landmarks = Landmarks(lm.t[m], lm.lat[m], lm.lon[m], lm.floor[m], lm.counter[m])
+    cut = {k: _cut(getattr(rec, k), a, b) for k in ("acc", "gyr", "mag")}
+    return dataclasses.replace(rec, **{**cut, **series}, pressure=None, gnss=None, landmarks=landmarks,
+                               orientation_ref=None, device_orientation=None)
+
+
+def _collect(session, key) -> list:
+    items, lock = [], threading.Lock()
+
+    def on(sample):
+        with lock:
+            items.append(wire.decode(sample.payload.to_bytes()))
+    return items, session.declare_subscriber(key, on)
+
+
+def _summary(run) -> tuple[int, float]:
+    return len(run.diagnostics["steps"]["t"]), float(np.percentile(run.errors("live").error_m, 75))
+
+
+@pytest.mark.recording
+def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recording(stack, browser):
+    """80 s of a development IPIN walk played into Chromium's sensor overrides at the
+    recording's pace; the page's frames, as the service received them, tracked by the offline
+    pipeline (landmark 0 as the start fix, no GNSS, no barometer) give the steps and landmark
+    errors of the same stretch of the file within 2 % and 0.5 m."""
+    svc, console, cl, cfg = stack
+    rec = load(shared_data_path(IPIN_TRIAL01))
+    a, b = rec.acc.t[0] + STRETCH_S[0], rec.acc.t[0] + STRETCH_S[1]
+    frames, sub = _collect(cl, wire.key(cfg.id, "ff3", "imu"))
+    fixes, fsub = _collect(cl, wire.key(cfg.id, "ff3", "fix"))
+    phone = Phone(browser, console.url, enrol(console.url, "ff3")["code"])
+    try:
+        phone.still()
+        phone.start("hand")
+        feed = Feed(phone, rec, a, b)
+        feed.run()
+        phone.page.click("#start")  # stop: the frame in progress goes out
+        sent = phone.js("__wear.link.seq")
+        assert phone.wait(f"__wear.link.acked === {sent - 1}", timeout_ms=20_000), "not every frame was acknowledged"
+        assert wait_until(lambda: len(frames) >= sent, 5)
+        status = console.board.latest("ff3")[1]
+        frame_rejects = {k: n for k, n in status["rejected"].items() if not k.startswith("fix_")}
+        assert frame_rejects == {} and status["lost"] == 0, status  # GNSS fixes the indoor gates judge
+        judged = {k: n for k, n in status["rejected"].items() if k.startswith("fix_")}
+        live_steps = status["steps"]
+    finally:
+        sub.undeclare()
+        fsub.undeclare()
+        phone.close()
+    got = sorted({f.seq: f for f in frames}.values(), key=lambda f: f.seq)
+    assert [f.seq for f in got] == list(range(sent))
+    # the page's clock to the file's: UTC = t + utc_offset, file time = UTC - w0 + f0
+    shift = float(np.median([f.utc_offset for f in got])) - feed.w0 + a
+    t = np.concatenate([f.t for f in got]) + shift
+    acc, gyr = np.concatenate([f.acc for f in got]), np.concatenate([f.gyr for f in got])
+    with_mag = [f for f in got if f.mag is not None]
+    mag = Series(np.concatenate([f.t for f in with_mag]) + shift, np.concatenate([f.mag for f in with_mag]))
+    phone_rec = _stretch(rec, a, b, acc=Series(t, acc), gyr=Series(t, gyr), mag=mag)
+    import os
+    if os.environ.get("PHONE_DUMP"):
+        np.savez(os.environ["PHONE_DUMP"], t=t, acc=acc, gyr=gyr, mt=mag.t, mag=mag.values, a=a, b=b)
+    ref_steps, ref_p75 = _summary(run_ipin(_stretch(rec, a, b), cfg, fix_every=0, use_gnss=False))
+    steps, p75 = _summary(run_ipin(phone_rec, cfg, fix_every=0, use_gnss=False))
+    rate = (len(t) - 1) / (t[-1] - t[0])
+    print(f"\nphone: {sent} frames, {len(t)} samples at {rate:.1f} Hz, {feed.calls} sensor overrides, "
+          f"{len(fixes)} GNSS fixes ({judged} refused by the service's gates); steps {steps} (live {live_steps}) vs {ref_steps} in the file; "
+          f"landmark p75 {p75:.2f} m vs {ref_p75:.2f} m")
+    assert abs(steps - ref_steps) <= 0.02 * ref_steps
+    assert abs(live_steps - ref_steps) <= 0.02 * ref_steps
+    assert abs(p75 - ref_p75) <= 0.5
+    # the position reached the service as GNSS fixes with their stated accuracy
+    stated = set(np.round(rec.gnss.accuracy_m[(rec.gnss.t >= a) & (rec.gnss.t <= b)], 3))
+    assert fixes and all(f.source == "gnss" and round(f.accuracy, 3) in stated for f in fixes)
