@@ -19,7 +19,7 @@ from service.review.ipin_run import run_ipin
 from service.shell.service import IncidentService, ServiceSettings
 from tests.browser_util import launch_chromium
 from tests.conftest import shared_data_path
-from tests.phone_util import SENSOR_FLAGS, Feed, Phone, enrol
+from tests.phone_util import SENSOR_FLAGS, Feed, Phone, enrol, post
 from tests.zenoh_util import client, free_port, router, wait_until
 
 
@@ -69,6 +69,99 @@ def test_an_enrolled_phone_is_tracked_and_every_frame_is_acknowledged(stack, bro
         assert status["rejected"] == {} and status["lost"] == 0, status
         # the console's roster shows the responder
         assert "ff1" in console.board.responders()
+    finally:
+        phone.close()
+
+
+def _walking(phone: Phone, seconds: float) -> None:
+    """Readings that change (a phone's sensors fire on a change): a 2 Hz bounce on z."""
+    t0 = time.monotonic()
+    while (k := time.monotonic() - t0) < seconds:
+        phone.reading("accelerometer", 0.3, 0.1, 9.81 + 2.0 * np.sin(2 * np.pi * 2.0 * k))
+        phone.reading("gyroscope", 0.0, 0.0, 0.05 * np.sin(2 * np.pi * 1.0 * k))
+
+
+def test_rotation_rates_of_device_motion_events_are_converted_from_degrees(stack, browser):
+    """Chromium's devicemotion events under a gyroscope override: rotationRate is in deg/s and
+    the page's motion.js gives rad/s in the body frame (alpha about x, beta about y, gamma
+    about z); the accelerometer keeps its axes and sign. Taking deg/s as rad/s fails here."""
+    svc, console, cl, cfg = stack
+    phone = Phone(browser, console.url, enrol(console.url, "ffdeg")["code"])
+    try:
+        phone.js("""() => { window.__events = [];
+            addEventListener('devicemotion', (e) => window.__events.push({raw: [e.rotationRate.alpha, e.rotationRate.beta, e.rotationRate.gamma],
+                conv: window.__motion.fromDeviceMotion(e)})); }""")
+        phone.js("async () => { window.__motion = await import('/static/js/wear/motion.js'); }")
+        gyr, acc = (0.8, -0.5, 0.25), (1.2, -0.7, 9.6)  # rad/s, m/s²
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 1.0:
+            phone.reading("gyroscope", *gyr)
+            phone.reading("accelerometer", *acc)
+        phone.wait("window.__events.filter((e) => e.conv).length > 5")
+        last = phone.js("window.__events.filter((e) => e.conv).pop()")
+    finally:
+        phone.close()
+    # the browser's own unit and order: degrees per second, alpha about x, beta about y, gamma about z
+    np.testing.assert_allclose(last["raw"], np.degrees(gyr), atol=0.2)
+    np.testing.assert_allclose(last["conv"]["gyr"], gyr, atol=np.radians(0.2))  # quantised to 0.1 deg/s
+    np.testing.assert_allclose(last["conv"]["acc"], acc, atol=0.1)  # quantised to 0.1 m/s²
+
+
+def test_ten_seconds_offline_lose_no_frame(stack, browser):
+    """The phone loses its network for 10 s (DevTools network emulation) while it walks on:
+    it keeps its frames, reconnects, sends them again, and the service takes every one."""
+    svc, console, cl, cfg = stack
+    phone = Phone(browser, console.url, enrol(console.url, "ffoff")["code"])
+    try:
+        phone.still()
+        phone.start("hand")
+        _walking(phone, 2.0)
+        phone.cdp.send("Network.enable")
+        phone.cdp.send("Network.emulateNetworkConditions",
+                       {"offline": True, "latency": 0, "downloadThroughput": -1, "uploadThroughput": -1})
+        _walking(phone, 10.0)
+        offline = phone.js("({pending: __wear.link.pending, ready: __wear.link.ready, text: document.getElementById('link').textContent})")
+        phone.cdp.send("Network.emulateNetworkConditions",
+                       {"offline": False, "latency": 0, "downloadThroughput": -1, "uploadThroughput": -1})
+        _walking(phone, 2.0)
+        phone.page.click("#start")
+        sent = phone.js("__wear.link.seq")
+        assert phone.wait(f"__wear.link.acked === {sent - 1}", timeout_ms=20_000)
+        counts = phone.js("__wear.link.counts")
+    finally:
+        phone.close()
+    assert wait_until(lambda: (console.board.latest("ffoff")[1] or {}).get("frames") == sent, 5)
+    status = console.board.latest("ffoff")[1]
+    print(f"\noffline: {offline}; {sent} frames, phone counts {counts}; service lost {status['lost']}, "
+          f"rejected {status['rejected']}")
+    # the frames of the 10 s (10 a second when the browser keeps up; fewer on a loaded machine) waited on the phone
+    assert offline["pending"] >= 50 and not offline["ready"]
+    assert counts["resent"] >= 50 and counts["reconnects"] >= 1
+    assert status["lost"] == 0 and status["rejected"] == {} and status["frames"] == sent
+
+
+@pytest.mark.parametrize("action", ["evacuate", "par"])
+def test_an_order_is_on_the_phone_within_2_s_and_its_ack_reaches_the_console(stack, browser, action):
+    svc, console, cl, cfg = stack
+    rid = f"ford{action}"
+    phone = Phone(browser, console.url, enrol(console.url, rid)["code"])
+    base = console.url.rstrip("/")
+    try:
+        phone.still()
+        phone.start("chest")
+        _walking(phone, 1.5)
+        assert wait_until(lambda: rid in console.board.responders(), 5)
+        issued = time.time()
+        status, order = post(base + "/api/command", {"action": action, "responders": [rid]}, base)
+        assert status == 200, order
+        phone.wait("!document.getElementById('order').hidden", timeout_ms=5_000)
+        shown = phone.js("__wear.orders[0]")
+        assert shown["id"] == order["id"] and shown["shown_at"] - issued < 2.0
+        phone.page.click("#order-ack")
+        assert wait_until(lambda: ((console.board.latest(rid)[1] or {}).get("commands", {}).get(action) or {})
+                          .get("acked_at") is not None, 5)
+        assert phone.js("document.getElementById('order').hidden")
+        print(f"\n{action}: on the phone {shown['shown_at'] - issued:.2f} s after the order; acknowledged")
     finally:
         phone.close()
 

@@ -10,6 +10,7 @@
 
 export const KEEP = 3000;  // frames kept for resending
 const RETRY_MAX_MS = 5000;
+const SILENT_MS = 4000;  // the gateway speaks every second: this long without a word, the socket is dead
 
 export class Link {
   constructor({url, token, device, boot, onEvent}) {
@@ -20,25 +21,49 @@ export class Link {
     this.published = null;  // newest seq the gateway said it put
     this.counts = {sent: 0, resent: 0, acked: 0, reconnects: 0, refused: 0};
     this.ws = null;
+    this.heardAt = 0;
     this.ready = false;  // welcomed: frames may go
     this.stopped = false;
     this.retryMs = 500;
     this.connectedSince = null;
   }
 
-  start() { this.stopped = false; this.open(); }
+  start() {
+    this.stopped = false;
+    this.open();
+    // a socket can stay "open" through a network loss (a phone between cells, a Wi-Fi that went
+    // away): a silent gateway or the browser's offline event closes it, and the next opens
+    addEventListener("offline", () => this.drop("offline"));
+    addEventListener("online", () => { if (!this.ws || this.ws.readyState > 1) { this.retryMs = 500; this.open(); } });
+    this.watchdog = setInterval(() => {
+      if (this.ready && performance.now() - this.heardAt > SILENT_MS) this.drop("gateway silent");
+    }, 1000);
+  }
+
+  /** Give up on the current socket (it is dead or the network is gone); reopen after a while. */
+  drop(why) {
+    const ws = this.ws;
+    if (!ws || ws.readyState > 1) return;
+    this.ws = null;
+    this.ready = false;
+    this.connectedSince = null;
+    try { ws.close(4000, why); } catch (e) { /* closing anyway */ }
+    this.onEvent("down", {code: 4000, reason: why});
+    if (!this.stopped) setTimeout(() => { this.counts.reconnects++; this.open(); }, this.retryMs);
+  }
 
   stop() {
     this.stopped = true;
+    clearInterval(this.watchdog);
     if (this.ws) this.ws.close(1000, "stopped");
   }
 
   open() {
-    if (this.stopped) return;
+    if (this.stopped || (this.ws && this.ws.readyState <= 1)) return;  // one socket at a time
     const ws = new WebSocket(this.url);
     this.ws = ws;
     ws.onopen = () => ws.send(JSON.stringify({type: "hello", token: this.token, device: this.device, boot: this.boot}));
-    ws.onmessage = (ev) => this.receive(JSON.parse(ev.data));
+    ws.onmessage = (ev) => { this.heardAt = performance.now(); this.receive(JSON.parse(ev.data)); };
     ws.onclose = (ev) => {
       if (this.ws !== ws) return;
       this.ready = false;

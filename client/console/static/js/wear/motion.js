@@ -9,8 +9,12 @@
      Generic Sensor API (Accelerometer, Gyroscope, Magnetometer; referenceFrame "device"):
        acc = (x, y, z) m/s², gyr = (x, y, z) rad/s, mag = (x, y, z) µT: taken as they are.
      DeviceMotionEvent: accelerationIncludingGravity (x, y, z) m/s², the same axes and sign;
-       rotationRate in DEGREES per second, alpha about z, beta about x, gamma about y:
-       gyr = (beta, gamma, alpha) · π/180 rad/s.
+       rotationRate in DEGREES per second, alpha about x, beta about y, gamma about z, as
+       Chrome, Firefox and Safari give it and the specification says since 2017 (w3c/
+       deviceorientation#43; not the Euler-angle order of deviceorientation's alpha, beta,
+       gamma): gyr = (alpha, beta, gamma) · π/180 rad/s. Checked in Chromium by
+       tests/test_phone_browser.py (a gyroscope override of (0.8, -0.5, 0.25) rad/s reads
+       alpha 45.8, beta -28.6, gamma 14.3 deg/s).
    (Safari on iOS has been reported to give accelerationIncludingGravity with the opposite
    sign; ACC_SIGN lets a page flip it, untested here: our tests run Chromium.)
 
@@ -31,7 +35,7 @@ export function fromDeviceMotion(ev, accSign = 1) {
   return {
     t: ev.timeStamp / 1000,
     acc: [accSign * a.x, accSign * a.y, accSign * a.z],
-    gyr: [r.beta * DEG, r.gamma * DEG, r.alpha * DEG],
+    gyr: [r.alpha * DEG, r.beta * DEG, r.gamma * DEG],
   };
 }
 
