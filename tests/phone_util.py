@@ -79,17 +79,20 @@ class Feed:
     GNSS fixes become geolocation overrides at their times. ``w0`` (Unix s) maps back:
     file time = UTC - w0 + f0."""
 
-    def __init__(self, phone: Phone, rec, f0: float, f1: float, mag_every_s: float = 0.05):
+    def __init__(self, phone: Phone, rec, f0: float, f1: float, mag_every_s: float = 0.1):
         self.phone, self.rec, self.f0, self.f1, self.mag_every_s = phone, rec, f0, f1, mag_every_s
         self.calls = 0
         self.fixes_set = 0
+        self.stalls: list[float] = []  # s of each loop turn over 0.1 s (this process starved)
 
     def run(self) -> None:
         import time
 
         import numpy as np
         rec, p = self.rec, self.phone
-        series = [("accelerometer", rec.acc, 0.0), ("gyroscope", rec.gyr, 0.0)]
+        # the gyroscope (100 Hz in the IPIN files) moves with the accelerometer's samples (50 Hz):
+        # the browser samples at most 60 Hz, and every override costs a round trip
+        series = [("accelerometer", rec.acc, 0.0), ("gyroscope", rec.gyr, 0.015)]
         if rec.mag is not None:
             series.append(("magnetometer", rec.mag, self.mag_every_s))
         last = {typ: -1 for typ, _, _ in series}
@@ -97,7 +100,12 @@ class Feed:
         gnss = rec.gnss
         g_next = 0 if gnss is None else int(np.searchsorted(gnss.t, self.f0))
         self.w0 = time.time()
+        turn = time.monotonic()
         while True:
+            now = time.monotonic()
+            if now - turn > 0.1:
+                self.stalls.append(now - turn)
+            turn = now
             f = self.f0 + (time.time() - self.w0)
             if f > self.f1:
                 break

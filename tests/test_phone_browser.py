@@ -4,6 +4,7 @@ zenoh router on loopback."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import threading
 import time
 
@@ -151,12 +152,18 @@ def test_an_order_is_on_the_phone_within_2_s_and_its_ack_reaches_the_console(sta
         phone.start("chest")
         _walking(phone, 1.5)
         assert wait_until(lambda: rid in console.board.responders(), 5)
+        shots = os.environ.get("FIRETRACK_SCREENSHOTS")  # e.g. docs/screenshots: the README's pictures
+        if shots and action == "evacuate":
+            _walking(phone, 3.0)
+            phone.page.screenshot(path=f"{shots}/phone-tracking.png")
         issued = time.time()
         status, order = post(base + "/api/command", {"action": action, "responders": [rid]}, base)
         assert status == 200, order
         phone.wait("!document.getElementById('order').hidden", timeout_ms=5_000)
         shown = phone.js("__wear.orders[0]")
         assert shown["id"] == order["id"] and shown["shown_at"] - issued < 2.0
+        if shots:
+            phone.page.screenshot(path=f"{shots}/phone-{action}.png")
         phone.page.click("#order-ack")
         assert wait_until(lambda: ((console.board.latest(rid)[1] or {}).get("commands", {}).get(action) or {})
                           .get("acked_at") is not None, 5)
@@ -231,6 +238,13 @@ def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recordi
         phone.close()
     got = sorted({f.seq: f for f in frames}.values(), key=lambda f: f.seq)
     assert [f.seq for f in got] == list(range(sent))
+    t_page = np.concatenate([f.t for f in got])
+    dt = np.diff(t_page)
+    stalled = float(dt[dt > 0.1].sum())  # s the browser gave no sample (a starved renderer or feeder)
+    assert stalled < 0.03 * (b - a), (f"the browser sampled the sensors with {int((dt > 0.1).sum())} pauses over "
+                                      f"0.1 s, {stalled:.1f} s of {b - a:.0f} s: this machine did not keep the "
+                                      f"recording's pace (load {os.getloadavg()[0]:.0f}; the feeder itself "
+                                      f"stalled {len(feed.stalls)} times, {sum(feed.stalls):.1f} s)")
     # the page's clock to the file's: UTC = t + utc_offset, file time = UTC - w0 + f0
     shift = float(np.median([f.utc_offset for f in got])) - feed.w0 + a
     t = np.concatenate([f.t for f in got]) + shift
@@ -238,9 +252,6 @@ def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recordi
     with_mag = [f for f in got if f.mag is not None]
     mag = Series(np.concatenate([f.t for f in with_mag]) + shift, np.concatenate([f.mag for f in with_mag]))
     phone_rec = _stretch(rec, a, b, acc=Series(t, acc), gyr=Series(t, gyr), mag=mag)
-    import os
-    if os.environ.get("PHONE_DUMP"):
-        np.savez(os.environ["PHONE_DUMP"], t=t, acc=acc, gyr=gyr, mt=mag.t, mag=mag.values, a=a, b=b)
     ref_steps, ref_p75 = _summary(run_ipin(_stretch(rec, a, b), cfg, fix_every=0, use_gnss=False))
     steps, p75 = _summary(run_ipin(phone_rec, cfg, fix_every=0, use_gnss=False))
     rate = (len(t) - 1) / (t[-1] - t[0])

@@ -150,6 +150,12 @@ class PhoneGateway:
         self.counts = {"frames": 0, "fixes": 0, "acks": 0, "resent_by_phone": 0, "duplicates": 0, "refused": 0}
         self._loop: asyncio.AbstractEventLoop | None = None
 
+    def publish_through(self, session) -> None:
+        """Publish the phones' streams through ``session`` (a client of the router under a
+        gateway identity, which the router's access control limits to the roster's
+        wearables: ``firetrack console --gateway-tls``), not the console's own."""
+        self.session = session
+
     def add_routes(self, router: web.UrlDispatcher, static_dir, operator, base_url) -> None:
         """The phone's routes, and the operators' (``operator(request)``: the acting session or
         :class:`HttpError` 403; ``base_url()``: the address phones open, for the QR code)."""
