@@ -6,7 +6,10 @@ import json
 import urllib.request
 
 SENSORS = ("accelerometer", "gyroscope", "magnetometer")
-SENSOR_FLAGS = ("--enable-features=GenericSensorExtraClasses",)  # Magnetometer is behind this flag in Chromium
+SENSOR_FLAGS = ("--enable-features=GenericSensorExtraClasses",  # Magnetometer is behind this flag in Chromium
+                # a headless page is a background page to Chromium: its timers and renderer must keep pace
+                "--disable-background-timer-throttling", "--disable-renderer-backgrounding",
+                "--disable-backgrounding-occluded-windows")
 PAGE_TIMEOUT_MS = 15_000
 
 
@@ -83,7 +86,7 @@ class Feed:
         self.phone, self.rec, self.f0, self.f1, self.mag_every_s = phone, rec, f0, f1, mag_every_s
         self.calls = 0
         self.fixes_set = 0
-        self.stalls: list[float] = []  # s of each loop turn over 0.1 s (this process starved)
+        self.stalls: list[tuple[float, float]] = []  # (when, s) of each loop turn over 0.1 s (this process held up)
 
     def run(self) -> None:
         import time
@@ -99,12 +102,12 @@ class Feed:
         last_at = {typ: -np.inf for typ, _, _ in series}
         gnss = rec.gnss
         g_next = 0 if gnss is None else int(np.searchsorted(gnss.t, self.f0))
-        self.w0 = time.time()
-        turn = time.monotonic()
+        self.w0, self.w0m = time.time(), time.monotonic()
+        turn = self.w0m
         while True:
             now = time.monotonic()
             if now - turn > 0.1:
-                self.stalls.append(now - turn)
+                self.stalls.append((now - self.w0m, now - turn))
             turn = now
             f = self.f0 + (time.time() - self.w0)
             if f > self.f1:
