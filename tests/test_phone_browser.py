@@ -312,7 +312,8 @@ def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recordi
           f"file; landmark p75 {p75:.2f} m vs {ref_p75:.2f} m")
     # the page's samples are the file's, in the same units and axes, on the file's clock: the
     # median error is within the browser's quantisation (0.1 m/s², 0.1 deg/s) plus a poll's lag
-    assert fidelity["acc m/s²"] < 0.1 and fidelity["gyr deg/s"] < 0.5, fidelity
+    # (the gyroscope's 100 Hz samples change more between polls; deg/s taken as rad/s would be ~57x)
+    assert fidelity["acc m/s²"] < 0.1 and fidelity["gyr deg/s"] < 1.0, fidelity
     assert abs(steps - ref_steps) <= STEP_TOLERANCE * ref_steps
     assert abs(p75 - ref_p75) <= P75_TOLERANCE_M
     # the position reached the service as GNSS fixes with their stated accuracy
