@@ -174,7 +174,7 @@ def test_ten_seconds_offline_lose_no_frame(stack, browser):
 @pytest.mark.parametrize("action", ["evacuate", "par"])
 def test_an_order_is_on_the_phone_within_2_s_and_its_ack_reaches_the_console(stack, browser, action):
     svc, console, cl, cfg = stack
-    rid = f"ford{action}"
+    rid = {"evacuate": "ff7", "par": "ff8"}[action]
     phone = Phone(browser, console.url, enrol(console.url, rid)["code"])
     base = console.url.rstrip("/")
     try:
@@ -192,7 +192,7 @@ def test_an_order_is_on_the_phone_within_2_s_and_its_ack_reaches_the_console(sta
         phone.wait("!document.getElementById('order').hidden", timeout_ms=5_000)
         shown = phone.js("__wear.orders[0]")
         assert shown["id"] == order["id"] and shown["shown_at"] - issued < 2.0
-        if shots:
+        if shots and action == "evacuate":
             phone.page.screenshot(path=f"{shots}/phone-{action}.png")
         phone.page.click("#order-ack")
         assert wait_until(lambda: ((console.board.latest(rid)[1] or {}).get("commands", {}).get(action) or {})
@@ -292,7 +292,7 @@ def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recordi
     t = np.concatenate([f.t for f in got]) + shift
     dt = np.diff(t[(t >= a) & (t <= b)])
     stalled = float(dt[dt > 0.1].sum())  # s the browser gave no sample (a starved renderer or feeder)
-    assert stalled < 0.03 * (b - a), (f"the browser sampled the sensors with {int((dt > 0.1).sum())} pauses over "
+    assert stalled < 0.05 * (b - a), (f"the browser sampled the sensors with {int((dt > 0.1).sum())} pauses over "
                                       f"0.1 s, {stalled:.1f} s of {b - a:.0f} s: this machine did not keep the "
                                       f"recording's pace (load {os.getloadavg()[0]:.0f}; the feeder itself "
                                       f"stalled {len(feed.stalls)} times, {sum(s for _, s in feed.stalls):.1f} s, "
