@@ -75,12 +75,17 @@ class Phone:
         assert self.errors == [], f"errors on the page: {self.errors}"
 
 
+TURN_S = 0.005  # s between two settings of the accelerometer and gyroscope (the browser samples at 60 Hz)
+
+
 class Feed:
     """Plays a recording's motion samples into the phone's sensor overrides at the recording's
-    own pace: at wall time ``w`` the sensors read the newest sample at or before file time
-    ``f0 + (w - w0)`` (the browser samples them at its own rate, as a phone's sensors are).
-    GNSS fixes become geolocation overrides at their times. ``w0`` (Unix s) maps back:
-    file time = UTC - w0 + f0."""
+    own pace: at wall time ``w`` the accelerometer and gyroscope read the recording's signal
+    interpolated at file time ``f0 + (w - w0)``, set again every :data:`TURN_S` (or as fast as
+    the DevTools protocol takes it), so that whenever the browser samples them (its own rate and
+    jitter, as a phone's sensors are sampled) the reading is a few ms old at most; the
+    magnetometer the newest sample every ``mag_every_s``. GNSS fixes become geolocation
+    overrides at their times. ``w0`` (Unix s) maps back: file time = UTC - w0 + f0."""
 
     def __init__(self, phone: Phone, rec, f0: float, f1: float, mag_every_s: float = 0.1):
         self.phone, self.rec, self.f0, self.f1, self.mag_every_s = phone, rec, f0, f1, mag_every_s
@@ -93,17 +98,14 @@ class Feed:
 
         import numpy as np
         rec, p = self.rec, self.phone
-        # the gyroscope (100 Hz in the IPIN files) moves with the accelerometer's samples (50 Hz):
-        # the browser samples at most 60 Hz, and every override costs a round trip
-        series = [("accelerometer", rec.acc, 0.0), ("gyroscope", rec.gyr, 0.015)]
-        if rec.mag is not None:
-            series.append(("magnetometer", rec.mag, self.mag_every_s))
-        last = {typ: -1 for typ, _, _ in series}
-        last_at = {typ: -np.inf for typ, _, _ in series}
+
+        def at(s, f):
+            return [float(np.interp(f, s.t, s.values[:, k])) for k in range(3)]
+        mag_at = -np.inf
         gnss = rec.gnss
         g_next = 0 if gnss is None else int(np.searchsorted(gnss.t, self.f0))
         self.w0, self.w0m = time.time(), time.monotonic()
-        turn = self.w0m
+        turn = last_set = self.w0m
         while True:
             now = time.monotonic()
             if now - turn > 0.1:
@@ -112,13 +114,18 @@ class Feed:
             f = self.f0 + (time.time() - self.w0)
             if f > self.f1:
                 break
-            for typ, s, every in series:
-                i = int(np.searchsorted(s.t, f, side="right")) - 1
-                if i != last[typ] and i >= 0 and f - last_at[typ] >= every:
-                    x, y, z = (float(v) for v in s.values[i])
-                    p.reading(typ, x, y, z)
-                    last[typ], last_at[typ] = i, f
-                    self.calls += 1
+            if now - last_set < TURN_S:  # every override loads the browser too: no faster than it needs
+                time.sleep(TURN_S - (now - last_set))
+                continue
+            last_set = now
+            p.reading("accelerometer", *at(rec.acc, f))
+            p.reading("gyroscope", *at(rec.gyr, f))
+            self.calls += 2
+            if rec.mag is not None and f - mag_at >= self.mag_every_s:
+                i = max(int(np.searchsorted(rec.mag.t, f, side="right")) - 1, 0)
+                p.reading("magnetometer", *(float(v) for v in rec.mag.values[i]))
+                mag_at = f
+                self.calls += 1
             while gnss is not None and g_next < len(gnss) and gnss.t[g_next] <= f:
                 p.cdp.send("Emulation.setGeolocationOverride", {
                     "latitude": float(gnss.lat[g_next]), "longitude": float(gnss.lon[g_next]),
