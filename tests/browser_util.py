@@ -24,3 +24,23 @@ def launch_chromium(*args: str):
     yield b
     b.close()
     pw.stop()
+
+
+def console_stack():
+    """Yield a router on a free port, the demo incident's service and its console on it, a
+    client session: ``(service, console, client, cfg, endpoint)``; all closed afterwards."""
+    from client.console.server import start_console
+    from service.protocol.incident import default_incident
+    from service.shell.service import IncidentService, ServiceSettings
+    from tests.zenoh_util import client, free_port, router
+
+    session, endpoint = router()
+    cfg = default_incident()
+    svc = IncidentService(session, cfg, ServiceSettings()).start()
+    console = start_console(session, cfg, port=free_port())
+    cl = client(endpoint)
+    yield svc, console, cl, cfg, endpoint
+    console.close()
+    cl.close()
+    svc.close()
+    session.close()

@@ -3,6 +3,7 @@ its motion sensors and position driven by the DevTools protocol's overrides."""
 from __future__ import annotations
 
 import json
+import urllib.error
 import urllib.request
 
 SENSORS = ("accelerometer", "gyroscope", "magnetometer")

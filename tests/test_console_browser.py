@@ -31,7 +31,7 @@ from service.protocol.incident import default_incident, plan_pixel_to_enu
 from service.protocol.messages import recording_messages
 from service.protocol.pacing import paced
 from service.shell.service import IncidentService, ServiceSettings
-from tests.browser_util import launch_chromium
+from tests.browser_util import console_stack, launch_chromium
 from tests.conftest import shared_data_path
 from tests.zenoh_util import client, free_port, router, wait_until
 
@@ -50,17 +50,7 @@ def browser():
 
 @pytest.fixture(scope="module")
 def stack():
-    """A router on a free port, the demo incident's service and its console on it, a client session."""
-    session, endpoint = router()
-    cfg = default_incident()
-    svc = IncidentService(session, cfg, ServiceSettings()).start()
-    console = start_console(session, cfg, port=free_port())
-    cl = client(endpoint)
-    yield svc, console, cl, cfg, endpoint
-    console.close()
-    cl.close()
-    svc.close()
-    session.close()
+    yield from console_stack()
 
 
 class Page:

@@ -10,23 +10,15 @@ import aiohttp
 import numpy as np
 import pytest
 
-from client.console.server import start_console
-from service.protocol.incident import default_incident
-from service.shell.service import IncidentService, ServiceSettings
+from tests.browser_util import console_stack
 from tests.phone_util import enrol, post
-from tests.zenoh_util import free_port, router, wait_until
+from tests.zenoh_util import wait_until
 
 
 @pytest.fixture(scope="module")
 def stack():
-    session, _ = router()
-    cfg = default_incident()
-    svc = IncidentService(session, cfg, ServiceSettings()).start()
-    console = start_console(session, cfg, port=free_port())
-    yield svc, console
-    console.close()
-    svc.close()
-    session.close()
+    for svc, console, *_ in console_stack():
+        yield svc, console
 
 
 def claim(console, responder: str) -> str:
