@@ -88,19 +88,3 @@ export class FrameCutter {
             mag: withMag ? ss.map((s) => s.mag) : null};
   }
 }
-
-/** The stillness a man-down prompt watches: the spread of |acc| over a window (m/s²). */
-export class Stillness {
-  constructor(windowS = 2.0) { this.windowS = windowS; this.buf = []; }
-  push(t, acc) {
-    this.buf.push([t, Math.hypot(...acc)]);
-    while (this.buf.length && this.buf[0][0] < t - this.windowS) this.buf.shift();
-  }
-  /** Standard deviation of |acc| over the window, NaN until it spans most of it. */
-  spread() {
-    const b = this.buf;
-    if (b.length < 5 || b[b.length - 1][0] - b[0][0] < 0.8 * this.windowS) return NaN;
-    const m = b.reduce((s, x) => s + x[1], 0) / b.length;
-    return Math.sqrt(b.reduce((s, x) => s + (x[1] - m) ** 2, 0) / b.length);
-  }
-}
