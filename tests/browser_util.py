@@ -39,8 +39,10 @@ def console_stack():
     svc = IncidentService(session, cfg, ServiceSettings()).start()
     console = start_console(session, cfg, port=free_port())
     cl = client(endpoint)
-    yield svc, console, cl, cfg, endpoint
-    console.close()
-    cl.close()
-    svc.close()
-    session.close()
+    try:
+        yield svc, console, cl, cfg, endpoint
+    finally:
+        console.close()
+        cl.close()
+        svc.close()
+        session.close()

@@ -123,3 +123,17 @@ def test_a_phone_enrolled_as_ff1_cannot_publish_as_ff2_and_a_revoked_token_is_re
     again = asyncio.run(_session(console, token, "by", []))
     assert again[0]["type"] == "refused" and again[0]["reason"] == "token"
     assert console.server.phones.enrolments.refused_total("ff1x")["revoked_or_unknown"] == 1
+
+
+def test_wrong_enrolment_codes_are_throttled_like_failed_logins():
+    stack = console_stack()
+    svc, console, *_ = next(stack)
+    base = console.url.rstrip("/")
+    try:
+        good = enrol(console.url, "ff5")["code"]
+        answers = [post(base + "/wear/claim", {"code": f"WRONG{k}"}, base)[0] for k in range(5)]
+        assert answers == [404] * 5
+        status, body = post(base + "/wear/claim", {"code": good}, base)  # the right one, too late for this address
+        assert status == 429 and "wait" in body["error"]
+    finally:
+        stack.close()

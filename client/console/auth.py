@@ -177,7 +177,9 @@ class Logins:
                 q.popleft()
             return bool(q) and len(q) >= LOGIN_FAILURES
 
-    def _failed(self, address: str, user) -> None:
+    def count_failure(self, address: str, user) -> None:
+        """A failed login (or a wrong phone enrolment code) from ``address``: after
+        LOGIN_FAILURES within LOGIN_WINDOW_S the address is :meth:`throttled`."""
         with self._lock:
             self._failures.setdefault(address, deque(maxlen=LOGIN_FAILURES)).append(self.clock())
         log.warning("console: failed login as %r from %s", user, address)
@@ -195,7 +197,7 @@ class Logins:
 
         ident = self._login_identity(user)
         if ident is None or not check_password(password, ident.password):
-            self._failed(address, user)
+            self.count_failure(address, user)
             return None
         return self._start(user, ident.role, "password")
 
@@ -214,7 +216,7 @@ class Logins:
             return None
         ident = self._login_identity(cn)
         if ident is None or ident.serial != format(cert.serial_number, "x"):
-            self._failed(address, cn)
+            self.count_failure(address, cn)
             return None
         return self._start(cn, ident.role, "certificate")
 

@@ -142,8 +142,9 @@ def sigma_m(pose: dict | None) -> float | None:
 class PhoneGateway:
     """The phones' routes of one console; composed into :class:`client.console.server.ConsoleServer`."""
 
-    def __init__(self, session, incident: str, board, enrolments: PhoneEnrolments | None = None):
+    def __init__(self, session, incident: str, board, enrolments: PhoneEnrolments | None = None, logins=None):
         self.session, self.incident, self.board = session, incident, board
+        self.logins = logins  # the console's limiter of failed logins: wrong codes count as failures too
         self.enrolments = enrolments or PhoneEnrolments(incident)
         self.enrolments.on_revoked = self._revoked
         self.streams: dict[tuple[str, str], PhoneStream] = {}
@@ -197,12 +198,19 @@ class PhoneGateway:
         return web.json_response({"responder": rid, "revoked": self.enrolments.revoke(rid)})
 
     async def _claim(self, request: web.Request) -> web.Response:
+        """A phone trades a short code for its token; wrong codes from an address are counted
+        with the console's failed logins (429 after a few in a minute: no guessing codes)."""
+        address = request.remote or "?"
+        if self.logins is not None and self.logins.throttled(address):
+            return error_response(429, "too many wrong codes from this address: wait a minute")
         try:
             body = await read_json(request)
         except HttpError as e:
             return error_response(e.status, e.args[0])
         g = self.enrolments.claim(str(body.get("code", ""))[:32])
         if g is None:
+            if self.logins is not None:
+                self.logins.count_failure(address, "a phone enrolment code")
             return error_response(404, "this code is unknown, expired or used: ask the console for a new one")
         return web.json_response({"token": g.token, "responder": g.responder, "incident": g.incident})
 

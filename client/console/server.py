@@ -146,7 +146,7 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
         self.fixes_sent = 0
         self.commands_sent = 0
         self.added_checkpoints: set[str] = set()
-        self.phones = PhoneGateway(session, cfg.id, self.board)  # /wear: phones publish as wearables
+        self.phones = PhoneGateway(session, cfg.id, self.board, logins=self.logins)  # /wear: phones as wearables
         self._subs: list = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
