@@ -1,7 +1,7 @@
 """The phone gateway without a browser: a WebSocket client speaking the page's messages to a
 real console on a live service and zenoh router on loopback. Browser-like 60 Hz timing passes
 the frame gate; a phone enrolled as one responder cannot publish as another; a revoked token
-is refused at once."""
+is refused at once; wrong enrolment codes are throttled like failed logins."""
 from __future__ import annotations
 
 import asyncio
