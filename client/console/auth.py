@@ -222,7 +222,9 @@ class Logins:
                 if q is not None and t in q:
                     q.remove(t)
 
-    def _failed(self, address: str, user) -> None:
+    def count_failure(self, address: str, user) -> None:
+        """A failed login (or a wrong phone enrolment code) from ``address``: after
+        LOGIN_FAILURES within LOGIN_WINDOW_S the address is :meth:`throttled`."""
         with self._lock:
             _note(self._failures, address, self.clock(), LOGIN_FAILURES)
         log.warning("console: failed login as %r from %s", user, address)
@@ -295,7 +297,7 @@ class Logins:
             return None
         ident = self._login_identity(cn)
         if ident is None or ident.serial != format(cert.serial_number, "x"):
-            self._failed(address, cn)
+            self.count_failure(address, cn)
             return None
         return self._start(cn, ident.role, "certificate")
 

@@ -25,7 +25,7 @@ REJECT_REASONS = (
     "oversize", "msgpack", "not_a_map", "version", "kind", "schema", "shape", "nonfinite", "time_order", "rate",
 )
 
-CARRY_POSITIONS = ("handheld", "pocket", "bag", "armband", "waist", "foot", "unknown")
+CARRY_POSITIONS = ("handheld", "pocket", "bag", "armband", "waist", "chest", "foot", "unknown")
 
 
 class WireError(ValueError):
@@ -100,7 +100,7 @@ class ImuBatch(WireMessage):
     mag: Mag | None = None
     pressure_t: Seconds | None = None
     pressure: Hpa | None = None
-    carry: Literal["handheld", "pocket", "bag", "armband", "waist", "foot", "unknown"] = Field(
+    carry: Literal["handheld", "pocket", "bag", "armband", "waist", "chest", "foot", "unknown"] = Field(
         "unknown", description="where the device is worn; chooses the motion model (foot: the ZUPT INS)")
     utc_offset: Finite | None = Field(
         None, description="s: UTC (Unix seconds) minus the device clock, the wearable's latest estimate; "
