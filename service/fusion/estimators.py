@@ -24,6 +24,7 @@ import numpy as np
 from pdr.angles import wrap
 from pdr.dead_reckoning import DeadReckoning
 from pdr.events import PoseEstimate, StepEvent
+from service.fusion.dead_reckoning import dr_propagate
 from service.fusion.fixes import CheckpointFix
 from service.fusion.published import FusionEvent
 
@@ -134,16 +135,25 @@ class FusionEstimator:
         self.degraded_reason = ""
 
     def start(self, t, x, y, heading, heading_sigma, position_sigma, floor) -> None:
-        self.gate.start(t, x, y, position_sigma, floor)
+        self.gate.start(t, x, y, position_sigma, floor, heading, heading_sigma)
         self._base(self.fusion.start(t, x, y, heading, heading_sigma, position_sigma, floor))
 
     def add_step(self, ev: StepEvent) -> PoseEstimate:
         self._steps = ev.index
-        self.gate.add_step(ev)
+        self.gate.add_step(ev, *self._heading_after(ev))
         self._pending.append(ev)
         if ev.t - self._last_update_t >= self._every:
             return self._pose(self._flush())
         return self._propagate(ev)
+
+    def _heading_after(self, ev: StepEvent) -> tuple[float, float]:
+        """(heading, sigma) (rad) the live pose walks step ``ev`` along (the graph's, turned by the
+        gyro): the walk gate's dead reckoning follows it, as the PDR's own absolute heading drifts
+        where the graph's compass and fixes do not."""
+        th, cov = self._dr[3], self._dr[4]
+        turn = ev.heading_change if math.isfinite(ev.heading_change) else (
+            wrap(ev.heading - th) if math.isfinite(ev.heading) else 0.0)
+        return wrap(th + turn), math.sqrt(cov[5]) if cov[5] > 0 else math.nan
 
     def flush(self) -> PoseEstimate | None:
         """The steps waiting for an update go into the graph now (end of the stream)."""
@@ -290,34 +300,6 @@ def _joined(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[str, np.
     """Track ``a`` then the rows of ``b`` after its last time (a restarted graph's track after the old one's)."""
     keep = b["t"] > a["t"][-1] if len(a["t"]) else np.ones(len(b["t"]), bool)
     return {k: np.concatenate([a[k], np.asarray(b[k])[keep].astype(a[k].dtype)]) for k in a}
-
-
-def dr_propagate(x: float, y: float, th: float, cov: tuple, length: float, length_sigma: float, turn: float,
-                 turn_sigma: float, lateral_sigma: float) -> tuple[float, float, float, tuple]:
-    """One step of dead reckoning with its covariance (first order): the heading turns by
-    ``turn``, the step of ``length`` is walked along the new heading θ' (as the graph's step
-    factor, :func:`service.fusion.noise.step_covariance`)::
-
-        x' = x + L cos θ',   y' = y + L sin θ',   θ' = θ + Δθ
-        Σ' = F (Σ + diag(0, 0, σ_Δθ²)) Fᵀ + R diag(σ_L², σ_lat²) Rᵀ,   F = [[1, 0, −L sin θ'], [0, 1, L cos θ'], [0, 0, 1]]
-
-    ``cov`` is the symmetric 3x3 of (x, y, θ) as six floats ``(xx, xy, xθ, yy, yθ, θθ)``."""
-    xx, xy, xt, yy, yt, tt = cov
-    th = th + turn
-    tt = tt + turn_sigma * turn_sigma
-    c, s = math.cos(th), math.sin(th)
-    a, b = -length * s, length * c  # ∂(x, y)/∂θ
-    # F Σ Fᵀ with F = [[1, 0, a], [0, 1, b], [0, 0, 1]]
-    nxx = xx + 2 * a * xt + a * a * tt
-    nxy = xy + a * yt + b * xt + a * b * tt
-    nyy = yy + 2 * b * yt + b * b * tt
-    nxt = xt + a * tt
-    nyt = yt + b * tt
-    la, lo = length_sigma * length_sigma, lateral_sigma * lateral_sigma
-    nxx += la * c * c + lo * s * s
-    nxy += (la - lo) * c * s
-    nyy += la * s * s + lo * c * c
-    return x + length * c, y + length * s, th, (nxx, nxy, nxt, nyy, nyt, tt)
 
 
 _ESTIMATORS: dict[str, Callable[..., TrackEstimator]] = {}

@@ -1,29 +1,42 @@
 """What the walk allows: every fix judged against dead reckoning from the last trusted fix.
 
 A fix is evidence only if the responder could have been there. The reference is dead reckoning
-alone (:class:`pdr.dead_reckoning.DeadReckoning`: the PDR's steps along its own heading, the
-same function as the tracker's baseline) started at the last *trusted* fix, with its position
-covariance ``P`` and the distance ``d`` walked since that fix. For a position fix ``z`` (σ_z)
-at time t, against the reference ``r`` of that time::
+alone (:func:`service.fusion.dead_reckoning.dr_propagate`, the function the live pose is walked
+with between graph updates: each step along the live heading, whose turns' sigmas grow the
+heading variance and, through it, the position covariance of a long leg) started at the last
+*trusted* fix, with its position covariance ``P`` and the distance ``d`` walked since that fix.
+For a position fix ``z`` (σ_z) at time t, against the reference ``r`` of that time::
 
-    ν = z − r,        noise radius  ρ = k₂ · √(λ_max(P) + σ_z²) + margin
-    held out        if |ν| > ρ + β·d            (reason ``walk_gate``)
-    trusted         if |ν| ≤ ρ                  (the reference is corrected, Kalman: r += Kν, P −= KP, d ×= 1−K)
-    accepted only   otherwise                   (the graph takes it, the reference does not)
+    ν = z − r,   D²(a) = ν_aᵀ (P + σ_z² I)⁻¹ ν_a,   ν_a = ν · max(0, 1 − a/|ν|)  (ν shortened by a metres)
+    held out        if D²(margin + β·d) > χ²₂(p)     (reason ``walk_gate``)
+    trusted         if D²(margin) ≤ χ²₂(p)           (the reference is corrected, Kalman with
+                                                      P + (β·d)²I: r += Kν, d ×= 1−K)
+    accepted only   otherwise                        (the graph takes it, the reference does not)
 
-``k₂ = √χ²₂(walk_gate_probability)``, ``β = walk_gate_drift`` (m per m walked: how fast a PDR
+``p = walk_gate_probability``, ``β = walk_gate_drift`` (m per m walked: how fast a PDR
 can drift that the covariance does not model, a heading bias), ``margin = walk_gate_margin_m``.
-A UWB range r_m to an anchor a is judged the same way in one dimension:
-``ν = r_m − |r − a|``, ``ρ = k₁ · √(uᵀPu + σ² + σ_a²) + margin`` (u the unit vector a → r).
+The Mahalanobis distance weighs the innovation by the reference's covariance in its direction:
+across a long leg (heading uncertainty) far more than along it. A UWB range r_m to an anchor a is
+judged the same way in one dimension: ``ν = r_m − |r − a|`` against
+``√χ²₁(p) · √(uᵀPu + σ² + σ_a²) + margin + β·d`` (u the unit vector a → r).
 
 Why the reference is not the graph: the graph takes every accepted fix, so a chain of fixes each
 5 m from the pose the last one made drags it anywhere (issue 32, attack 3: 30.7 m, no flag).
 Against dead reckoning from the last fix that agreed with it, the same chain must pay for its
-offset with walked distance: a forged offset can grow by at most β per metre walked. A fix
-accepted only thanks to the drift allowance becomes trusted when the next position fix agrees
-with it (the difference of the two fixes is the difference of the reference between them,
-within the noise radius): two consistent landmarks correct a drifted walk; a drag, which is
-always one offset further from the last fix, never agrees with it.
+offset with walked distance. Two fixes that agree with each other are not trusted for that: a drag
+whose fixes are all one offset from a pose that did not move agrees with itself. A drifted
+reference comes back as its covariance grows with the walk (the heading's uncertainty across a
+long leg), so a true landmark across the track is trusted again within the noise.
+
+What it does not stop: the same growth lets a patient drag through. On IPIN Trial01 rep01
+(tests/test_fix_attacks.py) ten checkpoints 5 m from the live pose, one every 3 s, move the track
+10.8 m (26.2 m without the gate); a gate tight enough for 5 m (p = 0.95) refuses true landmarks
+(K = 3 live p75 1.93 → 2.01 m, one walk +1.9 m). Who may send checkpoints is the other half of
+that defence (issue 32, deliverable 2). Counting the allowance as a 1-σ drift when trust is judged
+lets the reference follow a step-length error, but lets the same drag reach 20.6 m. And the other
+way round: along the track the covariance grows slowly, so a step-length error above
+``walk_gate_drift`` (5 %) over landmarks that are never trusted is, after a few hundred metres,
+held out (tests/test_walk_gate.py); not seen on the 40 IPIN walks (K = 3).
 
 The same reference is what a track restarts from when the graph cannot go on
 (:meth:`WalkGate.diverged`, :class:`service.fusion.estimators.FusionEstimator`): its pose is
@@ -34,11 +47,13 @@ from __future__ import annotations
 import functools
 import math
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from pdr.dead_reckoning import DeadReckoning
+from pdr.angles import wrap
+from pdr.events import PoseEstimate
+from service.fusion.dead_reckoning import dr_propagate
 
 
 @functools.lru_cache(maxsize=8)
@@ -46,6 +61,16 @@ def _k(p: float, dof: int) -> float:
     from scipy.stats import chi2
 
     return math.sqrt(float(chi2.ppf(p, dof)))
+
+
+def _mahalanobis2(nu: np.ndarray, cov: np.ndarray, slack: float) -> float:
+    """``ν'ᵀ Σ⁻¹ ν'`` of the innovation ``ν`` shortened by ``slack`` metres (what drift and survey
+    error may explain without noise): ``ν' = ν · max(0, 1 − slack/|ν|)``."""
+    n = math.hypot(*nu)
+    if n <= slack:
+        return 0.0
+    v = nu * (1.0 - slack / n)
+    return float(v @ np.linalg.solve(cov, v))  # blas-ok: 2x2, one fix at a time
 
 
 def _lam_max(c) -> float:
@@ -93,28 +118,46 @@ class WalkGate:
 
     def __init__(self, settings):
         self.s = settings
-        self._dr = DeadReckoning()
+        self._state: tuple | None = None  # (t, x, y, θ, Σ as 6 floats (xx, xy, xθ, yy, yθ, θθ), floor)
         self._rows: deque[_Row] = deque()
         self._walked = 0.0
-        self._candidate: tuple | None = None  # (ν, row, σ_z) of the last fix accepted but not trusted
 
-    def start(self, t: float, x: float, y: float, sigma: float, floor: int) -> None:
-        self._dr.start(t, x, y, floor, sigma)
+    def start(self, t: float, x: float, y: float, sigma: float, floor: int, heading: float = math.nan,
+              heading_sigma: float = math.nan) -> None:
+        hv = heading_sigma * heading_sigma if math.isfinite(heading_sigma) else 0.0
+        self._state = (t, x, y, heading, (sigma * sigma, 0.0, 0.0, sigma * sigma, 0.0, hv), floor)
         self._walked = 0.0
-        self._rows.append(_Row(t, x, y, np.asarray(self._dr.point.cov, float), 0.0))
+        self._rows.append(_Row(t, x, y, np.diag([sigma * sigma, sigma * sigma]), 0.0))
 
-    def add_step(self, ev) -> None:
-        p = self._dr.add_step(ev)
-        self._walked += max(float(ev.length), 0.0)
-        self._rows.append(_Row(p.t, p.x, p.y, np.asarray(p.cov, float), self._walked))
-        while len(self._rows) > 1 and self._rows[0].t < p.t - self.s.lag_s - 5.0:
+    def add_step(self, ev, heading: float, heading_sigma: float) -> None:
+        """Step ``ev`` walked along ``heading`` (rad, the live one), from a pose whose heading sigma is
+        ``heading_sigma`` (rad; the reference's grows by the step's turn sigma from there)."""
+        s = self.s
+        t, x, y, th, cov, _ = self._state
+        if not math.isfinite(th):
+            th = heading
+        turn = wrap(heading - th)
+        turn_sigma = ev.heading_change_sigma if math.isfinite(ev.heading_change_sigma) else s.unknown_turn_sigma_rad
+        if math.isfinite(heading_sigma) and heading_sigma * heading_sigma < cov[5]:  # the graph knows the heading better
+            cov = cov[:5] + (heading_sigma * heading_sigma,)
+        length = max(float(ev.length), 0.0)
+        x, y, th, cov = dr_propagate(x, y, th, cov, length, max(ev.length_sigma, s.length_sigma_floor_m),
+                                     turn, max(turn_sigma, s.turn_sigma_floor_rad), s.lateral_sigma_m)
+        self._state = (ev.t, x, y, th, cov, ev.floor)
+        self._walked += length
+        self._rows.append(_Row(ev.t, x, y, np.array([[cov[0], cov[1]], [cov[1], cov[3]]]), self._walked))
+        while len(self._rows) > 1 and self._rows[0].t < ev.t - self.s.lag_s - 5.0:
             self._rows.popleft()
 
     @property
-    def point(self):
-        """The reference's newest pose (:class:`pdr.events.PoseEstimate`: dead reckoning from the
-        last trusted fix) and the distance walked since that fix (m)."""
-        return self._dr.point, self._walked
+    def point(self) -> tuple[PoseEstimate | None, float]:
+        """The reference's newest pose (dead reckoning from the last trusted fix) and the distance
+        walked since that fix (m)."""
+        if self._state is None:
+            return None, self._walked
+        t, x, y, th, c, floor = self._state
+        cov = np.array([[c[0], c[1]], [c[1], c[3]]])
+        return PoseEstimate(t, x, y, th, cov, floor, 0, "pdr", math.sqrt(max(c[5], 0.0))), self._walked
 
     def allowance(self, walked: float) -> float:
         return self.s.walk_gate_drift * walked
@@ -142,23 +185,25 @@ class WalkGate:
                 return GateVerdict(False, reason="walk_gate", info=info,
                                    detail=f"range {rng:.1f} m is {abs(nu):.1f} m from the walk's {r_hat:.1f} m "
                                           f"(allowed {rho + allow:.1f} m)")
-            return GateVerdict(True, info=info)
+            return GateVerdict(True, trusted=abs(nu) <= rho, info=info)
         _, zx, zy, sigma = obs
         sigma = max(sigma, s.checkpoint_sigma_floor_m)
         nu = np.array([zx - row.x, zy - row.y])
         dist = float(math.hypot(*nu))
-        rho = _k(s.walk_gate_probability, 2) * math.sqrt(_lam_max(row.cov) + sigma * sigma) + s.walk_gate_margin_m
-        info = {"innovation_m": dist, "radius_m": rho + allow}
-        if not dist <= rho + allow:
+        chi2 = _k(s.walk_gate_probability, 2) ** 2
+        cov = row.cov + sigma * sigma * np.eye(2)
+        d2 = _mahalanobis2(nu, cov, allow + s.walk_gate_margin_m)
+        info = {"innovation_m": dist, "mahalanobis2": d2}
+        if not d2 <= chi2:
             return GateVerdict(False, reason="walk_gate", info=info,
-                               detail=f"{dist:.1f} m from dead reckoning since the last trusted fix "
-                                      f"(allowed {rho + allow:.1f} m after {row.walked:.0f} m walked)")
-        trusted = dist <= rho or self._agrees(nu, row, sigma)
+                               detail=f"{dist:.1f} m from dead reckoning since the last trusted fix, "
+                                      f"Mahalanobis² {d2:.1f} > {chi2:.1f} beyond {allow + s.walk_gate_margin_m:.1f} m "
+                                      f"of drift after {row.walked:.0f} m walked")
+        trusted = _mahalanobis2(nu, cov, s.walk_gate_margin_m) <= chi2
         return GateVerdict(True, trusted=trusted, info=info)
 
     def take(self, fix, verdict: GateVerdict) -> None:
-        """The graph took ``fix``: a trusted position fix corrects the reference; one accepted on
-        the drift allowance is remembered, to be trusted with the next one that agrees."""
+        """The graph took ``fix``: a trusted position fix corrects the reference."""
         obs = observation(fix)
         if obs is None or obs[0] != "position" or not self._rows:
             return
@@ -167,18 +212,17 @@ class WalkGate:
         nu = np.array([obs[1] - row.x, obs[2] - row.y])
         if not np.all(np.isfinite(nu)) or not np.all(np.isfinite(row.cov)):  # a lost reference restarts here
             self._rows.clear()
-            self.start(float(fix.t), obs[1], obs[2], sigma, self._dr.point.floor if self._dr.point else 0)
+            st = self._state
+            self.start(float(fix.t), obs[1], obs[2], sigma, st[5] if st else 0, st[3] if st else math.nan)
             return
         if not verdict.trusted:
-            self._candidate = (nu, row, sigma)
             return
-        self._candidate = None
-        cov = row.cov
+        cov = row.cov + self.allowance(row.walked) ** 2 * np.eye(2)  # the drift the covariance leaves out
         gain = cov @ np.linalg.inv(cov + sigma * sigma * np.eye(2))  # blas-ok: 2x2, one fix at a time
         shift = gain @ nu  # blas-ok: 2x2
         post = (np.eye(2) - gain) @ cov  # blas-ok: 2x2
         post = 0.5 * (post + post.T)
-        dcov = post - cov
+        dcov = post - row.cov
         g = float(np.trace(gain)) / 2.0
         dwalk = -g * row.walked
         at = row.t
@@ -187,22 +231,12 @@ class WalkGate:
                 r.x, r.y = r.x + float(shift[0]), r.y + float(shift[1])
                 r.cov = r.cov + dcov
                 r.walked = max(r.walked + dwalk, 0.0)
-        p = self._dr.point
+        t, _, _, th, c, floor = self._state
         last = self._rows[-1]
-        self._dr.point = replace(p, x=last.x, y=last.y, cov=last.cov.copy())
+        k = 1.0 - g
+        self._state = (t, last.x, last.y, th, (last.cov[0, 0], last.cov[0, 1], c[2] * k, last.cov[1, 1], c[4] * k, c[5]),
+                       floor)
         self._walked = last.walked
-
-    def _agrees(self, nu: np.ndarray, row: _Row, sigma: float) -> bool:
-        """Does this fix confirm the last one accepted on the allowance? Both said the reference
-        is off by about the same vector (the fixes' difference is the walk's, within noise)."""
-        if self._candidate is None:
-            return False
-        nu0, row0, sigma0 = self._candidate
-        if row.t < row0.t:
-            return False
-        growth = max(_lam_max(row.cov) - _lam_max(row0.cov), 0.0)
-        rho = _k(self.s.walk_gate_probability, 2) * math.sqrt(growth + sigma * sigma + sigma0 * sigma0)
-        return float(math.hypot(*(nu - nu0))) <= rho + self.s.walk_gate_margin_m
 
     def _at(self, t: float) -> _Row:
         """The reference row nearest in time to ``t``."""
