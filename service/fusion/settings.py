@@ -80,6 +80,16 @@ this round: K = 0 4.05 m and 12/40, K = 3 2.03 m and 3/40):
   scale from indoor GNSS stretched tracks: in sample, K = 0 live p75 3.63 m with σ 0.08 against
   3.54 m without, and 4 walks instead of 2 more than 0.5 m above dead reckoning (K = 3 1.922 vs
   1.921 m); a step-length bias is better met by a fix every few landmarks than by GNSS.
+
+Issue 32 ("the estimator cannot crash and cannot hide"; service/fusion/walk_gate.py):
+
+* ``walk_gate_probability = 0.999`` (χ²₂ 13.8), ``walk_gate_drift = 0.05`` m/m,
+  ``walk_gate_margin_m = 1``: K = 3 live p75 1.925 → 1.925 m in sample, 1.898 → 1.898 m
+  cross-validated, one walk +0.32 m (Trial24 rep02). p = 0.99 / 0.95: 1.955 / 1.971 m with
+  Trial03 rep04 +0.89 m, and no clearer bound on a drag (ten 5 m checkpoints every 3 s: 10.8 m
+  at 0.999, 15.8 m at 0.99, 8.4 m at 0.95).
+* ``divergence_m = 50``, ``divergence_sigma_m = 1000``: only a graph that has left any walk
+  behind (an absurd fix the gate did not see) restarts; ``restart_heading_sigma_rad = 0.3``.
 """
 from __future__ import annotations
 

@@ -30,13 +30,14 @@ long leg), so a true landmark across the track is trusted again within the noise
 
 What it does not stop: the same growth lets a patient drag through. On IPIN Trial01 rep01
 (tests/test_fix_attacks.py) ten checkpoints 5 m from the live pose, one every 3 s, move the track
-10.8 m (26.2 m without the gate); a gate tight enough for 5 m (p = 0.95) refuses true landmarks
-(K = 3 live p75 1.93 → 2.01 m, one walk +1.9 m). Who may send checkpoints is the other half of
-that defence (issue 32, deliverable 2). Counting the allowance as a 1-σ drift when trust is judged
-lets the reference follow a step-length error, but lets the same drag reach 20.6 m. And the other
-way round: along the track the covariance grows slowly, so a step-length error above
-``walk_gate_drift`` (5 %) over landmarks that are never trusted is, after a few hundred metres,
-held out (tests/test_walk_gate.py); not seen on the 40 IPIN walks (K = 3).
+10.8 m (26.2 m without the gate). Tighter gates do not buy a clear bound (p = 0.99: 15.8 m,
+p = 0.95: 8.4 m; a reference reset by a trusted drag changes what follows) and refuse true
+landmarks (K = 3 live p75 1.925 → 1.955 / 1.971 m, Trial03 rep04 +0.89 m). Who may send
+checkpoints is the other half of that defence (issue 32, deliverable 2). Counting the allowance
+as a 1-σ drift when trust is judged lets the reference follow a step-length error, but lets the
+same drag reach 20.6 m. And the other way round: along the track the covariance grows slowly,
+so a step-length error above ``walk_gate_drift`` (5 %) over landmarks that are never trusted is,
+after a few hundred metres, held out (tests/test_walk_gate.py); not seen on the 40 IPIN walks (K = 3).
 
 The same reference is what a track restarts from when the graph cannot go on
 (:meth:`WalkGate.diverged`, :class:`service.fusion.estimators.FusionEstimator`): its pose is
