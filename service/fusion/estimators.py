@@ -235,6 +235,7 @@ class FusionEstimator:
 
     def add_gap(self, sigma_m: float) -> None:
         self.fusion.add_gap(sigma_m)
+        self.gate.add_gap(sigma_m)
 
     def add_fix(self, fix) -> FixOutcome:
         if not callable(getattr(fix, "factors", None)):
