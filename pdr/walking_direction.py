@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -83,16 +84,48 @@ class WalkingDirection:
         sel = (B["t"] > tk - s.window) & (B["t"] <= tk)
         if sel.sum() < s.min_samples:
             return 0.0
-        F, L, Z = (B[k][sel] - B[k][sel].mean() for k in ("f", "l", "z"))
-        if s.mode == "pca":
-            # blas-ok: the window is fixed by the step's time, so its shape never depends on batching
-            w, v = np.linalg.eigh(np.cov(np.vstack([F, L])))  # blas-ok: see above
-            alpha = math.atan2(v[1, 1], v[0, 1])
-            alpha = (alpha + math.pi / 2) % math.pi - math.pi / 2  # within ±90° of forward
-        else:
-            alpha = 0.0
-        U = F * math.cos(alpha) + L * math.sin(alpha)
-        dt = np.median(np.diff(B["t"][sel]))
-        n = max(1, int(round(s.lag / dt)))
-        c = np.mean(U[n:] * Z[:-n]) - np.mean(U[:-n] * Z[n:])
-        return alpha + (math.pi if c > 0 else 0.0)
+        return walking_angle(B["t"][sel], B["f"][sel], B["l"][sel], B["z"][sel], s.lag, s.mode == "pca").angle
+
+
+class WalkingAxis(NamedTuple):
+    """One window's walking direction (:func:`walking_angle`)."""
+
+    angle: float  # α, rad, CCW from the device's forward axis, in (−π, π]
+    anisotropy: float  # e = (λ₁ − λ₂)/(λ₁ + λ₂) of the horizontal swing, 0..1
+    phase: float  # |c| / (σ_u σ_z): how clearly the gait's phase shows (0: not at all)
+    vertical_std: float  # σ_z, m/s², the vertical specific force's spread (a walk: about 1)
+
+
+def walking_angle(t, f, l, z, lag: float, pca: bool = True) -> WalkingAxis:
+    """Walking direction from one window of levelled specific force in the device-heading frame.
+
+    ``f``, ``l``, ``z`` (m/s², forward, left, up; means are removed here), ``t`` their times (s).
+    ``angle`` is from the device's forward axis to the walking direction (with ``pca=False``
+    only 0 or π); the other fields say how far the window looks like walking.
+
+    The principal axis of the 2×2 covariance ``C`` of (f, l) in closed form,
+    ``α₀ = ½ atan2(2 C_fl, C_ff − C_ll)``, ``λ₁,₂ = ½ (C_ff + C_ll) ± ½ √((C_ff − C_ll)² + 4 C_fl²)``,
+    so ``e = √((C_ff − C_ll)² + 4 C_fl²) / (C_ff + C_ll)``; no eigen-solver, so the bits do not
+    depend on a BLAS. The sign from the phase test of the module docstring (``c > 0``: add π),
+    with ``u`` the swing along ``α₀``.
+    """
+    F, L, Z = f - f.mean(), l - l.mean(), z - z.mean()
+    alpha, e = 0.0, 0.0
+    cff, cll, cfl = float(np.mean(F * F)), float(np.mean(L * L)), float(np.mean(F * L))
+    tr = cff + cll
+    if tr > 0.0:
+        e = math.sqrt((cff - cll) ** 2 + 4.0 * cfl * cfl) / tr
+    if pca:
+        alpha = 0.5 * math.atan2(2.0 * cfl, cff - cll)  # within ±90° of forward
+    U = F * math.cos(alpha) + L * math.sin(alpha)
+    sz = float(np.sqrt(np.mean(Z * Z)))
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    n = max(1, int(round(lag / dt))) if dt > 0.0 else 1
+    if n >= len(U):
+        return WalkingAxis(alpha, e, 0.0, sz)
+    c = float(np.mean(U[n:] * Z[:-n]) - np.mean(U[:-n] * Z[n:]))
+    su = float(np.sqrt(np.mean(U * U)))
+    rho = abs(c) / (su * sz) if su * sz > 0.0 else 0.0
+    if c > 0:
+        alpha = alpha + math.pi if alpha <= 0.0 else alpha - math.pi
+    return WalkingAxis(alpha, e, rho, sz)
