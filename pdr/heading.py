@@ -444,8 +444,8 @@ class HeadingEstimator:
                 before = np.flatnonzero(B["t"] <= tk)
                 sel = np.arange(len(B["t"])) == (before[-1] if before.size else 0)
             psi_g = float(np.mean(B["psi"][sel]))  # unwrapped: the arithmetic mean is circular
-            win = (B["t"] > tk - s.grip.window) & (B["t"] <= tk)
-            omega, jumped = self._grip_step(B["t"][win], B["af"][win], B["al"][win], B["az"][win])
+            w0, w1 = np.searchsorted(B["t"], (tk - s.grip.window, tk), side="right")  # samples in (tk − window, tk]
+            omega, jumped = self._grip_step(B["t"][w0:w1], B["af"][w0:w1], B["al"][w0:w1], B["az"][w0:w1])
             off = off + omega
             h = int(np.searchsorted(hist_t, tk, side="right")) - 1
             _, delta, P = self._hist[max(h, 0)]

@@ -145,3 +145,52 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
             still[r] = True
             cur[0], cur[1], cur[2] = g[0], g[1], g[2]
     return out, still, cur
+
+
+@njit(cache=True)
+def walking_stats(t, f, l, z, lag, pca):  # pragma: no cover - compiled
+    """(α, e, ρ, σ_z) of one window: :func:`pdr.walking_direction.walking_angle`'s arithmetic."""
+    n = t.shape[0]
+    if n < 2:
+        return 0.0, 0.0, 0.0, 0.0
+    mf = ml = mz = 0.0
+    for i in range(n):
+        mf += f[i]
+        ml += l[i]
+        mz += z[i]
+    mf /= n
+    ml /= n
+    mz /= n
+    cff = cll = cfl = czz = 0.0
+    for i in range(n):
+        a, b, c = f[i] - mf, l[i] - ml, z[i] - mz
+        cff += a * a
+        cll += b * b
+        cfl += a * b
+        czz += c * c
+    cff /= n
+    cll /= n
+    cfl /= n
+    sz = math.sqrt(czz / n)
+    tr = cff + cll
+    e = math.sqrt((cff - cll) ** 2 + 4.0 * cfl * cfl) / tr if tr > 0.0 else 0.0
+    alpha = 0.5 * math.atan2(2.0 * cfl, cff - cll) if pca else 0.0
+    ca, sa = math.cos(alpha), math.sin(alpha)
+    dt = (t[n - 1] - t[0]) / (n - 1)
+    k = max(1, int(round(lag / dt))) if dt > 0.0 else 1
+    if k >= n:
+        return alpha, e, 0.0, sz
+    c1 = c2 = su = 0.0
+    for i in range(n):
+        u = (f[i] - mf) * ca + (l[i] - ml) * sa
+        su += u * u
+        if i + k < n:
+            c2 += u * (z[i + k] - mz)  # u(t) z(t + τ)
+        if i >= k:
+            c1 += u * (z[i - k] - mz)  # u(t + τ) z(t)
+    c = (c1 - c2) / (n - k)
+    su = math.sqrt(su / n)
+    rho = abs(c) / (su * sz) if su * sz > 0.0 else 0.0
+    if c > 0.0:
+        alpha = alpha + math.pi if alpha <= 0.0 else alpha - math.pi
+    return alpha, e, rho, sz

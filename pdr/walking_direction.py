@@ -35,6 +35,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from pdr.heading_kernels import walking_stats
+
 
 @dataclasses.dataclass(frozen=True)
 class WalkingDirectionSettings:
@@ -107,25 +109,9 @@ def walking_angle(t, f, l, z, lag: float, pca: bool = True) -> WalkingAxis:
     ``α₀ = ½ atan2(2 C_fl, C_ff − C_ll)``, ``λ₁,₂ = ½ (C_ff + C_ll) ± ½ √((C_ff − C_ll)² + 4 C_fl²)``,
     so ``e = √((C_ff − C_ll)² + 4 C_fl²) / (C_ff + C_ll)``; no eigen-solver, so the bits do not
     depend on a BLAS. The sign from the phase test of the module docstring (``c > 0``: add π),
-    with ``u`` the swing along ``α₀``.
+    with ``u`` the swing along ``α₀`` and the lag in samples from the window's mean interval.
+    One compiled call (:func:`pdr.heading_kernels.walking_stats`): it runs once per step of
+    every responder.
     """
-    F, L, Z = f - f.mean(), l - l.mean(), z - z.mean()
-    alpha, e = 0.0, 0.0
-    cff, cll, cfl = float(np.mean(F * F)), float(np.mean(L * L)), float(np.mean(F * L))
-    tr = cff + cll
-    if tr > 0.0:
-        e = math.sqrt((cff - cll) ** 2 + 4.0 * cfl * cfl) / tr
-    if pca:
-        alpha = 0.5 * math.atan2(2.0 * cfl, cff - cll)  # within ±90° of forward
-    U = F * math.cos(alpha) + L * math.sin(alpha)
-    sz = float(np.sqrt(np.mean(Z * Z)))
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    n = max(1, int(round(lag / dt))) if dt > 0.0 else 1
-    if n >= len(U):
-        return WalkingAxis(alpha, e, 0.0, sz)
-    c = float(np.mean(U[n:] * Z[:-n]) - np.mean(U[:-n] * Z[n:]))
-    su = float(np.sqrt(np.mean(U * U)))
-    rho = abs(c) / (su * sz) if su * sz > 0.0 else 0.0
-    if c > 0:
-        alpha = alpha + math.pi if alpha <= 0.0 else alpha - math.pi
-    return WalkingAxis(alpha, e, rho, sz)
+    return WalkingAxis(*walking_stats(np.ascontiguousarray(t, float), np.ascontiguousarray(f, float),
+                                      np.ascontiguousarray(l, float), np.ascontiguousarray(z, float), float(lag), bool(pca)))
