@@ -84,8 +84,9 @@ this round: K = 0 4.05 m and 12/40, K = 3 2.03 m and 3/40):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from service.fusion.fixes.ble import BleSettings
 from service.fusion.noise import KERNELS
 
 
@@ -144,6 +145,8 @@ class FusionSettings:
     uwb_kernel_width: float = 1.345  # sigmas
     uwb_gate_probability: float | None = None  # χ²(1) gate on the range innovation; None: off
     uwb_anchor_sigma_m: float = 0.01  # m, prior on a surveyed anchor position
+    # BLE beacons: the path-loss model and its noise (service/fusion/fixes/ble.py)
+    ble: BleSettings = field(default_factory=BleSettings)
     # published pose
     display_gain: float = 0.5  # share of the gap to the graph's estimate the live pose closes per step (1: none kept)
     # time

@@ -133,14 +133,14 @@ def _p75(errors: list[LandmarkErrors]) -> float:
 
 def cross_validate(recordings, incident, fix_every: int, use_gnss: bool, base_settings,
                    grid: tuple[Candidate, ...] = TUNING_GRID, cache: PdrCache | None = None,
-                   progress=lambda items, what: items) -> CvResult:
+                   progress=lambda items, what: items, use_ble: bool = False) -> CvResult:
     """Run every candidate on every walk, then choose per held-out route (module docstring)."""
     cache = cache if cache is not None else PdrCache()
     routes = [route_of(r.source) for r in recordings]
     runs: dict[str, list[IpinRun]] = {}
     for cand in progress(grid, "cross-validation grid"):
         settings = apply_overrides(base_settings, cand.overrides)
-        runs[cand.name] = [run_ipin(rec, incident, fix_every, use_gnss, settings, pdr_cache=cache)
+        runs[cand.name] = [run_ipin(rec, incident, fix_every, use_gnss, settings, pdr_cache=cache, use_ble=use_ble)
                            for rec in recordings]
     res = CvResult(fix_every, grid, runs, routes)
     names = [c.name for c in grid]
@@ -191,3 +191,13 @@ def _with_defaults(settings):
 
         return dataclasses.replace(settings, fusion=FusionSettings())
     return settings
+
+
+def ble_grid(base: tuple[Candidate, ...] = TUNING_GRID) -> tuple[Candidate, ...]:
+    """The grid for walks with beacons: the base grid's points with the BLE model's shadowing
+    sigma (dB; how far a scan may pull the track) as one more chosen number."""
+    out = []
+    for cand in base:
+        for sigma in (5.0, 8.0):
+            out.append(Candidate(f"{cand.name} ble σ={sigma:g} dB", cand.overrides + (("fusion.ble.sigma_db", sigma),)))
+    return tuple(out)
