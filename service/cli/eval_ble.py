@@ -56,11 +56,12 @@ def eval_ble(
 
 def _table(checks, walks: int) -> Table:
     t = Table(title=f"survey check on {walks} walks: where each beacon is heard strongest")
-    for col in ("beacon", "readings", "max dBm", "heard at (x, y, floor)", "listed", "m from listed",
-                "matched", "m from matched", "tx power dBm", "verdict"):
-        t.add_column(col)
+    for col in ("beacon", "n", "max dBm", "heard at x, y, floor", "listed (m)", "matched (m)", "P₀ dBm"):
+        t.add_column(col, no_wrap=True)
+    t.add_column("verdict")
     for c in checks:
         f = (lambda v: "—" if v is None else f"{v:.1f}")
         t.add_row(c.beacon, str(c.readings), f"{c.strongest_rssi_dbm:.0f}", f"{c.heard_x:.1f}, {c.heard_y:.1f}, {c.heard_floor}",
-                  c.listed or "—", f(c.listed_distance_m), c.matched or "—", f(c.matched_distance_m), f(c.tx_power_dbm), c.verdict())
+                  f"{c.listed or '—'} ({f(c.listed_distance_m)})", f"{c.matched or '—'} ({f(c.matched_distance_m)})",
+                  f(c.tx_power_dbm), c.verdict())
     return t

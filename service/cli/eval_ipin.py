@@ -72,12 +72,13 @@ def eval_ipin(
         raise typer.Exit(2)
     cache = PdrCache()
     if cv:
-        from service.review.ipin_cv import TUNING_GRID, ble_grid, cross_validate, default_candidate
+        from service.review.ipin_cv import BLE_GRID, TUNING_GRID, cross_validate, default_candidate
         from service.review.ipin_cv import report as cv_report
 
+        grid = BLE_GRID if ble else TUNING_GRID
         res = cross_validate(recordings, cfg, fix_every, not no_gnss, settings, cache=cache, progress=progress,
-                             grid=ble_grid() if ble else TUNING_GRID, use_ble=ble)
-        default = default_candidate(settings)
+                             grid=grid, use_ble=ble)
+        default = default_candidate(settings, grid)
         report = {**_report(res.runs[default or res.in_sample], fix_every, not no_gnss, engine), "cv": cv_report(res, default),
                   "ble": ble}
         pooled = report["cv"]["pooled"]["live"]

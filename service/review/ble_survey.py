@@ -60,6 +60,7 @@ class BeaconCheck:
     tx_power_dbm: float | None  # P0 fitted at the matched position (same-floor readings)
     scatter_db: float | None
     same_floor_readings: int
+    closest_approach_m: float | None = None  # nearest any walk came to the matched entry on its floor
 
     def verdict(self) -> str:
         if self.matched is None:
@@ -67,6 +68,10 @@ class BeaconCheck:
         parts = ["identity ok" if self.identity_agrees else f"listed as {self.listed}, is {self.matched}",
                  "position ok" if self.position_agrees else f"heard strongest {self.matched_distance_m:.1f} m from {self.matched}",
                  "floor ok" if self.floor_agrees else f"heard strongest on floor {self.heard_floor}"]
+        if not (self.position_agrees and self.floor_agrees) and self.closest_approach_m is not None:
+            parts.append(f"walks on its floor pass no nearer than {self.closest_approach_m:.1f} m")
+        elif not (self.position_agrees and self.floor_agrees):
+            parts.append("no walk on its floor")
         return "; ".join(parts)
 
 
@@ -143,11 +148,13 @@ def check_survey(recordings, survey: list[SurveyEntry], incident, path_loss_expo
     for b in names:
         d, (hx, hy, hf) = heard[b], spots[b]
         m, lst = matched.get(b), listed.get(b)
-        p0 = scatter = None
+        p0 = scatter = closest = None
         same = 0
         if m is not None:
             sel = d["floor"] == m.floor
             same = int(sel.sum())
+            if same:
+                closest = float(np.min(np.hypot(d["x"][sel] - m.x, d["y"][sel] - m.y)))
             if same >= 3:
                 r = np.sqrt((d["x"][sel] - m.x) ** 2 + (d["y"][sel] - m.y) ** 2 + near_m ** 2)
                 at_1m = d["rssi"][sel] + 10.0 * path_loss_exponent * np.log10(r)
@@ -163,7 +170,7 @@ def check_survey(recordings, survey: list[SurveyEntry], incident, path_loss_expo
             identity_agrees=m is not None and lst is not None and m.name == lst.name,
             position_agrees=m is not None and math.hypot(hx - m.x, hy - m.y) <= position_tolerance_m,
             floor_agrees=m is not None and m.floor == hf,
-            tx_power_dbm=p0, scatter_db=scatter, same_floor_readings=same))
+            tx_power_dbm=p0, scatter_db=scatter, same_floor_readings=same, closest_approach_m=closest))
     return out
 
 

@@ -193,11 +193,17 @@ def _with_defaults(settings):
     return settings
 
 
-def ble_grid(base: tuple[Candidate, ...] = TUNING_GRID) -> tuple[Candidate, ...]:
-    """The grid for walks with beacons: the base grid's points with the BLE model's shadowing
-    sigma (dB; how far a scan may pull the track) as one more chosen number."""
-    out = []
-    for cand in base:
-        for sigma in (5.0, 8.0):
-            out.append(Candidate(f"{cand.name} ble σ={sigma:g} dB", cand.overrides + (("fusion.ble.sigma_db", sigma),)))
-    return tuple(out)
+
+def _ble_grid() -> tuple[Candidate, ...]:
+    """The numbers of the beacon model chosen on the IPIN walks (``eval ipin --ble --cv``), at the
+    shipped PDR and fusion settings (their own choice is ``eval ipin --cv``): the path-loss
+    exponent n, the weakest reading used (dBm; the far field is mostly multipath) and the
+    shadowing sigma (dB). Four points: the survey check's fit (n 1.7, every reading, 7 dB) and
+    steeper, near-field-only models."""
+    points = ((1.7, -95.0, 7.0), (2.2, -82.0, 7.0), (2.2, -75.0, 7.0), (2.5, -75.0, 5.0))
+    return tuple(Candidate(f"ble n={n:g} rssi≥{lo:g} dBm σ={sd:g} dB", (
+        ("fusion.ble.path_loss_exponent", n), ("fusion.ble.min_rssi_dbm", lo), ("fusion.ble.sigma_db", sd)))
+        for n, lo, sd in points)
+
+
+BLE_GRID: tuple[Candidate, ...] = _ble_grid()

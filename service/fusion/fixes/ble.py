@@ -26,7 +26,8 @@ beyond ``offset_gate_db`` (a body, NLOS) are not learnt from. The prior is N(0, 
 
 **Wire** (:class:`service.protocol.fixes.BleFixMessage`): one scan, the beacons heard over
 ``period`` s ending at ``t`` and the mean RSSI of each; the factor is placed at the scan's
-middle, the distance walked in half a scan added to the position noise.
+middle, the distance walked in half a scan and the beacon's own position sigma added to the
+position noise (as dB through the gradient: ``σ² = sigma_db² + |∇RSSI|²·(blur² + σ_b²)``).
 """
 from __future__ import annotations
 
@@ -74,7 +75,8 @@ class BleSettings:
 class BeaconReading:
     """One beacon of a scan, in the local frame: at ``(x, y, z)`` m (z: elevation of its floor
     plus its height), on ``floor``, heard at ``rssi`` dBm; ``tx_power`` its RSSI at 1 m (NaN:
-    the settings' default)."""
+    the settings' default); ``sigma`` (m) the 1-sigma of its position (a surveyed beacon, or a
+    dropped one placed with the uncertainty of the responder who dropped it)."""
 
     beacon: str
     x: float
@@ -83,6 +85,7 @@ class BeaconReading:
     floor: int
     rssi: float
     tx_power: float = math.nan
+    sigma: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -125,7 +128,7 @@ class BleScan:
             model = PathLoss(r, s, ctx.floor, self.tag_z)
             off = offsets.setdefault(r.beacon, [0.0, s.offset_sigma_db ** 2])
             predicted, grad = model.rssi(p, off[0])
-            sigma = math.hypot(s.sigma_db, float(np.hypot(*grad)) * blur)
+            sigma = math.hypot(s.sigma_db, float(np.hypot(*grad)) * math.hypot(blur, r.sigma))
             base = gtsam.noiseModel.Isotropic.Sigma(1, sigma)
             out.append(model.factor(ctx.key, r.rssi - off[0], robust(s.kernel, s.kernel_width, base)))
             nu = r.rssi - predicted
@@ -189,7 +192,7 @@ def to_local(msg, incident) -> BleScan:
             continue
         z = elevations.get(b.floor, b.floor * incident.floor_height_m) + b.height_m
         tx = b.tx_power_dbm if b.tx_power_dbm is not None else math.nan
-        readings.append(BeaconReading(b.id, float(b.x), float(b.y), float(z), int(b.floor), float(rssi), tx))
+        readings.append(BeaconReading(b.id, float(b.x), float(b.y), float(z), int(b.floor), float(rssi), tx, b.sigma_m))
     if not readings:
         known = ", ".join(b.id for b in incident.beacons[:10]) or "none configured"
         raise FixRejected("unknown_reference", f"no beacon of the scan ({', '.join(unknown[:5])}) is in the "
