@@ -36,6 +36,7 @@ def test_a_dropped_beacon_takes_the_responders_estimate_and_its_scans_become_fix
     scan = wire.Fix(responder="ff1", t=live.t, source="ble", beacons=["CREW:01"], rssi=[-66.0])
     core.feed_round([Inbound("fix", wire.key(INC, "ff1", "fix"), wire.encode(scan), 0.0)])
     assert r.tracker.fixes_applied == applied + 1
+    assert core.status_of(r, 0.0).beacons_heard == {"CREW:01": live.t}  # when it was last heard, for the console
 
 
 def _walker(headings, start, heading_error=0.0, turn_bias=0.0, position_sigma=0.3):

@@ -263,6 +263,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
             frames=g.accepted, gaps=g.gaps, last_heard=heard, steps=tr.steps,
             fixes={"applied": tr.fixes_applied, "queued": tr.fixes_queued,
                    **({"flagged": r.fixes_flagged} if r.fixes_flagged else {})}, utc_offset=r.utc_offset,
+            beacons_heard={b: t - r.t_offset for b, t in getattr(r, "beacons_heard", {}).items()},
             last_fix=tr.last_fix, first_heard=r.first_heard, commands={a: dict(o) for a, o in r.commands.items()},
             lost=g.lost, gap_s=g.gap_s, streams=g.streams, device=g.device, boot=g.boot, seq=g.last_seq,
             missing=None if g.missing is None else list(g.missing),

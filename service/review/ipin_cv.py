@@ -198,12 +198,15 @@ def _ble_grid() -> tuple[Candidate, ...]:
     """The numbers of the beacon model chosen on the IPIN walks (``eval ipin --ble --cv``), at the
     shipped PDR and fusion settings (their own choice is ``eval ipin --cv``): the path-loss
     exponent n, the weakest reading used (dBm; the far field is mostly multipath) and the
-    shadowing sigma (dB). Four points: the survey check's fit (n 1.7, every reading, 7 dB) and
-    steeper, near-field-only models."""
-    points = ((1.7, -95.0, 7.0), (2.2, -82.0, 7.0), (2.2, -75.0, 7.0), (2.5, -75.0, 5.0))
-    return tuple(Candidate(f"ble n={n:g} rssi≥{lo:g} dBm σ={sd:g} dB", (
-        ("fusion.ble.path_loss_exponent", n), ("fusion.ble.min_rssi_dbm", lo), ("fusion.ble.sigma_db", sd)))
-        for n, lo, sd in points)
+    shadowing sigma (dB) and the kernel (Cauchy redescends: a wild reading loses its pull, but so
+    does a true large correction; Huber keeps a bounded pull). Six points: the survey check's fit
+    (n 1.7, every reading, 7 dB) and steeper, near-field-only models, with either kernel."""
+    points = ((1.7, -95.0, 7.0, "cauchy"), (2.2, -82.0, 7.0, "cauchy"), (2.2, -75.0, 7.0, "cauchy"),
+              (2.5, -75.0, 5.0, "cauchy"), (2.2, -75.0, 7.0, "huber"), (2.5, -75.0, 5.0, "huber"))
+    return tuple(Candidate(f"ble n={n:g} rssi≥{lo:g} dBm σ={sd:g} dB {kernel}", (
+        ("fusion.ble.path_loss_exponent", n), ("fusion.ble.min_rssi_dbm", lo), ("fusion.ble.sigma_db", sd),
+        ("fusion.ble.kernel", kernel)))
+        for n, lo, sd, kernel in points)
 
 
 BLE_GRID: tuple[Candidate, ...] = _ble_grid()
