@@ -371,7 +371,12 @@ def beacon_readings(lines: list[str], offset: float, notes: Notes, line_of) -> B
         tx.append(power if power != 0.0 and np.isfinite(power) else np.nan)
     if bad:
         notes.warn(f"{len(bad)} BLE4 line(s) without a MAC or a numeric RSSI skipped, first at line {line_of(bad[0])}")
-    if not t:
+    return beacon_table(t, ids, rssi, tx)
+
+
+def beacon_table(t, ids, rssi, tx) -> BeaconReadings | None:
+    """Readings (times already on the sensor clock) in time order; None when there are none."""
+    if len(t) == 0:
         return None
     t_arr = np.asarray(t, float)
     order = np.argsort(t_arr, kind="stable")
