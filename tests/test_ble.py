@@ -79,9 +79,11 @@ def test_a_walker_passing_a_beacon_is_pulled_to_it():
         for k, ev in enumerate(events):
             live = f.add_step(ev)
             near = math.hypot(*(truth[k + 1] - beacon)) < 12.0
-            if with_ble and near:
-                assert f.add_fix(_scan(ev.t, beacon, truth[k + 1], s, noise_db=rng.normal(0, 3.0))) is not None
+            if with_ble and near:  # scans weaker than min_rssi_dbm are refused (ble_weak), the others taken
+                taken = f.add_fix(_scan(ev.t, beacon, truth[k + 1], s, noise_db=rng.normal(0, 3.0)))
+                live = taken or live
         errors[with_ble] = math.hypot(live.x - truth[-1, 0], live.y - truth[-1, 1])
+    assert f.rejected["ble_weak"] > 0 and sum(e.kind == "accepted" for e in f.events) >= 5
     assert errors[False] > 3.5
     assert errors[True] < 0.5 * errors[False]
 
@@ -118,7 +120,7 @@ def test_path_loss_gradient_matches_finite_differences():
 
 def test_online_offset_learns_a_phone_that_hears_everything_8_db_weaker():
     events, truth = walk(np.zeros(30))
-    s = BleSettings(offset_sigma_db=6.0)
+    s = BleSettings(offset_sigma_db=6.0, min_rssi_dbm=-100.0)
     f = TrackFusion(no_mag(ble=s))
     f.start(0.0, 0.0, 0.0, 0.0, heading_sigma=0.02, position_sigma=0.3)
     beacon = (12.0, 2.0)

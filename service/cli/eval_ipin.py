@@ -38,6 +38,7 @@ def eval_ipin(
     engine: str = typer.Option("fusion", "--engine", help="fusion (gtsam factor graph) or dr (dead reckoning alone)"),
     incident: Path = typer.Option(None, "--incident", help="incident config (origin, floors, floor plans); default: the IPIN museum demo"),
     cv: bool = typer.Option(False, "--cv", help="leave-one-route-out cross-validation of the tuned settings (routes: trial numbers)"),
+    cv_grid: str = typer.Option("pdr", "--cv-grid", help="what --cv chooses: pdr (step length, PDR heading, GNSS spacing) or ble (the beacon model; with --ble)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
     plot: Path = typer.Option(None, "--plot", help="write a PNG per file (track, heading evidence, floors over time) into this folder"),
 ):
@@ -75,7 +76,10 @@ def eval_ipin(
         from service.review.ipin_cv import BLE_GRID, TUNING_GRID, cross_validate, default_candidate
         from service.review.ipin_cv import report as cv_report
 
-        grid = BLE_GRID if ble else TUNING_GRID
+        if cv_grid not in ("pdr", "ble") or (cv_grid == "ble" and not ble):
+            fail(f"--cv-grid must be pdr, or ble with --ble; got {cv_grid!r}")
+            raise typer.Exit(2)
+        grid = BLE_GRID if cv_grid == "ble" else TUNING_GRID
         res = cross_validate(recordings, cfg, fix_every, not no_gnss, settings, cache=cache, progress=progress,
                              grid=grid, use_ble=ble)
         default = default_candidate(settings, grid)

@@ -195,8 +195,8 @@ def _with_defaults(settings):
 
 
 def _ble_grid() -> tuple[Candidate, ...]:
-    """The numbers of the beacon model chosen on the IPIN walks (``eval ipin --ble --cv``), at the
-    shipped PDR and fusion settings (their own choice is ``eval ipin --cv``): the path-loss
+    """The numbers of the beacon model chosen on the IPIN walks (``eval ipin --ble --cv --cv-grid
+    ble``), at the shipped PDR and fusion settings (their own choice is ``--cv-grid pdr``): the path-loss
     exponent n, the weakest reading used (dBm; the far field is mostly multipath) and the
     shadowing sigma (dB) and the kernel (Cauchy redescends: a wild reading loses its pull, but so
     does a true large correction; Huber keeps a bounded pull). Six points: the survey check's fit
