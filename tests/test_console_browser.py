@@ -515,6 +515,7 @@ def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
     fixes = FixCollector(cl, cfg, "foxtrot")
     status, inc = http(url + "api/incident")
     assert status == 200 and inc["id"] == cfg.id and [f["number"] for f in inc["floors"]] == [-2, -1, 0]
+    assert [(b["id"], b["floor"]) for b in inc["beacons"]] == [(b.id, b.floor) for b in cfg.beacons] != []
     plan = inc["plans"]["0"]
     if plan["url"] is not None:  # the museum's plan is in ../shared; floor 0 falls back to floor -1's
         status, png = http(url + plan["url"].lstrip("/"), timeout=60.0)  # the first request reduces a 54 Mpx PNG

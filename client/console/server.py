@@ -387,6 +387,8 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
             "id": cfg.id, "name": cfg.name, "origin": cfg.origin.model_dump(), "start_floor": cfg.start_floor,
             "floors": [{"number": f.number, "name": f.name, "elevation_m": f.elevation_m} for f in cfg.floors],
             "checkpoints": self._checkpoints_json(), "plans": plans,
+            "beacons": [{"id": b.id, "name": b.name, "x": b.x, "y": b.y, "floor": b.floor, "sigma_m": b.sigma_m}
+                        for b in cfg.beacons],
             "roster": [m.model_dump() for m in cfg.roster],
             "settings": {"lost_contact_s": self.lost_contact_s, "batch_period_s": self.batch_period_s,
                          "trail_points": self.board.trail_points},

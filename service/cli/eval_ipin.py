@@ -34,9 +34,11 @@ def eval_ipin(
     files: list[Path] = typer.Argument(..., help="IPIN 2023 walks: GetSensorData logs (.txt, .txt.gz) or the organisers' .mat"),
     fix_every: int = typer.Option(0, "--fix-every", "-k", help="hand landmarks 0, K, 2K, ... to the tracker as checkpoint fixes (0: only the first)"),
     no_gnss: bool = typer.Option(False, "--no-gnss", help="leave the logs' GNSS fixes out"),
+    ble: bool = typer.Option(False, "--ble", help="feed the logs' BLE beacon readings as ble scans (beacons from the incident config)"),
     engine: str = typer.Option("fusion", "--engine", help="fusion (gtsam factor graph) or dr (dead reckoning alone)"),
     incident: Path = typer.Option(None, "--incident", help="incident config (origin, floors, floor plans); default: the IPIN museum demo"),
     cv: bool = typer.Option(False, "--cv", help="leave-one-route-out cross-validation of the tuned settings (routes: trial numbers)"),
+    cv_grid: str = typer.Option("pdr", "--cv-grid", help="what --cv chooses: pdr (step length, PDR heading, GNSS spacing) or ble (the beacon model; with --ble)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
     plot: Path = typer.Option(None, "--plot", help="write a PNG per file (track, heading evidence, floors over time) into this folder"),
     submit: Path = typer.Option(None, "--submit", help="write each walk's live estimate in the IPIN 2023 Track 3 result format "
@@ -104,12 +106,18 @@ def eval_ipin(
         raise typer.Exit(code or (1 if bad else 0))
     cache = PdrCache()
     if cv:
-        from service.review.ipin_cv import cross_validate, default_candidate
+        from service.review.ipin_cv import BLE_GRID, TUNING_GRID, cross_validate, default_candidate
         from service.review.ipin_cv import report as cv_report
 
-        res = cross_validate(recordings, cfg, fix_every, not no_gnss, settings, cache=cache, progress=progress)
-        default = default_candidate(settings)
-        report = {**_report(res.runs[default or res.in_sample], fix_every, not no_gnss, engine), "cv": cv_report(res, default)}
+        if cv_grid not in ("pdr", "ble") or (cv_grid == "ble" and not ble):
+            fail(f"--cv-grid must be pdr, or ble with --ble; got {cv_grid!r}")
+            raise typer.Exit(2)
+        grid = BLE_GRID if cv_grid == "ble" else TUNING_GRID
+        res = cross_validate(recordings, cfg, fix_every, not no_gnss, settings, cache=cache, progress=progress,
+                             grid=grid, use_ble=ble)
+        default = default_candidate(settings, grid)
+        report = {**_report(res.runs[default or res.in_sample], fix_every, not no_gnss, engine), "cv": cv_report(res, default),
+                  "ble": ble}
         pooled = report["cv"]["pooled"]["live"]
         report["in_sample_p75_m"] = report["p75_m"]
         report.update(p75_m=pooled["p75_m"], median_m=pooled["median_m"], floor_accuracy=pooled["floor_accuracy"],
@@ -118,10 +126,11 @@ def eval_ipin(
     else:
         runs: list[IpinRun] = []
         for rec in progress(recordings, "tracking"):
-            runs.append(run_ipin(rec, cfg, fix_every, not no_gnss, settings, pdr_cache=cache))
+            runs.append(run_ipin(rec, cfg, fix_every, not no_gnss, settings, pdr_cache=cache, use_ble=ble))
         report = _report(runs, fix_every, not no_gnss, engine)
     if submit is not None:
         report["submission"] = _submit(runs, cfg, submit)
+    report["ble"] = ble
     report["cpu_s"] = time.process_time() - started
     if plot is not None:
         from service.review.ipin_plot import plot_run

@@ -14,6 +14,7 @@ from service.core.tracker import (
     CheckpointFix,
 )
 from service.protocol import wire
+from service.protocol.incident import MAX_BEACONS
 
 log = logging.getLogger("firetrack.service")
 
@@ -58,6 +59,11 @@ class FixIntake:
                 log.warning("%s: checkpoint fix %.0f m from the %s, at most %.0f m walkable: taken, flagged",
                             r.id, verdict.jump_m, verdict.against.replace("_", " "), verdict.walkable_m)
             r.last_checkpoint = Reference(domain.t, domain.x, domain.y, domain.sigma)
+        if getattr(domain, "source", None) == "ble":  # when each beacon was last heard, for Status and the console
+            heard = r.__dict__.setdefault("beacons_heard", {})
+            for reading in domain.readings:
+                if reading.beacon in heard or len(heard) < MAX_BEACONS:
+                    heard[reading.beacon] = max(heard.get(reading.beacon, -math.inf), domain.t)
         pose = r.tracker.on_fix(domain)
         log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
         if pose is not None:

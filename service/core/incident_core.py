@@ -266,6 +266,7 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
             fixes={"applied": tr.fixes_applied, "queued": tr.fixes_queued,
                    **({"flagged": r.fixes_flagged} if r.fixes_flagged else {}),
                    **({"degraded": tr.degraded} if getattr(tr, "degraded", 0) else {})}, utc_offset=r.utc_offset,
+            beacons_heard={b: t - r.t_offset for b, t in getattr(r, "beacons_heard", {}).items()},
             last_fix=tr.last_fix, first_heard=r.first_heard, commands={a: dict(o) for a, o in r.commands.items()},
             lost=g.lost, gap_s=g.gap_s, streams=g.streams, device=g.device, boot=g.boot, seq=g.last_seq,
             missing=None if g.missing is None else list(g.missing),

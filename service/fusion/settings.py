@@ -94,8 +94,9 @@ Issue 32 ("the estimator cannot crash and cannot hide"; service/fusion/walk_gate
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from service.fusion.fixes.ble import BleSettings
 from service.fusion.noise import KERNELS
 
 
@@ -161,6 +162,8 @@ class FusionSettings:
     divergence_m: float = 50.0  # m, a graph pose further than this beyond the walk's radius from the reference has diverged
     divergence_sigma_m: float = 1000.0  # m, a graph pose with a larger position sigma has diverged
     restart_heading_sigma_rad: float = 0.3  # rad, heading sigma of a track restarted from dead reckoning
+    # BLE beacons: the path-loss model and its noise (service/fusion/fixes/ble.py)
+    ble: BleSettings = field(default_factory=BleSettings)
     # published pose
     display_gain: float = 0.5  # share of the gap to the graph's estimate the live pose closes per step (1: none kept)
     # time

@@ -106,13 +106,17 @@ class Checkpoint(_Config):
 
     @model_validator(mode="after")
     def _position_given(self) -> Checkpoint:
-        if (self.x is None) != (self.y is None):
-            raise PydanticCustomError("position", "give x and y together")
-        if (self.lat is None) != (self.lon is None):
-            raise PydanticCustomError("position", "give lat and lon together")
-        if self.x is None and self.lat is None:
-            raise PydanticCustomError("position", "a checkpoint needs x, y (local ENU, m) or lat, lon (deg)")
+        _point_given(self, "a checkpoint")
         return self
+
+
+def _point_given(point, what: str) -> None:
+    if (point.x is None) != (point.y is None):
+        raise PydanticCustomError("position", "give x and y together")
+    if (point.lat is None) != (point.lon is None):
+        raise PydanticCustomError("position", "give lat and lon together")
+    if point.x is None and point.lat is None:
+        raise PydanticCustomError("position", f"{what} needs x, y (local ENU, m) or lat, lon (deg)")
 
 
 class UwbAnchor(_Config):
@@ -128,6 +132,41 @@ class UwbAnchor(_Config):
     z: float = Field(0.0, ge=-MAX_ELEVATION_M, le=MAX_ELEVATION_M,
                      description="m, height above the incident origin's altitude (the datum of floors' elevation_m)")
     floor: int | None = Field(None, description="the floor it is mounted on (informative)")
+
+
+MAX_BEACONS = 512  # a building's beacons and a crew's dropped ones; bounded like every list that reaches the core
+
+
+class Beacon(_Config):
+    """A radio beacon (BLE) at a known place: surveyed, or dropped by a crew (a breadcrumb).
+
+    ``id`` is what a scan names it by (the MAC address the wearable hears, e.g.
+    ``BE:AC:20:23:00:02``, or ``uuid:major:minor``). Give ``x, y`` (ENU, m) or ``lat, lon``
+    (deg); after loading both are filled. ``tx_power_dbm`` is its RSSI at 1 m when known (an
+    iBeacon's "measured power", or calibrated: ``firetrack eval ble``); ``sigma_m`` the 1-sigma
+    of its position (a surveyed one: decimetres; a dropped one: the responder's uncertainty).
+
+    Config: ``{"id": "BE:AC:20:23:00:02", "lat": 49.46129708, "lon": 11.11152175, "floor": -2,
+    "tx_power_dbm": -62}``.
+    """
+
+    id: str = Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9:._\-]+$",
+                    description="what scans name it by: its MAC address, or uuid:major:minor")
+    name: str | None = Field(None, max_length=128, description="a name people use (e.g. the survey's BLE3)")
+    x: float | None = Field(None, description="m, local ENU east of the incident origin")
+    y: float | None = Field(None, description="m, local ENU north of the incident origin")
+    lat: float | None = Field(None, ge=-90.0, le=90.0)
+    lon: float | None = Field(None, ge=-180.0, le=180.0)
+    floor: int
+    height_m: float = Field(1.0, ge=0.0, le=10.0, description="m above its floor")
+    tx_power_dbm: float | None = Field(None, ge=-120.0, le=20.0, description="dBm, RSSI at 1 m (None: the fusion's default)")
+    sigma_m: float = Field(0.5, gt=0.0, le=100.0, description="m, 1-sigma of its position")
+    note: str | None = None
+
+    @model_validator(mode="after")
+    def _position_given(self) -> Beacon:
+        _point_given(self, "a beacon")
+        return self
 
 
 class Member(_Config):
@@ -171,6 +210,8 @@ class IncidentConfig(_Config):
                                         "within it, an operator's fix beyond it is refused")
     checkpoints: list[Checkpoint] = Field(default_factory=list, max_length=MAX_CHECKPOINTS)
     uwb_anchors: list[UwbAnchor] = Field(default_factory=list, max_length=MAX_ANCHORS)
+    beacons: list[Beacon] = Field(default_factory=list, max_length=MAX_BEACONS,
+                                  description="BLE beacons at known places (scans of them are 'ble' fixes)")
     roster: list[Member] = Field(default_factory=list, max_length=MAX_ROSTER,
                                  description="the responders expected, with team and role")
     uwb_tag_height_m: float = Field(1.2, ge=0.0, le=3.0, description="m, height of a responder's UWB tag above the "
@@ -193,6 +234,9 @@ class IncidentConfig(_Config):
         problems += _duplicates("checkpoints", "name", self.checkpoints)
         for i, cp in enumerate(self.checkpoints):
             problems += [f"checkpoints[{i}].{p}" for p in self._resolve_checkpoint(cp)]
+        problems += _duplicates("beacons", "id", self.beacons)
+        for i, b in enumerate(self.beacons):
+            problems += [f"beacons[{i}].{p}" for p in self._resolve_checkpoint(b)]
         problems += _duplicates("uwb_anchors", "id", self.uwb_anchors)
         for i, a in enumerate(self.uwb_anchors):
             if not self.within_extent(a.x, a.y):
@@ -228,7 +272,8 @@ class IncidentConfig(_Config):
                                 f"{fa.elevation_m} m of floor {fa.number} (elevations must rise with the number)")
         self.floors = [self.floors[i] for i in order]
 
-    def _resolve_checkpoint(self, cp: Checkpoint) -> list[str]:
+    def _resolve_checkpoint(self, cp: Checkpoint | Beacon) -> list[str]:
+        """A point's floor checked, and its x, y and lat, lon both filled (checkpoints, beacons)."""
         problems = []
         if cp.floor not in {f.number for f in self.floors}:
             problems.append(f"floor: floor {cp.floor} is not configured; floors: {[f.number for f in self.floors]}")
@@ -301,6 +346,11 @@ class IncidentConfig(_Config):
         else:
             self.checkpoints.append(cp)
         return cp
+
+    def beacon(self, beacon_id: str) -> Beacon | None:
+        """The beacon a scan names (ids compare without case: MAC addresses come in both)."""
+        wanted = beacon_id.upper()
+        return next((b for b in self.beacons if b.id.upper() == wanted), None)
 
     # -- plans --------------------------------------------------------------------------
     def floor_plan(self, floor: int, fallback: bool = False) -> FloorPlan | None:

@@ -325,6 +325,9 @@ class Status(WireMessage):
     steps: int = Field(0, ge=0, description="steps (strides) counted")
     fixes: dict[str, int] = Field(default_factory=dict, description="fixes applied and queued (waiting for a step); "
                                                                     "the rejected ones are in rejected")
+    beacons_heard: dict[str, float] = Field(default_factory=dict, max_length=512,
+                                            description="per beacon of the incident: s, device clock of the newest "
+                                                        "ble scan of the responder that heard it")
     utc_offset: Finite | None = Field(None, description="s: UTC minus the device clock, as the wearable last said")
     lost: int = Field(0, ge=0, description="frames known lost (sequence numbers that never arrived)")
     gap_s: Finite = Field(0.0, ge=0.0, description="s of the responder's time not covered by frames, over all gaps")

@@ -99,6 +99,7 @@ async function start() {
   S.settings = {...S.settings, ...inc.settings};
   S.floors = inc.floors;
   S.checkpoints = inc.checkpoints;
+  S.beacons = inc.beacons || [];
   seedRoster(inc.roster);
   $("incident-name").textContent = `${inc.name || inc.id}`;
   document.title = `firetrack · ${inc.name || inc.id}`;
