@@ -181,6 +181,8 @@ class WalkGate:
         obs = observation(fix)
         if s.walk_gate_probability is None or obs is None or not self._rows:
             return GateVerdict(True)
+        if getattr(fix, "authoritative", False):  # a logged-in operator who sees the responder: a new start
+            return GateVerdict(True, trusted=True)
         row = self._at(float(fix.t))
         if not (math.isfinite(row.x) and math.isfinite(row.y) and np.all(np.isfinite(row.cov))):
             return GateVerdict(True, trusted=True)  # no reference to judge against: it restarts at this fix
