@@ -151,14 +151,15 @@ class WalkGate:
             self._rows.popleft()
 
     def add_gap(self, sigma_m: float) -> None:
-        """No samples for a while: the walker may be anywhere within ``sigma_m`` (m) and facing
-        anywhere, as the graph's own gap factor says, so the reference widens the same way and
-        a fix after the gap can re-anchor the track."""
+        """No samples for a while: the walker may be anywhere within ``sigma_m`` (m) more, as the
+        graph's own gap factor says, so the reference's position widens the same way and a fix
+        after the gap can re-anchor the track. Its heading is not widened (the graph's gap factor
+        does not either): the PDR's heading after the gap is absolute again."""
         if self._state is None or not sigma_m > 0.0:
             return
         t, x, y, th, c, floor = self._state
-        sv, hv = sigma_m * sigma_m, self.s.unknown_turn_sigma_rad ** 2
-        c = (c[0] + sv, c[1], c[2], c[3] + sv, c[4], c[5] + hv)
+        sv = sigma_m * sigma_m
+        c = (c[0] + sv, c[1], c[2], c[3] + sv, c[4], c[5])
         self._state = (t, x, y, th, c, floor)
         self._rows.append(_Row(t, x, y, np.array([[c[0], c[1]], [c[1], c[3]]]), self._walked))
 
