@@ -79,6 +79,15 @@ def _lam_max(c) -> float:
     return 0.5 * (a + d) + math.hypot(0.5 * (a - d), b)
 
 
+def _psd(c: np.ndarray) -> np.ndarray:
+    """The nearest symmetric positive semi-definite 2x2 matrix (eigenvalues clipped at 0)."""
+    c = 0.5 * (np.asarray(c, float) + np.asarray(c, float).T)
+    w, v = np.linalg.eigh(c)
+    if w[0] >= 0.0:
+        return c
+    return (v * np.clip(w, 0.0, None)) @ v.T  # blas-ok: 2x2
+
+
 @dataclass(frozen=True)
 class GateVerdict:
     """``ok`` (the graph may take it), ``trusted`` (it also corrects the reference); ``reason``
@@ -233,7 +242,10 @@ class WalkGate:
             return
         if not verdict.trusted:
             return
-        cov = row.cov + self.allowance(row.walked) ** 2 * np.eye(2)  # the drift the covariance leaves out
+        # the drift the covariance leaves out; made positive semi-definite first: rows corrected by
+        # earlier fixes can drift out of it, and an indefinite cov + σ²I inverted to a gain that
+        # moved the reference 440 m for a fix 12 m away (the robustness suite's hold_z, T04r03)
+        cov = _psd(row.cov) + self.allowance(row.walked) ** 2 * np.eye(2)
         gain = cov @ np.linalg.inv(cov + sigma * sigma * np.eye(2))  # blas-ok: 2x2, one fix at a time
         shift = gain @ nu  # blas-ok: 2x2
         post = (np.eye(2) - gain) @ cov  # blas-ok: 2x2
@@ -245,7 +257,7 @@ class WalkGate:
         for r in self._rows:
             if r.t >= at:
                 r.x, r.y = r.x + float(shift[0]), r.y + float(shift[1])
-                r.cov = r.cov + dcov
+                r.cov = _psd(r.cov + dcov)
                 r.walked = max(r.walked + dwalk, 0.0)
         t, _, _, th, c, floor = self._state
         last = self._rows[-1]
