@@ -66,6 +66,10 @@ _RECORDING_NAMES = {"shared_data", "shared_data_path", "SHARED_DATA"}
 # Tests the look at the code cannot classify, nodeid -> why (e.g. a command run in process that
 # starts a router): none at the time of writing; the guard below names any that appears.
 INTEGRATION: dict[str, str] = {
+    "tests/test_foxglove.py::test_serve_foxglove_prints_where_to_connect":
+        "runs serve in process (CliRunner): its router and the Foxglove server",
+    "tests/test_foxglove.py::test_serve_foxglove_without_the_package_names_the_extra":
+        "runs serve in process (CliRunner) up to its router",
 }
 
 # Unit-candidate tests moved to ``slow``: nodeid (without parameters) -> CPU seconds measured
