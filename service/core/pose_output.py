@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,6 +22,17 @@ from service.protocol.incident import IncidentConfig
 log = logging.getLogger("firetrack.service")
 
 
+class _Pending(NamedTuple):
+    """A pose waiting for the round's end, with what its wire form takes from that moment."""
+
+    place: int  # its index among the round's answers
+    responder: Responder
+    pose: PoseEstimate
+    seq: int  # the newest frame's seq when it was made
+    now: float  # the core's time then (published_at)
+    utc_offset: float | None
+
+
 class Outbox:
     """A round's answers. A pose keeps its place in the order; its wire form is made with the
     round's other poses (one geodetic conversion) when the round's answers are taken."""
@@ -30,7 +42,7 @@ class Outbox:
         self.counters = counters
         self.audits = 0  # Audits answered so far
         self._out: list[Outbound | None] = []
-        self._poses: list[tuple] = []  # (place in _out, responder, pose, seq, core time, utc offset)
+        self._poses: list[_Pending] = []
 
     def put(self, o: Outbound) -> None:
         self._out.append(o)
@@ -42,7 +54,7 @@ class Outbox:
 
     def pose(self, r: Responder, p: PoseEstimate, now: float) -> None:
         """A pose of ``r`` to answer (``now``: the core's time, the Pose's ``published_at``)."""
-        self._poses.append((len(self._out), r, p, max(r.seq, 0), now, r.utc_offset))
+        self._poses.append(_Pending(len(self._out), r, p, max(r.seq, 0), now, r.utc_offset))
         self._out.append(None)
         r.poses += 1
 
@@ -57,16 +69,17 @@ class Outbox:
         if not q:
             return
         try:
-            lat, lon = self.geodetic(np.array([e[2].x for e in q], float), np.array([e[2].y for e in q], float))
+            lat, lon = self.geodetic(np.array([e.pose.x for e in q], float), np.array([e.pose.y for e in q], float))
             lat, lon = lat.tolist(), lon.tolist()
         except Exception:
             self.counters.errors += 1
             log.exception("geodetic position of %d poses", len(q))
             lat = lon = [math.nan] * len(q)
-        for (i, r, p, seq, now, utc_offset), la, lo in zip(q, lat, lon):
+        for e, la, lo in zip(q, lat, lon):
+            r = e.responder
             try:
-                self._out[i] = Outbound(wire.key(self.incident.id, r.id, "pose"),
-                                        pose_message(r, p, la, lo, seq, now, utc_offset))
+                self._out[e.place] = Outbound(wire.key(self.incident.id, r.id, "pose"),
+                                              pose_message(r, e.pose, la, lo, e.seq, e.now, e.utc_offset))
             except Exception:  # a pose that is not a valid message is dropped, counted and logged
                 self.counters.errors += 1
                 log.exception("pose of %s", r.id)
