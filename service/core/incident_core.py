@@ -162,14 +162,6 @@ class IncidentCore:
         return self.rejects.unattributed
 
     @property
-    def access(self) -> wire.Access:
-        return self.desk.access
-
-    @property
-    def audits(self) -> int:
-        return self.outbox.audits
-
-    @property
     def recording_failed(self) -> bool:
         return self.status.recording_failed
 
