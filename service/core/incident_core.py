@@ -194,11 +194,11 @@ class IncidentCore:
         (:meth:`StatusReporter.due`)."""
         self.clock.now = now
         for r in self.roster:
+            if not r.gate.waiting:  # nothing for the gate to settle: the responder does not change
+                continue
+            r = self.roster.changing(r.id)
             try:
-                released = r.gate.expire(now)
-                if released:
-                    self.roster.changing(r.id)
-                for b in released:
+                for b in r.gate.expire(now):
                     self.frames.process(r, b)
             except Exception:
                 self.rejects.error(f"while releasing the held frames of {r.id}", now)
