@@ -174,7 +174,7 @@ class OperatorDesk:
             try:
                 b = Beacon(id=op.name, x=live.x, y=live.y, floor=live.floor, sigma_m=max(semi_major(live.cov), 0.1),
                            note=f"dropped by {op.responder} at device time {live.t:.1f} s ({op.operator})")
-                self.incident._resolve_checkpoint(b)
+                self.incident.resolve_point(b)
             except ValueError as e:  # an id a beacon cannot have
                 refuse = ("schema", str(e).splitlines()[-1][:500])
         if refuse is not None:
