@@ -71,6 +71,11 @@ def tracker_settings_for(incident, engine: str = "fusion") -> TrackerSettings:
 
 
 class ResponderTracker:
+    # restarts counted before the current estimator (class defaults: a tracker pickled before
+    # these were kept reads as none)
+    _degraded_before: int = 0
+    _degraded_at_before: float = math.nan
+
     def __init__(self, responder: str, floors: FloorElevations, start_floor: int = 0,
                  settings: TrackerSettings | None = None, entry: CheckpointFix | None = None,
                  carry: str = DEFAULT_CARRY, fleet=None):
