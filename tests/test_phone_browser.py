@@ -5,10 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import signal
-import subprocess
-import sys
-import threading
 import time
 
 import numpy as np
@@ -17,12 +13,11 @@ import pytest
 from pdr.io import load
 from pdr.recording import Landmarks, Series
 from service.protocol import wire
-from service.protocol.incident import default_incident
 from service.review.ipin_run import run_ipin
 from tests.browser_util import console_stack, launch_chromium
 from tests.conftest import shared_data_path
-from tests.phone_util import SENSOR_FLAGS, Feed, Phone, enrol, post
-from tests.zenoh_util import client, free_port, wait_until
+from tests.phone_util import SENSOR_FLAGS, Feed, Phone, collect, enrol, serving
+from tests.zenoh_util import wait_until
 
 
 @pytest.fixture(scope="module")
@@ -163,38 +158,6 @@ def test_ten_seconds_offline_lose_no_frame(stack, browser):
     assert status["lost"] == 0 and status["rejected"] == {} and status["frames"] == sent
 
 
-@pytest.mark.parametrize("action", ["evacuate", "par"])
-def test_an_order_is_on_the_phone_within_2_s_and_its_ack_reaches_the_console(stack, browser, action):
-    svc, console, cl, cfg = stack
-    rid = {"evacuate": "ff7", "par": "ff8"}[action]
-    phone = Phone(browser, console.url, enrol(console.url, rid)["code"])
-    base = console.url.rstrip("/")
-    try:
-        phone.still()
-        phone.start("chest")
-        _walking(phone, 1.5)
-        assert wait_until(lambda: rid in console.board.responders(), 5)
-        shots = os.environ.get("FIRETRACK_SCREENSHOTS")  # e.g. docs/screenshots: the README's pictures
-        if shots and action == "evacuate":
-            _walking(phone, 3.0)
-            phone.page.screenshot(path=f"{shots}/phone-tracking.png")
-        issued = time.time()
-        status, order = post(base + "/api/command", {"action": action, "responders": [rid]}, base)
-        assert status == 200, order
-        phone.wait("!document.getElementById('order').hidden", timeout_ms=5_000)
-        shown = phone.js("__wear.orders[0]")
-        assert shown["id"] == order["id"] and shown["shown_at"] - issued < 2.0
-        if shots and action == "evacuate":
-            phone.page.screenshot(path=f"{shots}/phone-{action}.png")
-        phone.page.click("#order-ack")
-        assert wait_until(lambda: ((console.board.latest(rid)[1] or {}).get("commands", {}).get(action) or {})
-                          .get("acked_at") is not None, 5)
-        assert phone.js("document.getElementById('order').hidden")
-        print(f"\n{action}: on the phone {shown['shown_at'] - issued:.2f} s after the order; acknowledged")
-    finally:
-        phone.close()
-
-
 IPIN_TRIAL01 = "ipin2023/IPIN2023_T3_TrainingTrial01_repetition01.txt.gz"
 STRETCH_S = (50.0, 130.0)  # s after the walk's first sample: landmarks 0 (the start fix) to 6, 88 steps
 LEAD_IN_S = 15.0  # s of the walk played before the stretch (not scored): the live pipeline warms up
@@ -234,43 +197,14 @@ def _signal_error(t, values, series, lags=np.arange(0.0, 0.0334, 0.002)) -> floa
     return round(min(err(lag) for lag in lags), 3)
 
 
-def _collect(session, key) -> list:
-    items, lock = [], threading.Lock()
-
-    def on(sample):
-        with lock:
-            items.append(wire.decode(sample.payload.to_bytes()))
-    return items, session.declare_subscriber(key, on)
-
-
 def _summary(run) -> tuple[int, float]:
     return len(run.diagnostics["steps"]["t"]), float(np.percentile(run.errors("live").error_m, 75))
 
 
 @pytest.fixture
 def served(tmp_path):
-    """``firetrack serve`` in a process of its own (router, service, console): the feed in this
-    process then shares its interpreter with nothing but zenoh's callbacks."""
-    port, web = free_port(), free_port()
-    log = tmp_path / "serve.log"
-    with open(log, "w") as out:
-        proc = subprocess.Popen([sys.executable, "-m", "client.cli", "serve", "--listen", f"tcp/127.0.0.1:{port}",
-                                 "--port", str(web)], stdout=out, stderr=subprocess.STDOUT, text=True)
-    try:
-        assert wait_until(lambda: "serving incident" in log.read_text() or proc.poll() is not None, 60), log.read_text()
-        assert proc.poll() is None, log.read_text()
-        cl = client(f"tcp/127.0.0.1:{port}")
-        try:
-            yield f"http://127.0.0.1:{web}/", cl, default_incident()
-        finally:
-            cl.close()
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
+    with serving(tmp_path) as srv:
+        yield srv.url, srv.client, srv.cfg
 
 
 @pytest.mark.recording
@@ -287,9 +221,9 @@ def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recordi
     # the file's own figures first: this also compiles the pipeline's kernels, which would
     # otherwise hold this process (and the feed) up for seconds while the phone walks
     ref_steps, ref_p75 = _summary(run_ipin(_stretch(rec, a, b), cfg, fix_every=0, use_gnss=False))
-    frames, sub = _collect(cl, wire.key(cfg.id, "ff3", "imu"))
-    fixes, fsub = _collect(cl, wire.key(cfg.id, "ff3", "fix"))
-    statuses, ssub = _collect(cl, wire.key(cfg.id, "ff3", "status"))
+    frames, sub = collect(cl, wire.key(cfg.id, "ff3", "imu"))
+    fixes, fsub = collect(cl, wire.key(cfg.id, "ff3", "fix"))
+    statuses, ssub = collect(cl, wire.key(cfg.id, "ff3", "status"))
     phone = Phone(browser, url, enrol(url, "ff3")["code"])
     try:
         phone.still()
