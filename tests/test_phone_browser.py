@@ -158,18 +158,17 @@ def test_ten_seconds_offline_lose_no_frame(stack, browser):
     assert status["lost"] == 0 and status["rejected"] == {} and status["frames"] == sent
 
 
-IPIN_TRIAL01 = "ipin2023/IPIN2023_T3_TrainingTrial01_repetition01.txt.gz"
-STRETCH_S = (50.0, 130.0)  # s after the walk's first sample: landmarks 0 (the start fix) to 6, 88 steps
+IPIN_WALK = "ipin2023/IPIN2023_T3_TrainingTrial04_repetition01.txt.gz"
+STRETCH_S = (50.0, 162.0)  # s after the walk's first sample: landmarks 0 (the start fix) to 13, 106 steps
 LEAD_IN_S = 15.0  # s of the walk played before the stretch (not scored): the live pipeline warms up
-# How far the tracked walk may be from the file's. The issue asks for 2 % and 0.5 m, and this
-# machine's runs (the signal interpolated and set every 5 ms, sampled by Chromium at 55-59 Hz,
-# its median error 0.03 m/s² and 0.1-0.2 deg/s) gave 86-88 steps for the file's 88 and landmark
-# p75 1.45, 2.74 and 4.12 m for its 2.81 m: resampling the same walk at a browser's jittered
-# times moves the p75 over these 6 landmarks by more than 0.5 m either way (the offline
-# pipeline on the file itself resampled at 46-60 Hz with that jitter gives 2.2-3.9 m), so the
-# bound here is what the pipeline holds, not the issue's.
-STEP_TOLERANCE = 0.035
-P75_TOLERANCE_M = 1.5
+# How far the tracked walk may be from the file's: the issue's 2 % and 0.5 m. The walk is one
+# whose tracking a browser's way of sampling does not move by itself (tests/test_phone_walk_choice.py:
+# the file resampled at 58 Hz with the browser's jitter, rounding, held gyroscope and 10 Hz
+# magnetometer gives this stretch's p75 within 0.25 m of the file's). On TrainingTrial01_repetition01,
+# the walk this test played before, the same resampling loses 2 of 88 steps in a third of the draws
+# and the p75 over its 6 landmarks jumps by 1 m: the PDR's step detector, not the page.
+STEP_TOLERANCE = 0.02
+P75_TOLERANCE_M = 0.5
 
 
 def _cut(s, a, b):
@@ -209,14 +208,14 @@ def served(tmp_path):
 
 @pytest.mark.recording
 def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recording(served, browser):
-    """80 s of a development IPIN walk (after a 15 s lead-in) played into Chromium's sensor
+    """112 s of a development IPIN walk (after a 15 s lead-in) played into Chromium's sensor
     overrides at the recording's pace; the page's frames, as the service received them, tracked by the offline
     pipeline (landmark 0 as the start fix, no GNSS, no barometer) give the steps of the same
-    stretch of the file within 3.5 %, and landmark errors (p75) within 1.5 m; every frame is
+    stretch of the file within 2 %, and landmark errors (p75) within 0.5 m; every frame is
     acknowledged, none rejected or lost; the console's roster shows the responder; the position
     reaches the service as GNSS fixes with their stated accuracy."""
     url, cl, cfg = served
-    rec = load(shared_data_path(IPIN_TRIAL01))
+    rec = load(shared_data_path(IPIN_WALK))
     a, b = rec.acc.t[0] + STRETCH_S[0], rec.acc.t[0] + STRETCH_S[1]
     # the file's own figures first: this also compiles the pipeline's kernels, which would
     # otherwise hold this process (and the feed) up for seconds while the phone walks
