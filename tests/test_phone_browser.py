@@ -231,6 +231,9 @@ def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recordi
         feed.run()
         phone.page.click("#start")  # stop: the frame in progress goes out
         sent = phone.js("__wear.link.seq")
+        # what the page itself set aside: samples out of order, bunched events, gaps over 0.5 s
+        page_counts = phone.js("({dropped: __wear.cutter.dropped, bunched: __wear.cutter.bunched, gaps: __wear.gaps.length,"
+                               " samples: __wear.samples})")
         assert phone.wait(f"__wear.link.acked === {sent - 1}", timeout_ms=20_000), "not every frame was acknowledged"
         assert wait_until(lambda: len(frames) >= sent and statuses and statuses[-1].frames == sent, 5)
         status = statuses[-1]
@@ -272,7 +275,8 @@ def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recordi
     print(f"\nphone: {sent} frames, {inside.sum()} samples in the stretch at {rate:.1f} Hz, {feed.calls} sensor "
           f"overrides, {stalled:.1f} s of pauses over 0.1 s, {len(fixes)} GNSS fixes ({judged} refused by the service's gates); the file's signal "
           f"reproduced within {fidelity}; steps {steps} (live {live_steps}, with the lead-in) vs {ref_steps} in the "
-          f"file; landmark p75 {p75:.2f} m vs {ref_p75:.2f} m")
+          f"file; landmark p75 {p75:.2f} m vs {ref_p75:.2f} m; the page set aside {page_counts}")
+    assert page_counts["gaps"] == 0 and page_counts["dropped"] == 0
     # the page's samples are the file's, in the same units and axes, on the file's clock: the
     # median error is within the browser's quantisation (0.1 m/s², 0.1 deg/s) plus a poll's lag
     # (the gyroscope's 100 Hz samples change more between polls; deg/s taken as rad/s would be ~57x)

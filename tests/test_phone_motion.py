@@ -16,18 +16,22 @@ ORIGIN = "http://phone.test"
 
 
 @pytest.fixture(scope="module")
-def page():
-    for browser in launch_chromium():
-        p = browser.new_page()
-        # the page's modules as the console serves them (ES modules need http, not file://)
-        p.route(f"{ORIGIN}/**", lambda route: route.fulfill(
-            status=200, content_type="text/javascript" if route.request.url.endswith(".js") else "text/html",
-            body=(STATIC / route.request.url[len(ORIGIN) + 1:]).read_text() if route.request.url.endswith(".js")
-            else "<!DOCTYPE html><title>motion</title>"))
-        p.goto(f"{ORIGIN}/motion.html")
-        p.evaluate(f"async () => {{ window.M = await import('{ORIGIN}/js/wear/motion.js'); }}")
-        yield p
-        p.close()
+def browser():
+    yield from launch_chromium()
+
+
+@pytest.fixture(scope="module")
+def page(browser):
+    p = browser.new_page()
+    # the page's modules as the console serves them (ES modules need http, not file://)
+    p.route(f"{ORIGIN}/**", lambda route: route.fulfill(
+        status=200, content_type="text/javascript" if route.request.url.endswith(".js") else "text/html",
+        body=(STATIC / route.request.url[len(ORIGIN) + 1:]).read_text() if route.request.url.endswith(".js")
+        else "<!DOCTYPE html><title>motion</title>"))
+    p.goto(f"{ORIGIN}/motion.html")
+    p.evaluate(f"async () => {{ window.M = await import('{ORIGIN}/js/wear/motion.js'); }}")
+    yield p
+    p.close()
 
 
 def _cut(page, t: np.ndarray, min_interval_s: float | None = None) -> tuple[list[dict], dict]:

@@ -99,7 +99,7 @@ def test_orders_and_the_man_down_prompt_on_a_phone_are_recorded_and_reprocess_ag
                            f"the console hears the {action} ACK")
                 assert phone.js("document.getElementById('order').hidden")
             # lying still: asked, the console not alarmed
-            asked = still.hold(lambda: not phone.js("document.getElementById('prompt').hidden") and still.status(), 60,
+            asked = still.hold(lambda: not phone.js("document.getElementById('prompt').hidden") and still.status(), 90,
                                "the man-down prompt")
             assert "man_down" not in asked.alarms and asked.man_down_at is not None
             countdown = phone.js("document.getElementById('prompt-count').textContent")
@@ -109,15 +109,20 @@ def test_orders_and_the_man_down_prompt_on_a_phone_are_recorded_and_reprocess_ag
             first_due = asked.man_down_at
             phone.page.click("#prompt-ok")
             answered = phone.js("__wear.prompt.log[0].answered_at")
+            gaps = still.status().gaps
             assert phone.js("document.getElementById('prompt').hidden")
             # past the time man-down was due: the answer cancelled it
             still.hold(lambda: still.status().t > first_due + 5.0, 30, "5 s past the first man-down time")
             assert not any("man_down" in s.alarms for s in statuses), [s.alarms for s in statuses if s.alarms]
             assert still.status().ok_at == pytest.approx(answered, abs=1e-6)
             # still, and no tap this time: man-down at the console, and the page says so
-            down = still.hold(lambda: "man_down" in still.status().alarms and still.status(), 60, "MAN DOWN at the console")
-            assert down.man_down_at == pytest.approx(answered + 34.0, abs=0.6), (  # 30 s still + the state's 4 s lag
-                f"answered {answered:.1f}; {still.diagnosis()}")
+            down = still.hold(lambda: "man_down" in still.status().alarms and still.status(), 90, "MAN DOWN at the console")
+            # 30 s still after the answer + the state's 4 s lag; later only if this loaded machine paused
+            # the feed for over 0.5 s (a gap in the frames: stillness is counted again from its end)
+            if down.gaps == gaps:
+                assert down.man_down_at == pytest.approx(answered + 34.0, abs=0.6), f"answered {answered:.1f}; {still.diagnosis()}"
+            else:
+                assert down.man_down_at > answered + 34.0, f"answered {answered:.1f}; {still.diagnosis()}"
             still.hold(lambda: phone.js("document.getElementById('prompt-count').textContent") == "MAN DOWN SENT TO THE CONSOLE",
                        5, "the page says man-down was raised")
             log = phone.js("__wear.prompt.log")
@@ -134,7 +139,8 @@ def test_orders_and_the_man_down_prompt_on_a_phone_are_recorded_and_reprocess_ag
         assert srv.stop() == 0, srv.log.read_text()[-2000:]
     print(f"\norders on the phone {shown['par']:.2f} s (PAR) and {shown['evacuate']:.2f} s (EVACUATE) after the "
           f"console's; prompts {[{k: round(v, 1) for k, v in p.items() if isinstance(v, float)} for p in log]}; "
-          f"answered at {answered:.1f} s, man-down first due {first_due:.1f} s, raised for {down.man_down_at:.1f} s")
+          f"answered at {answered:.1f} s, man-down first due {first_due:.1f} s, raised for {down.man_down_at:.1f} s "
+          f"({down.gaps - gaps} gaps in the frames after the answer)")
     # in the recording: both orders, both ACKs and the answer, as the phone sent them
     acks = [wire.decode(m.payload) for m in read_recording(recording, kinds=["ack"], responders=[RID])]
     orders = [wire.decode(m.payload) for m in read_recording(recording, kinds=["command"], responders=[RID])]
