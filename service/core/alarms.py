@@ -94,8 +94,11 @@ def man_down(r) -> tuple[str | None, float | None]:
     need = getattr(pipeline, "no_motion_after_s", NO_MOTION_AFTER_S) + getattr(pipeline, "state_delay_s", 0.0)
     answered = getattr(r, "ok_at", -math.inf)
     still = getattr(tr, "motionless_since", math.nan)
-    if not math.isfinite(still):  # a motion model that does not say: its no-motion state alone
-        still = since if motion is MotionState.NO_MOTION else tr.device_time
+    if not math.isfinite(still):  # a motion model that does not say when it last moved: no prompt, its no-motion state
+        if (motion is MotionState.NO_MOTION and _still_observed(r, since)
+                and (answered < since or tr.device_time >= answered + need)):
+            return MAN_DOWN, max(since, answered + need)
+        return None, None
     alarm_at = max(still, answered, getattr(r, "gap_end", -math.inf)) + need
     if (motion is MotionState.NO_MOTION and _still_observed(r, since)
             and (answered < since or tr.device_time >= alarm_at)):
