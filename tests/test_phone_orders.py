@@ -128,6 +128,7 @@ def test_orders_and_the_man_down_prompt_on_a_phone_are_recorded_and_reprocess_ag
             log = phone.js("__wear.prompt.log")
             # the readings stop changing (no more sensor events): the frame in progress goes out
             # and the service takes every frame; man-down stays raised (the prompt covers the page)
+            time.sleep(0.5)  # the page sends its frame in progress once the sensors are quiet for 0.2 s
             assert phone.wait("__wear.link.pending === 0 && __wear.link.seq > 0", timeout_ms=10_000)
             sent = phone.js("__wear.link.seq")
             assert wait_until(lambda: still.status().seq == sent - 1, 10), (sent, still.status().seq)
