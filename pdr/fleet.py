@@ -130,6 +130,12 @@ class FleetMember:
     def state_since(self) -> float:
         return float(self.fleet._mot[self.slot, K.M_SINCE])
 
+    @property
+    def motionless_since(self) -> float:
+        """``PdrPipeline.motionless_since``."""
+        last, first = float(self.fleet._mot[self.slot, K.M_LAST_MOVING]), float(self.fleet._mot[self.slot, K.M_FIRST])
+        return last if math.isfinite(last) else first
+
 
 class PdrFleet:
     """The pipeline of many responders, run a round at a time (module docstring)."""

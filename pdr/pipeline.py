@@ -182,6 +182,13 @@ class PdrPipeline:
         """Device time of the newest sample seen (s); -inf before the first."""
         return self._t_last
 
+    @property
+    def motionless_since(self) -> float:
+        """s, device time of the newest sample that was not motionless (the stillness, if any,
+        began after it; the first sample's time when none moved, NaN before any). Unlike the
+        motion state it is not held back by ``state_delay_s``: motionlessness needs no steps."""
+        return self._last_moving if math.isfinite(self._last_moving) else self._first_sample
+
     def anchor_floor(self, floor: int, t: float | None = None) -> None:
         """A fix says the responder was on ``floor`` at time ``t`` (default: now): re-reference
         height and floor. A fix is applied when the first step after it arrives; if the

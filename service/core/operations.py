@@ -62,6 +62,12 @@ class OperatorDesk:
         if r is None:
             self.rejects.count(f"{kind}_unknown_responder")
             return
+        if kind == "ack" and msg.action == "ok":  # the wearer answered the man-down prompt: the clock starts again
+            t = msg.t + r.t_offset  # the current stream's device clock -> the track's
+            if t > r.ok_at:
+                r.ok_at = t
+                log.info("%s answered the man-down prompt: I'm OK (device t %.1f s)", rid, msg.t)
+            return
         if kind == "command":  # an acknowledgement may have overtaken its order (other key, other path)
             early = r.early_acks.pop((msg.action, msg.id), None)
             r.commands[msg.action] = {"id": msg.id, "issued_at": msg.issued_at, "issued_by": msg.issued_by,

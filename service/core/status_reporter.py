@@ -87,6 +87,7 @@ class StatusReporter:
         for reason, n in self.intake.dropped_of(r.id).items():
             rejected[reason] = rejected.get(reason, 0) + n
         g = r.gate
+        alarm_at = alarms.man_down(r)[1]
         return wire.Status(
             responder=r.id, t=tr.device_time - r.t_offset, motion=motion.value, motion_since=since - r.t_offset,
             alarms=current, alarms_since={k: r.alarm_since[k] for k in current}, rejected=rejected,
@@ -98,4 +99,6 @@ class StatusReporter:
             last_fix=tr.last_fix, first_heard=r.first_heard, commands={a: dict(o) for a, o in r.commands.items()},
             lost=g.lost, gap_s=g.gap_s, streams=g.streams, device=g.device, boot=g.boot, seq=g.last_seq,
             missing=None if g.missing is None else list(g.missing),
+            man_down_at=None if alarm_at is None else alarm_at - r.t_offset,
+            ok_at=r.ok_at - r.t_offset if math.isfinite(r.ok_at) else None,
         )

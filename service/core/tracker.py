@@ -146,6 +146,11 @@ class ResponderTracker:
         return m.state, since
 
     @property
+    def motionless_since(self) -> float:
+        """s, device time the motion model last saw motion (NaN for a model that does not say)."""
+        return getattr(self.model, "motionless_since", math.nan)
+
+    @property
     def device_time(self) -> float:
         """Device time of the newest sample taken (0 before the first)."""
         t = self.model.last_time
