@@ -19,25 +19,69 @@ from service.protocol import wire
 from service.protocol.incident import MAX_BEACONS
 
 log = logging.getLogger("firetrack.service")
+SENDERS_KEPT = 256  # fixes per responder whose sender is remembered until the estimator has judged them
 
 
 class FixIntake:
     """Fixes for a responder: validation, the device clock, plausibility, the graph."""
 
+    _sender_in_hand: str | None = None  # the anchor of the fix being taken (None: the wearable's own key)
+    _fix_actor: str | None = None  # who sent the device fix being taken: its refusals are audited with it
+
     def _on_fix(self, key: str, payload: bytes, now: float) -> None:
         rid, r = self._source_of(key, now, "bad_key")
         if rid is None:
             return
-        fix, r = self._decode_for(rid, r, payload, wire.Fix, now)
+        self._sender_in_hand = wire.fix_sender(key)  # an anchor's key names it (kept with a held fix)
+        self._fix_actor = self._sender_in_hand or rid
+        try:
+            fix, r = self._decode_for(rid, r, payload, wire.Fix, now)
+            if fix is not None:
+                self._take_device_fix(r, fix, self._sender_in_hand, now)
+        finally:
+            self._fix_actor = None
+
+    def _take_device_fix(self, r: Responder, fix: wire.Fix, anchor: str | None, now: float) -> None:
+        """A fix from a device (the responder's wearable, or ``anchor``) by role, then to the
+        track; every refusal is counted and audited with the identity that sent it."""
+        sender = self._fix_actor = anchor or r.id  # the bare fix key is the wearable's
+        fix, reason, detail = self._by_role(r, sender, fix)
         if fix is None:
+            self._count_fix_reject(r, reason, detail)
             return
-        outcome, reason, detail, verdict = self._take_fix(r, fix)
+        outcome, reason, detail, verdict = self._take_fix(r, fix, sender=sender)
         if verdict is not None and verdict.implausible:  # a device's checkpoint fix: taken, flagged, audited
-            self._audit(wire.Audit(actor=r.id, action="device_fix", outcome=outcome, responder=r.id, reason=reason,
+            self._audit(wire.Audit(actor=sender, action="device_fix", outcome=outcome, responder=r.id, reason=reason,
                                    detail=detail, flags=["implausible_jump"], jump_m=verdict.jump_m,
                                    walkable_m=verdict.walkable_m, t=fix.t, received=now))
 
-    def _take_fix(self, r: Responder, fix: wire.Fix, authoritative: bool = False):
+    def _by_role(self, r: Responder, sender: str, fix: wire.Fix):
+        """What ``sender`` may claim of ``r`` (issue 32): ``(fix, None, None)`` to go on, or
+        ``(None, reason, detail)``.
+
+        * An **anchor** (its key ``{r}/fix-{anchor}``) sends UWB ranges from its own anchor id
+          only: nothing else is a measurement it can make.
+        * The responder's own **wearable**, when access is enforced (TLS with a roster), places
+          itself only at a *surveyed* checkpoint it passes: the fix names a checkpoint of the
+          incident, and its position, σ and floor are the config's, whatever the message says.
+          A checkpoint at ``x``, ``y`` is an operator's (the console, with a login), never a
+          device's; so no device can drag a track by checkpoints, however consistent.
+        """
+        if sender != r.id:
+            if fix.source != "uwb":
+                return None, "not_an_anchor_fix", (f"anchor {sender} sent a {fix.source} fix for {r.id}: an anchor "
+                                                   "sends its own UWB ranges only")
+            if fix.anchor != sender:
+                return None, "wrong_anchor", (f"anchor {sender} sent a range from anchor {fix.anchor!r} for {r.id}: "
+                                              "an anchor sends its own ranges only")
+        elif fix.source == "checkpoint" and self.access.enforce:
+            if fix.name is None:
+                return None, "unsurveyed_checkpoint", (f"{r.id}'s wearable sent a checkpoint at x, y: a device names a "
+                                                       "surveyed checkpoint of the incident (x, y are an operator's)")
+            fix = fix.model_copy(update={"x": None, "y": None, "sigma": None, "floor": None})
+        return fix, None, None
+
+    def _take_fix(self, r: Responder, fix: wire.Fix, authoritative: bool = False, sender: str | None = None):
         """A decoded fix for ``r`` to its tracker: ``(outcome, reason, detail, verdict)``,
         outcome ``accepted`` or ``refused`` (reason and detail say why), ``verdict`` the
         plausibility of a checkpoint fix (None for other sources). An ``authoritative`` checkpoint
@@ -70,11 +114,33 @@ class FixIntake:
             for reading in domain.readings:
                 if reading.beacon in heard or len(heard) < MAX_BEACONS:
                     heard[reading.beacon] = max(heard.get(reading.beacon, -math.inf), domain.t)
+        senders = r.__dict__.setdefault("fix_senders", {})  # (source, t) -> who sent it, for the audits of
+        senders[(domain.source, float(domain.t))] = sender or r.id  # fixes the walk gate holds out later
+        while len(senders) > SENDERS_KEPT:
+            del senders[next(iter(senders))]
         pose = r.tracker.on_fix(domain)
+        if (domain.source, float(domain.t)) in self._audit_held_out(r):  # judged at once: held out
+            return "refused", "walk_gate", "held out by the estimator: further than the walk allows", verdict
         log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
         if pose is not None:
             self._answer_pose(r, pose)
         return "accepted", None, None, verdict
+
+    def _audit_held_out(self, r: Responder) -> set:
+        """An audit for each fix the estimator held out since the last look (the walk gate),
+        naming who sent it (``fix_senders``): a refusal on the console with its identity.
+        Returns their ``(source, t)``."""
+        held = getattr(r.tracker, "held_out", None)
+        senders = r.__dict__.get("fix_senders", {})
+        seen = set()
+        while held:
+            source, t, reason = held.popleft()
+            seen.add((source, t))
+            self._audit(wire.Audit(actor=senders.get((source, t), r.id), action="device_fix", outcome="refused",
+                                   responder=r.id, reason=f"fix_{reason}", t=t, received=self._now,
+                                   detail=f"{source} fix held out by the estimator ({reason}): further from dead "
+                                          "reckoning than the walk allows"))
+        return seen
 
     def _plausibility(self, r: Responder, fix: CheckpointFix):
         """The checkpoint fix against the last checkpoint and the current estimate
@@ -123,3 +189,6 @@ class FixIntake:
             r.rejects.append(self._now)
             self.intake.note_reject(r.id, self._now)
         self.reject_log.note(r.id, f"fix_{reason}", detail, self._now)
+        if self._fix_actor is not None:  # a device's fix (an operator's is audited by its action)
+            self._audit(wire.Audit(actor=self._fix_actor, action="device_fix", outcome="refused", responder=r.id,
+                                   reason=f"fix_{reason}", detail=detail[:500], received=self._now))

@@ -20,7 +20,7 @@ class HeldFixes:
 
     MAX_HELD_FIXES = 256  # fixes kept for ids with no responder (over all ids; beyond, the oldest go)
     HELD_FIX_S = 10.0  # s such a fix waits for its responder's first frame
-    _held_fixes: dict = {}  # rid -> [(received, Fix)]: fixes that came before their responder's first frame
+    _held_fixes: dict = {}  # rid -> [(received, Fix, anchor or None)]: fixes that came before their responder's first frame
 
     def _hold_fix(self, rid: str, fix: wire.Fix, now: float) -> None:
         """A fix for an id with no responder: held (bounded) for :data:`HELD_FIX_S`, so a
@@ -29,7 +29,7 @@ class HeldFixes:
         if not self._held_fixes:
             self._held_fixes = {}
         held = self._held_fixes
-        held.setdefault(rid, []).append((now, fix))
+        held.setdefault(rid, []).append((now, fix, getattr(self, "_sender_in_hand", None)))
         while sum(len(v) for v in held.values()) > self.MAX_HELD_FIXES:
             old = next(iter(held))
             held[old].pop(0)
@@ -39,17 +39,23 @@ class HeldFixes:
 
     def _take_held_fixes(self, r: Responder, now: float) -> None:
         """The fixes held for a responder just made, in the order they came (as if it had been there)."""
-        for received, fix in self._held_fixes.pop(r.id, []) if self._held_fixes else []:
-            if now - received <= self.HELD_FIX_S:
-                self._take_fix(r, fix)
+        for received, fix, *anchor in self._held_fixes.pop(r.id, []) if self._held_fixes else []:
+            if now - received <= self.HELD_FIX_S:  # judged by who sent it, as if the responder had been there
+                try:
+                    self._take_device_fix(r, fix, anchor[0] if anchor else None, now)
+                finally:
+                    self._fix_actor = None
             else:
                 self._unattributed("fix_unknown_responder", r.id, "a fix that came too long before its first frame", now)
 
     def _expire_held_fixes(self, now: float) -> None:
         for rid in [rid for rid, v in self._held_fixes.items() if now - v[-1][0] > self.HELD_FIX_S]:
-            for _ in self._held_fixes.pop(rid):
-                self._unattributed("fix_unknown_responder", rid, f"no frame of {rid!r} came within "
-                                                              f"{self.HELD_FIX_S:g} s of its fix", now)
+            for _, _, *anchor in self._held_fixes.pop(rid):
+                detail = f"no frame of {rid!r} came within {self.HELD_FIX_S:g} s of its fix"
+                self._unattributed("fix_unknown_responder", rid, detail, now)
+                self._audit(wire.Audit(actor=(anchor[0] if anchor else None) or rid, action="device_fix",
+                                       outcome="refused", responder=rid, reason="fix_unknown_responder", detail=detail,
+                                       received=now))
 
     def _unattributed(self, reason: str, rid: str, detail: str, now: float) -> None:
         self.unattributed[reason] = self.unattributed.get(reason, 0) + 1

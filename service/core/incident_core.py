@@ -207,6 +207,7 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         return max(1, math.ceil(idle * dt / self.settings.idle_status_every_s))
 
     def _send_status(self, r: Responder, now: float, current: list[str]) -> None:
+        self._audit_held_out(r)  # fixes held out while frames ran (service.core.fix_intake)
         st = self.status_of(r, now, current)  # built only when sent: a crowd of silent ids is cheap
         self._out.append(Outbound(wire.key(self.id, r.id, "status"), st))
         r.last_status, r.last_alarms = now, st.alarms

@@ -144,7 +144,7 @@ class OperatorDesk:
                                           f"({self.incident.extent_m:g} m from the origin)"))
             return
         self._touch(r)
-        outcome, reason, detail, verdict = self._take_fix(r, fix, authoritative=True)
+        outcome, reason, detail, verdict = self._take_fix(r, fix, authoritative=True, sender=actor)
         flagged = verdict is not None and verdict.implausible
         self._audit(wire.Audit(outcome=outcome, reason=reason, detail=detail, t=fix.t,
                                flags=["implausible_jump"] if flagged else [],

@@ -29,6 +29,7 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,6 +44,8 @@ from service.fusion.estimators import (
     make_estimator,
 )
 from service.fusion.fixes import CheckpointFix  # noqa: F401  (re-exported: the tracker's fix type)
+
+HELD_OUT_KEPT = 64  # fixes held out by the estimator kept for the core's audits (source, t, reason)
 
 __all__ = ["CheckpointFix", "PoseEstimate", "ResponderTracker", "TrackerSettings", "tracker_settings_for"]
 
@@ -338,6 +341,8 @@ class ResponderTracker:
             self.fixes_rejected += 1
             reason = outcome.reason or "gated"
             self.fix_rejects[reason] = self.fix_rejects.get(reason, 0) + 1
+            held = self.__dict__.setdefault("held_out", deque(maxlen=HELD_OUT_KEPT))  # the core audits them
+            held.append((getattr(fix, "source", type(fix).__name__), float(fix.t), reason))
             return None
         self.fixes_applied += 1
         self.last_fix = {"source": getattr(fix, "source", type(fix).__name__), "t": float(fix.t)}

@@ -21,7 +21,8 @@ wearable        put ``firetrack/{i}/{me}/imu``, ``.../{me}/fix`` and ``.../{me}/
                 liveliness token, heartbeat and replies on ``.../{me}/imu/@adv/**`` and
                 ``.../{me}/fix/@adv/**``, and it hears the service's history queries there).
                 Nothing else: no other responder's keys, no pose, no other Status
-anchor          put ``firetrack/{i}/*/fix`` (UWB/GNSS infrastructure measures any responder)
+anchor          put ``firetrack/{i}/*/fix-{me}`` (its own ranges to any responder; the key names
+                the anchor, and the service takes only UWB ranges whose ``anchor`` is ``{me}``)
 console,        subscribe to ``*/pose``, ``*/status``, ``*/audit``; query ``*/track``; put
 operator        ``firetrack/{i}/{me}/op`` (its own actions only) and orders ``*/command``
 viewer          subscribe to ``*/pose``, ``*/status``, ``*/audit``; query ``*/track``
@@ -78,7 +79,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from service.protocol.keys import KEY_ROOT, check_id
+from service.protocol.keys import ANCHOR_FIX, KEY_ROOT, check_id
 from service.protocol.tls import ROLES
 
 ACTING_ROLES = ("service", "console", "operator")  # may publish operator actions
@@ -250,7 +251,6 @@ def access_control(roster: Roster, incident: str | None = None) -> dict:
         _rule("read-out", ["put"], ["egress"], [f"{root}/*/pose", f"{root}/*/status", f"{root}/*/audit"]),
         _rule("tracks-query", ["query"], ["ingress"], [f"{root}/*/track"]),
         _rule("tracks-reply", ["reply"], ["egress"], [f"{root}/*/track"]),
-        _rule("anchor-fixes", ["put"], ["ingress"], [f"{root}/*/fix"]),
         _rule("orders", ["put"], ["ingress"], [f"{root}/*/command"]),
         # the service's history and recovery queries reach every keeper of frames (they carry
         # no data; each wearable's keep answers for its own key only, which its reply rule binds)
@@ -270,8 +270,10 @@ def access_control(roster: Roster, incident: str | None = None) -> dict:
     if subject("readers", roster.names(*READING_ROLES, "gateway")):
         policies.append({"id": "readers", "rules": ["read-in", "read-out", "tracks-query", "tracks-reply"],
                          "subjects": ["readers"]})
-    if subject("anchors", roster.names("anchor")):
-        policies.append({"id": "anchors", "rules": ["anchor-fixes"], "subjects": ["anchors"]})
+    for name in roster.names("anchor"):  # an anchor puts on keys that name it: the service knows who sent a fix
+        rules.append(_rule(f"anchor-{name}", ["put"], ["ingress"], [f"{root}/*/{ANCHOR_FIX}{name}"]))
+        subject(f"anchor-{name}", [name])
+        policies.append({"id": f"anchor-{name}", "rules": [f"anchor-{name}"], "subjects": [f"anchor-{name}"]})
     if subject("actors", roster.names("console", "operator")):
         policies.append({"id": "actors", "rules": ["orders"], "subjects": ["actors"]})
     if subject("keepers", roster.names("wearable", "simulator", "gateway")):
