@@ -170,6 +170,12 @@ def test_attacks_1_to_7_with_tls_on_move_no_track_and_every_refusal_is_named(pki
             # 1 and 3: an anchor sends ranges only; 3: a phone's checkpoints name a surveyed point
             assert named["a1"].get("fix_not_an_anchor_fix") == 11 == rej.get("fix_not_an_anchor_fix")
             assert named["ff2"].get("fix_unsurveyed_checkpoint") == 10 == rej.get("fix_unsurveyed_checkpoint")
+            # a fix the estimator cannot take is an alarm, within 2 s of the first one
+            assert "fixes_refused" in figures["ff2"]["alarms_seen"]
+            first = min(a.received for a in audits.items if a.responder == "ff2" and a.outcome == "refused")
+            raised = min(at for at, st in watch.history.get("ff2", []) if "fixes_refused" in st.alarms)
+            print(f"FIGURE fixes_refused raised {raised - first:.2f} s after ff2's first refused fix")
+            assert 0.0 <= raised - first <= 2.0
             # 2: its own ranges reach the estimator, which holds out what the walk does not allow
             assert named["a1"].get("fix_walk_gate", 0) >= 50 and rej.get("fix_walk_gate", 0) >= 50
             # 4: the garbage is counted (what got past the anchor lane's budget), ff2 is not flooding

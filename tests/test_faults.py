@@ -43,6 +43,7 @@ class Watch:
         self.poses: dict[str, list] = {}
         self.alarms: dict[str, set] = {}
         self.status: dict[str, wire.Status] = {}
+        self.history: dict[str, list] = {}  # (time received here, Status)
         self._lock = threading.Lock()
         self._subs = [session.declare_subscriber(wire.key_all(CFG.id, k), self._on) for k in ("pose", "status")]
 
@@ -53,6 +54,7 @@ class Watch:
                 self.poses.setdefault(msg.responder, []).append(msg)
             else:
                 self.status[msg.responder] = msg
+                self.history.setdefault(msg.responder, []).append((time.time(), msg))
                 self.alarms.setdefault(msg.responder, set()).update(msg.alarms)
 
     def close(self):

@@ -19,6 +19,7 @@ from service.protocol import wire
 from service.protocol.incident import MAX_BEACONS
 
 log = logging.getLogger("firetrack.service")
+ROUTINE_GATED = ("gnss", "ble")  # sources a wearable measures itself whose gating is routine, not news
 SENDERS_KEPT = 256  # fixes per responder whose sender is remembered until the estimator has judged them
 
 
@@ -136,7 +137,11 @@ class FixIntake:
         while held:
             source, t, reason = held.popleft()
             seen.add((source, t))
-            self._audit(wire.Audit(actor=senders.get((source, t), r.id), action="device_fix", outcome="refused",
+            sender = senders.get((source, t), r.id)
+            if sender == r.id and source in ROUTINE_GATED:  # the wearable's own radio fixes, gated as usual:
+                continue  # counted in Status.rejected, no audit or alarm (GNSS indoors is gated all the time)
+            r.last_fix_refused = self._now
+            self._audit(wire.Audit(actor=sender, action="device_fix", outcome="refused",
                                    responder=r.id, reason=f"fix_{reason}", t=t, received=self._now,
                                    detail=f"{source} fix held out by the estimator ({reason}): further from dead "
                                           "reckoning than the walk allows"))
@@ -185,6 +190,7 @@ class FixIntake:
 
     def _count_fix_reject(self, r: Responder, reason: str, detail: str) -> None:
         r.fixes_rejected[reason] = r.fixes_rejected.get(reason, 0) + 1
+        r.last_fix_refused = self._now  # the fixes_refused alarm (service.core.alarms)
         if reason in wire.REJECT_REASONS:  # not a fix at all: the source's budget hears of it
             r.rejects.append(self._now)
             self.intake.note_reject(r.id, self._now)
