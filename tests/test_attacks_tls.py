@@ -23,7 +23,7 @@ from service.core.incident_core import Inbound, IncidentCore
 from service.protocol import wire
 from service.protocol.incident import UwbAnchor, default_incident
 from service.shell.service import ServiceSettings
-from tests.faults import walker
+from tests.faults import shut_down, walker
 from tests.security_util import INCIDENT, identity, make_pki, put_routed, secure_service, tls_client, walking_frames
 from tests.test_faults import Watch
 from tests.zenoh_util import wait_until
@@ -193,9 +193,4 @@ def test_attacks_1_to_7_with_tls_on_move_no_track_and_every_refusal_is_named(pki
             assert not named["a2"] and named["ff2"].get("fix_unsurveyed_checkpoint") == 10
             assert svc.core.counters.errors == 0
         finally:
-            for w in walkers.values():
-                if w.report is None:
-                    w.close(0.0)
-            for s in attackers.values():
-                s.close()
-            watch.close()
+            shut_down(walkers.values(), (), *attackers.values(), watch)

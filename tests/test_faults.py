@@ -29,7 +29,15 @@ from service.protocol import wire
 from service.protocol.incident import default_incident
 from service.protocol.session import client_config, free_local_port, router_config
 from service.shell.service import IncidentService, ServiceSettings
-from tests.faults import RouterProcess, TcpProxy, WalkerWearable, hostile_messages, reference, walker  # noqa: F401
+from tests.faults import (  # noqa: F401
+    RouterProcess,
+    TcpProxy,
+    WalkerWearable,
+    hostile_messages,
+    reference,
+    shut_down,
+    walker,
+)
 from tests.security_util import identity
 from tests.zenoh_util import wait_until
 
@@ -155,14 +163,7 @@ def test_outages_of_10_and_40_s_and_a_killed_wearable_lose_nothing_silently():
         for p in (killed,):
             if p is not None and p.poll() is None:
                 p.kill()
-        for w in walkers.values():
-            if w.report is None:
-                w.close(0.0)
-        for p in proxies.values():
-            p.close()
-        watch.close()
-        svc.close()
-        session.close()
+        shut_down(walkers.values(), proxies.values(), watch, svc, session)
 
 
 def test_an_outage_zenoh_cannot_fill_is_filled_by_the_wearables_own_resend():

@@ -19,7 +19,7 @@ import pytest
 from service.protocol.access import access_control, access_message, load_roster
 from service.protocol.session import free_local_port, open_session
 from service.shell.service import IncidentService, ServiceSettings
-from tests.faults import TcpProxy, reference, walker
+from tests.faults import TcpProxy, reference, shut_down, walker
 from tests.security_util import identity, make_pki
 from tests.test_faults import CFG, Watch, delivery_figures, figure, same_track, serve_killed_and_restarted
 from tests.zenoh_util import wait_until
@@ -69,14 +69,7 @@ def test_outages_of_10_and_40_s_with_tls_lose_nothing_and_every_frame_is_acknowl
             assert report["unacknowledged"] == 0 and report["flushed"] and report["acked_seq"] == w.frames[-1].seq
             assert same_track(watch.poses[r], ref) < 1e-6
     finally:
-        for w in walkers.values():
-            if w.report is None:
-                w.close(0.0)
-        for p in proxies.values():
-            p.close()
-        watch.close()
-        svc.close()
-        session.close()
+        shut_down(walkers.values(), proxies.values(), watch, svc, session)
 
 
 def test_serve_tls_killed_mid_walk_loses_nothing(pkidir, tmp_path):

@@ -143,8 +143,9 @@ class FixIntake:
             r.last_fix_refused = self._now
             self._audit(wire.Audit(actor=sender, action="device_fix", outcome="refused",
                                    responder=r.id, reason=f"fix_{reason}", t=t, received=self._now,
-                                   detail=f"{source} fix held out by the estimator ({reason}): further from dead "
-                                          "reckoning than the walk allows"))
+                                   detail=f"{source} fix held out by the estimator ({reason})" + (
+                                       ": further from dead reckoning than the walk allows"
+                                       if reason == "walk_gate" else "")))
         return seen
 
     def _plausibility(self, r: Responder, fix: CheckpointFix):
