@@ -14,6 +14,10 @@
 ``track_degraded``  the estimator could not take an input and restarted the track from dead
                     reckoning (:class:`service.fusion.estimators.FusionEstimator`), within the last
                     ``TRACK_DEGRADED_S`` of the responder's walk
+``fixes_refused``   a fix for the responder was refused within ``rejected_window_s``: by the
+                    sender's role, undecodable, or held out by the estimator as further than
+                    the walk allows (:mod:`service.core.fix_audit`; the audits name who sent it;
+                    the wearable's own GNSS and BLE, gated routinely indoors, raise none)
 ==================  ==========================================================================
 
 Man-down is judged on frames: a no-motion state whose stillness began before a gap in the
@@ -34,6 +38,7 @@ RECORDING = "recording_failed"
 FLOODING = "flooding"
 CONTESTED = "stream_contested"
 TRACK_DEGRADED = "track_degraded"
+FIXES_REFUSED = "fixes_refused"
 TRACK_DEGRADED_S = 30.0  # s of device time a restarted track stays flagged: long enough to be seen
 NO_MOTION_AFTER_S = 30.0  # s of stillness that make no motion, when the motion model does not say (the PASS rule)
 UNANSWERED = {"par": "par_unanswered", "evacuate": "evacuation_unacknowledged"}
@@ -58,8 +63,10 @@ def of_responder(r, now: float, settings, recording_failed: bool = False, floodi
         out.append(FLOODING)
     if now - r.gate.last_contested <= settings.rejected_window_s:
         out.append(CONTESTED)
-    if r.tracker.device_time - getattr(r.tracker, "degraded_at", math.nan) <= TRACK_DEGRADED_S:
+    if r.tracker.device_time - r.tracker.degraded_at <= TRACK_DEGRADED_S:
         out.append(TRACK_DEGRADED)
+    if now - r.last_fix_refused <= settings.rejected_window_s:
+        out.append(FIXES_REFUSED)
     for action, order in r.commands.items():
         if order["acked_at"] is None and now - order["issued_at"] > settings.command_answer_s:
             out.append(UNANSWERED[action])
