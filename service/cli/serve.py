@@ -52,6 +52,9 @@ def serve_command(
     port: int = typer.Option(8080, "--port", help="web console port"),
     seconds: float = typer.Option(math.inf, "--seconds", help="stop after this long (default: until Ctrl-C)"),
     workers: int = typer.Option(1, "--workers", help="worker processes sharing the responders (one per core)"),
+    catch_all: bool = typer.Option(False, "--catch-all", help="with --workers > 1: also hear sources that declare no "
+                                                              "presence token (a replay, a third-party device); every "
+                                                              "frame then reaches every worker"),
     max_responders: int = typer.Option(1024, "--max-responders", help="responders kept at once; new ids beyond are refused"),
     admit_burst: float = typer.Option(256, "--admit-burst", help="new responder ids admitted at once ..."),
     admit_per_s: float = typer.Option(2.0, "--admit-per-s", help="... and per second after that"),
@@ -76,6 +79,7 @@ def serve_command(
     cfg = incident_or_exit(config, incident_id or (security.roster.incident if security and security.roster else None))
     warn_plan_problems(cfg)
     settings = _service_settings(cfg, security, max_responders, admit_burst, admit_per_s, roster_only, expire_after)
+    settings.catch_all = catch_all
     if workers < 1:
         fail(f"--workers must be at least 1, got {workers}")
         raise typer.Exit(2)

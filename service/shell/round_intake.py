@@ -11,6 +11,7 @@ import queue
 import zenoh
 
 from service.core.incident_core import Inbound
+from service.shell.sharding import in_shard
 
 log = logging.getLogger("firetrack.service")
 
@@ -22,14 +23,17 @@ class RoundIntake:
         """Frames, then fixes, waiting in zenoh's channels for this worker's responders, each
         through the intake (by key and size, before its payload is copied) and stamped as taken."""
         out: list[Inbound] = []
-        for kind, sub in (("imu", self._imu), ("fix", self._fix)):
-            if sub is None:
-                continue
-            self._take_from(kind, sub, out, limit)
+        for kind, sub, routed in self._frame_subscribers():
+            if limit is not None and len(out) >= limit:
+                break
+            self._take_from(kind, sub, out, limit, routed)
         return out
 
-    def _take_from(self, kind: str, sub, out: list[Inbound], limit: int | None) -> None:
-        admit, clock, mine = self.core.admit, self.clock, self._mine
+    def _take_from(self, kind: str, sub, out: list[Inbound], limit: int | None, routed: bool = False) -> None:
+        """From one subscriber: a route's samples are this worker's; the incident's wildcard
+        (one worker, or the catch-all) gives the ids of its shard that have no route."""
+        admit, clock, heard, k, n = self.core.admit, self.clock, self.heard, *self.shard
+        routed_keys = self._routed_keys
         while limit is None or len(out) < limit:
             try:
                 sample = sub.try_recv()
@@ -38,7 +42,9 @@ class RoundIntake:
             if sample is None:
                 break
             key = str(sample.key_expr)
-            if not mine(key):
+            own = n == 1 or in_shard(key, k, n)  # the key is split once, and remembered (in_shard's cache)
+            heard["own" if own else "others"] += 1
+            if not own or (not routed and key in routed_keys):  # another's, or its route brings it
                 continue
             payload = sample.payload
             now = clock()
@@ -70,6 +76,8 @@ class RoundIntake:
                 if self.core.admit(p[0], p[1], len(p[2]), now) is None:
                     items.append(Inbound(*p, now))
             else:  # presence (liveliness), access (this process's own policy)
+                if p[0] == "presence" and self.shard[1] > 1:  # one of this worker's own: its route
+                    self._route_presence(p[1], p[2] == b"1")
                 items.append(Inbound(*p, self.clock()))
         if stop:
             items += self._take_frames(None)

@@ -29,6 +29,10 @@ whenever the publisher's heartbeat shows samples it missed (an outage, a router 
 order. What could not be fetched any more is a gap in the seq numbers, counted by the frame
 gate (``Status.lost``); zenoh's own miss reports are counted in ``missed``.
 
+Shards. With ``--workers K > 1`` a worker subscribes to its own responders' keys only, each
+declared when that responder's presence token appears (:mod:`service.shell.shard_routes`);
+the diagram's wildcards are then the presence and the few callback kinds.
+
 Snapshots. With a recorder and a state file (:class:`service.review.resume.StateFile`), the
 worker writes the core's snapshot beside the recording every ``snapshot_every_s`` after a
 round, once what the core has seen is safely in the recording; ``serve`` resumes from it.
@@ -45,12 +49,12 @@ from dataclasses import dataclass, field
 
 import msgpack
 import zenoh
-import zenoh.ext as zext
 
 from service.core.incident_core import CoreSettings, Inbound, IncidentCore, Outbound
 from service.protocol import wire
 from service.protocol.incident import IncidentConfig
 from service.shell.round_intake import RoundIntake
+from service.shell.shard_routes import ShardRoutes
 from service.shell.sharding import in_shard
 from service.shell.snapshots import SnapshotWriter, fix_mmap_threshold, return_memory
 
@@ -70,10 +74,11 @@ class ServiceSettings:
     snapshot_batch: int = 32  # responders pickled afresh per round while a snapshot waits (service/shell/snapshots.py)
     idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
     warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
+    catch_all: bool = False  # --workers > 1: also the incident's wildcard, for sources without a presence token
     mmap_threshold_bytes: int | None = 128 * 1024  # bytes: larger blocks mapped alone, returned when freed (None: glibc's)
 
 
-class IncidentService(RoundIntake, SnapshotWriter):
+class IncidentService(RoundIntake, ShardRoutes, SnapshotWriter):
     """The service of one incident on an open zenoh session: ``start()``, ``close()``."""
 
     def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
@@ -113,6 +118,10 @@ class IncidentService(RoundIntake, SnapshotWriter):
         self._publishers: dict[str, object] = {}
         self._imu = None  # the frames' subscriber (a zenoh FIFO channel), once started
         self._fix = None  # the fixes' subscriber
+        self._routes: dict[str, tuple] = {}  # --workers > 1: responder id -> its (imu, fix, miss listeners) (shard_routes.py)
+        self._routed_keys: set[str] = set()  # the keys those subscribers are on
+        self._present: set[str] = set()  # own responders whose presence token is up
+        self.heard = {"own": 0, "others": 0}  # samples taken from the frames' subscribers, by owner (this worker or not)
         self.access = access  # the policy fed to the core before any input (None: the open demo)
         self._looks = 0  # times the worker looked for input ...
         self._last_busy_look = 0  # ... and the last time it found some (wait_idle)
@@ -154,19 +163,8 @@ class IncidentService(RoundIntake, SnapshotWriter):
         if self.access is not None:  # the policy is the core's (and the recording's) first input
             self._run_round([Inbound("access", self._access_key(), wire.encode(self.access), self.clock())], 0)
         s = self.session
-        st = self.settings
-        self._imu = zext.declare_advanced_subscriber(
-            s, wire.key_all(self.id, "imu"), zenoh.handlers.FifoChannel(st.imu_channel),
-            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=st.history_frames),
-            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
-        # fixes: recovered after a miss, but never fetched again on detection (a fix applied
-        # before a restart must not be applied twice; frames have seq numbers, fixes do not)
-        self._fix = zext.declare_advanced_subscriber(
-            s, wire.key_all(self.id, "fix"), zenoh.handlers.FifoChannel(st.fix_channel),
-            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
+        self._declare_frame_subscribers()  # the wildcard, or routes per announced responder (shard_routes.py)
         self._decl += [
-            self._imu.sample_miss_listener(self._on_miss),
-            self._fix.sample_miss_listener(self._on_miss),
             s.declare_subscriber(wire.key_all(self.id, "command"), self._enqueue),
             s.declare_subscriber(wire.key_all(self.id, "ack"), self._enqueue),
             s.declare_subscriber(wire.key_all(self.id, "op"), self._enqueue_op),
@@ -207,6 +205,7 @@ class IncidentService(RoundIntake, SnapshotWriter):
                 except Exception:
                     pass
         self._imu = self._fix = None
+        self._close_routes()
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
         """Block until everything received so far is processed (tests, benchmarks): the worker
@@ -329,6 +328,7 @@ class IncidentService(RoundIntake, SnapshotWriter):
             self._publish(out)
             if ticks:
                 self._forget_publishers()
+                self._forget_routes()
                 gone = self.core.counters.expired + self.core.counters.newcomers_forgotten
                 if gone != self._expired_seen:  # responders or newcomers left: their memory goes back
                     self._expired_seen = gone

@@ -1,0 +1,137 @@
+"""Which frames a worker subscribes to: with ``--workers K > 1``, only its own responders'.
+
+A zenoh key expression cannot say "the ids that hash to worker k", so a worker does not ask
+for ``firetrack/{incident}/*/imu`` (that would bring it every responder's frames, to be dropped
+by key). Instead every worker watches the wearables' liveliness tokens
+(``firetrack/{incident}/{responder}/presence``, declared by :mod:`client.wearable`), and when a
+responder that is its own (:func:`service.shell.sharding.in_shard`, the one definition of who
+owns an id) appears, it declares that responder's own advanced subscribers::
+
+    token of r appears, in_shard(r, k, K) ──► declare  firetrack/{incident}/r/imu  (history + recovery)
+                                                        firetrack/{incident}/r/fix  (recovery; history if r is new here)
+    token of r gone, and the core let r go ──► undeclare both (bounded state)
+
+The token is declared after the wearable's publishers, and the owner declares the subscribers
+a moment later still; nothing sent in between is lost: the advanced subscriber detects the
+advanced publisher (``detect_late_publishers``) and fetches its keep, in order, as it does for
+a service that starts after the wearable. Fixes are fetched from the keep only for a responder
+this worker does not track yet (a fix already applied must not be applied twice after a new
+declaration: fixes have no seq numbers).
+
+While a wearable is away (its token gone: an outage) the subscribers stay: when it is back
+their recovery fetches what it missed. They go only once the core has let the responder go.
+
+What has no token. A plain publisher that announces nothing (a replay, a third-party device)
+is invisible to a worker until it subscribes to its key; no key expression catches it without
+catching everyone. ``ServiceSettings.catch_all`` keeps today's wildcard subscribers beside the
+routes (each worker then takes the unannounced ids of its shard from them, and leaves the ids
+it has a route for to the route): lossless for such sources, at today's cost of every frame
+reaching every worker. Operator fixes need no catch-all: they come as ``op`` actions, which
+the worker of the responder they name takes (:meth:`IncidentService._enqueue_op`).
+
+A mixin of :class:`service.shell.service.IncidentService`.
+"""
+from __future__ import annotations
+
+import datetime
+import logging
+
+import zenoh
+import zenoh.ext as zext
+
+from service.protocol import wire
+
+log = logging.getLogger("firetrack.service")
+
+
+class ShardRoutes:
+    """The frames' subscribers of a worker: the incident's wildcard (one worker, or the
+    catch-all), and one route (imu + fix subscribers) per announced responder of its shard."""
+
+    def _sharded(self) -> bool:
+        return self.shard[1] > 1
+
+    def _declare_frame_subscribers(self) -> None:
+        """One worker: the incident's wildcard subscribers (every frame is its own). Several:
+        none until a token announces one of its responders (and the wildcard only as a catch-all)."""
+        if self._sharded() and not self.settings.catch_all:
+            return
+        self._imu = self._advanced(wire.key_all(self.id, "imu"), "imu", history=True)
+        # fixes: recovered after a miss, but never fetched again on detection (a fix applied
+        # before a restart must not be applied twice; frames have seq numbers, fixes do not)
+        self._fix = self._advanced(wire.key_all(self.id, "fix"), "fix", history=False)
+        self._decl += [self._imu.sample_miss_listener(self._on_miss), self._fix.sample_miss_listener(self._on_miss)]
+
+    def _advanced(self, key: str, kind: str, history: bool):
+        st = self.settings
+        size = st.imu_channel if kind == "imu" else st.fix_channel
+        routed = key.rsplit("/", 2)[-2] != "*"
+        if routed:  # one responder's: a smaller channel each
+            size = max(1, size // 10)
+        # A route's publisher exists before its token, so the history query made when the
+        # subscriber is declared finds it; zenoh holds the live samples back until that query
+        # is answered. Detecting late publishers too would query the same keep a second time,
+        # and a live sample that arrives while only that second query is pending is delivered
+        # at once, after which the kept ones it overtook are dropped (seen: a route declared
+        # 50 ms after its wearable began at 1 frame/ms lost its first 67 frames, silently).
+        hist = zext.HistoryConfig(detect_late_publishers=not routed, max_samples=st.history_frames if kind == "imu"
+                                  else None) if history else None
+        return zext.declare_advanced_subscriber(self.session, key, zenoh.handlers.FifoChannel(size), history=hist,
+                                                recovery=zext.RecoveryConfig(periodic_queries=datetime.timedelta(seconds=1)) if routed else zext.RecoveryConfig(heartbeat=True),
+                                                subscriber_detection=True)
+
+    def _frame_subscribers(self):
+        """``(kind, subscriber, routed)`` for every subscriber frames wait in (the worker's thread)."""
+        for kind, sub in (("imu", self._imu), ("fix", self._fix)):
+            if sub is not None:
+                yield kind, sub, False
+        for imu, fix, _ in list(self._routes.values()):
+            yield "imu", imu, True
+            yield "fix", fix, True
+
+    def _route_presence(self, key: str, present: bool) -> None:
+        """A token of one of this worker's responders came or went (the worker's thread): its
+        route is declared when it comes; when it goes, :meth:`_forget_routes` decides later."""
+        try:
+            _, rid, _ = wire.parse_key(key)
+        except ValueError:  # not a responder's token: the core says so when it takes it
+            return
+        if present:
+            self._present.add(rid)
+            if rid not in self._routes:
+                self._declare_route(rid)
+        else:
+            self._present.discard(rid)
+
+    def _declare_route(self, rid: str) -> None:
+        try:
+            imu = self._advanced(wire.key(self.id, rid, "imu"), "imu", history=True)
+            fix = self._advanced(wire.key(self.id, rid, "fix"), "fix", history=rid not in self.core.responders)
+            misses = [imu.sample_miss_listener(self._on_miss), fix.sample_miss_listener(self._on_miss)]
+        except Exception:  # a closing session: no route, and the service carries on
+            log.exception("declaring the subscribers of responder %s", rid)
+            return
+        self._routes[rid] = (imu, fix, misses)
+        self._routed_keys.update((wire.key(self.id, rid, "imu"), wire.key(self.id, rid, "fix")))
+
+    def _forget_routes(self) -> None:
+        """Routes of responders whose token is gone and whom the core let go are undeclared."""
+        gone = [r for r in self._routes if r not in self._present and r not in self.core.responders]
+        for rid in gone:
+            self._undeclare_route(self._routes.pop(rid))
+            self._routed_keys.difference_update((wire.key(self.id, rid, "imu"), wire.key(self.id, rid, "fix")))
+
+    @staticmethod
+    def _undeclare_route(route) -> None:
+        imu, fix, misses = route
+        for d in (*misses, imu, fix):
+            try:
+                d.undeclare()
+            except Exception:  # already gone with a closed session
+                pass
+
+    def _close_routes(self) -> None:
+        for route in self._routes.values():
+            self._undeclare_route(route)
+        self._routes.clear()
+        self._routed_keys.clear()

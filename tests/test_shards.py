@@ -1,0 +1,173 @@
+"""Shards by key (issue 29, part 2): a worker subscribes to its own responders' frames only.
+
+A real router on loopback, worker 0 in this process and worker 1 in its own (spawned) process,
+wearables (:class:`client.wearable.Wearable`: a presence token, advanced publishers) on a
+client session. Each worker counts what its frames' subscribers delivered, by owner
+(``IncidentService.heard``): another worker's responders must be 0 (with the incident's
+wildcard, as before the routes, they are every frame of theirs: the catch-all shows it).
+"""
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+
+import numpy as np
+
+from client.wearable import Wearable
+from service.protocol import wire
+from service.protocol.incident import default_incident
+from service.shell.service import IncidentService, ServiceSettings, decode_track
+from service.shell.sharding import in_shard
+from service.shell.workers import WorkerPool
+from tests.security_util import walking_frames
+from tests.zenoh_util import client, router, wait_until
+
+SECONDS = 12.0  # of walking per responder: 120 frames of 5 samples at 50 Hz
+IDS = [f"ff{i}" for i in range(6)]
+
+
+def _frames() -> dict[str, list[wire.ImuBatch]]:
+    return {r: walking_frames(r, SECONDS, seed=i) for i, r in enumerate(IDS)}
+
+
+def _tracks(session, cfg) -> dict[str, list[dict]]:
+    """Every reply to one query of every responder's track, by responder."""
+    out: dict[str, list[dict]] = {}
+    for reply in session.get(wire.key_all(cfg.id, "track"), timeout=10.0):
+        if reply.ok is not None:
+            t = decode_track(reply.ok.payload.to_bytes())
+            out.setdefault(t["responder"], []).append(t)
+    return out
+
+
+def _run(workers: int, catch_all: bool = False) -> tuple[dict, list[dict], dict]:
+    """The same walkers through ``workers`` workers: (tracks by responder, each worker's
+    ``heard``, each worker's responders)."""
+    cfg = default_incident()
+    settings = ServiceSettings(warm_up=False, catch_all=catch_all)
+    rs, endpoint = router()
+    svc_session = client(endpoint)
+    svc = IncidentService(svc_session, cfg, settings, shard=(0, workers)).start()
+    pool = WorkerPool(endpoint, cfg, workers, stats_dir=tempfile.mkdtemp(), settings=settings) if workers > 1 else None
+    cl = client(endpoint)
+    wearables = []
+    try:
+        assert pool is None or pool.wait_ready(120), "the worker process did not start"
+        frames = _frames()
+        wearables = [Wearable(cl, cfg.id, r) for r in IDS]
+        for k in range(len(frames[IDS[0]])):  # interleaved, as live
+            for w in wearables:
+                w.send("imu", frames[w.responder][k])
+        for w in wearables:  # the owner's Status acknowledges the last frame: all taken
+            assert w.flush(90), (w.responder, w.delivery())
+        tracks = _tracks(cl, cfg)
+    finally:
+        for w in wearables:
+            w.close()
+        stats = pool.close() if pool is not None else []
+        svc.close()
+        for s in (cl, svc_session, rs):
+            s.close()
+    heard = [dict(svc.heard)] + [s["heard"] for s in stats]
+    owned = [len(svc.responders)] + [s["responders"] for s in stats]
+    return tracks, heard, {"owned": owned, "delivery": [w.delivery() for w in wearables]}
+
+
+def test_two_workers_hear_only_their_own_responders_and_track_them_as_one_process_does():
+    sent = {r: len(f) for r, f in _frames().items()}
+    mine = [sum(n for r, n in sent.items() if in_shard(r, k, 2)) for k in range(2)]
+    assert all(mine), f"both workers must own some of {IDS}: {mine}"
+    tracks2, heard2, info2 = _run(2)
+    # each worker's subscribers delivered its own responders' frames and none of the others'
+    assert [h["others"] for h in heard2] == [0, 0], heard2
+    assert [h["own"] for h in heard2] == mine, (heard2, mine)
+    assert info2["owned"] == [sum(in_shard(r, k, 2) for r in IDS) for k in range(2)], info2
+    assert all(d["service_lost"] == 0 for d in info2["delivery"]), info2
+    # every responder tracked exactly once (one worker answers for it) ...
+    assert sorted(tracks2) == sorted(IDS) and all(len(v) == 1 for v in tracks2.values()), \
+        {r: len(v) for r, v in tracks2.items()}
+    # ... and its track is the one a single worker makes of the same frames, bit for bit
+    tracks1, heard1, _ = _run(1)
+    assert heard1 == [{"own": sum(sent.values()), "others": 0}], heard1
+    for r in IDS:
+        (a,), (b,) = tracks2[r], tracks1[r]
+        assert a["t"].size > 10, (r, a["t"].size)  # walked: a track to compare
+        for field in ("t", "x", "y", "floor", "heading"):
+            assert np.array_equal(a[field], b[field], equal_nan=True), (r, field)
+
+
+def test_the_catch_all_brings_every_frame_to_every_worker_as_the_wildcard_did():
+    """The control: with the incident's wildcard back (``--catch-all``) each worker hears the
+    other's frames too (and still tracks only its own)."""
+    sent = {r: len(f) for r, f in _frames().items()}
+    theirs = [sum(n for r, n in sent.items() if not in_shard(r, k, 2)) for k in range(2)]
+    tracks, heard, info = _run(2, catch_all=True)
+    assert [h["others"] for h in heard] == theirs, (heard, theirs)
+    assert sorted(tracks) == sorted(IDS) and all(len(v) == 1 for v in tracks.values())
+
+
+def test_a_route_declared_after_the_wearable_began_fetches_what_it_sent_before():
+    """zenoh's history works for a subscriber declared late: frames sent before any worker
+    listened (the wearable started first) come from the wearable's keep, in order, none lost."""
+    cfg = default_incident()
+    rid = next(r for r in (f"late{i}" for i in range(50)) if in_shard(r, 1, 2))
+    settings = ServiceSettings(warm_up=False)
+    rs, endpoint = router()
+    cl = client(endpoint)
+    w = Wearable(cl, cfg.id, rid)
+    frames = walking_frames(rid, SECONDS)
+    early = len(frames) // 2
+    svc_session = client(endpoint)
+    svc = None
+    try:
+        for b in frames[:early]:  # nobody subscribes yet: into the keep only
+            w.send("imu", b)
+        assert w.unheard["imu"] == early
+        svc = IncidentService(svc_session, cfg, settings, shard=(1, 2)).start()
+        assert wait_until(lambda: rid in svc._routes, 30), "no route declared for the announced responder"
+        for b in frames[early:]:
+            w.send("imu", b)
+        assert w.flush(60), w.delivery()
+        assert svc.heard == {"own": len(frames), "others": 0}, svc.heard
+        assert svc.frames_processed == len(frames)
+        assert svc.core.frame_accounting().get("lost", 0) == 0, svc.core.frame_accounting()
+    finally:
+        w.close()
+        if svc is not None:
+            svc.close()
+        for s in (cl, svc_session, rs):
+            s.close()
+
+
+def test_a_route_stays_while_its_responder_is_away_and_goes_when_the_core_lets_it_go():
+    cfg = default_incident()
+    rid, other = [r for r in (f"gone{i}" for i in range(50)) if in_shard(r, 0, 2)][:2]
+    core = dataclasses.replace(ServiceSettings().core, expire_after_s=8.0, expire_unplaced_s=8.0)
+    rs, endpoint = router()
+    svc_session = client(endpoint)
+    svc = IncidentService(svc_session, cfg, ServiceSettings(warm_up=False, core=core), shard=(0, 2)).start()
+    cl = client(endpoint)
+    try:
+        w = Wearable(cl, cfg.id, rid)
+        assert wait_until(lambda: rid in svc._routes, 30), "no route declared for the announced responder"
+        for b in walking_frames(rid, 1.0):
+            w.send("imu", b)
+        assert w.flush(30), w.delivery()
+        w.close()
+        assert wait_until(lambda: rid not in svc._present, 10), "the token's end did not reach the worker"
+        assert rid in svc.responders and rid in svc._routes  # away is not gone: its recovery waits for it
+        # the core looks at expiry as input comes: another responder walks on meanwhile
+        w2, frames = Wearable(cl, cfg.id, other), iter(walking_frames(other, 60.0))
+
+        def gone() -> bool:
+            w2.send("imu", next(frames))
+            return rid not in svc.responders
+
+        assert wait_until(gone, 30, step=0.1), "the core did not let the silent responder go"
+        w2.close()
+        assert wait_until(lambda: rid not in svc._routes, 5), "the route outlived its responder"
+        assert svc._routed_keys == {wire.key(cfg.id, other, k) for k in ("imu", "fix")}  # the walker still tracked
+    finally:
+        svc.close()
+        for s in (cl, svc_session, rs):
+            s.close()
