@@ -107,6 +107,9 @@ if _bench is not None and _load_bench is not None:
 _fault_bench, _ = _load("client.fault_bench", "bench_faults_command")
 if _bench is not None and _fault_bench is not None:
     _bench.command("faults")(_fault_bench)
+_login_bench, _ = _load("client.console.login_bench", "bench_logins_command")
+if _bench is not None and _login_bench is not None:
+    _bench.command("logins")(_login_bench)
 
 
 def main() -> None:

@@ -39,12 +39,13 @@ def wearable_command(
     config: Path = typer.Option(None, "--config", help="incident config, for the landmarks' local coordinates"),
     landmark_every: int = typer.Option(0, "--landmark-every", help="also send every K-th landmark as a checkpoint fix (the first is always sent)"),
     gnss: bool = typer.Option(True, "--gnss/--no-gnss", help="send the recording's GNSS fixes"),
+    ble: bool = typer.Option(True, "--ble/--no-ble", help="send the recording's BLE beacon readings as ble fixes (one per 2 s scan)"),
     wait_router: float = typer.Option(30.0, "--wait-router", help="s to wait for a router that is not up yet"),
     flush: float = typer.Option(5.0, "--flush", help="s to wait at the end (or on Ctrl-C) for the service to "
                                                      "acknowledge the last frame"),
     tls: Path = typer.Option(None, "--tls", help=TLS_HELP + " (a wearable certificate: CN = the responder id)"),
 ):
-    """Publish a real recording as a wearable would: IMU frames (10 per second), landmarks and GNSS as fixes.
+    """Publish a real recording as a wearable would: IMU frames (10 per second), landmarks, GNSS and BLE scans as fixes.
 
     Frames are kept (the last 3000) and resent to a service that missed them (an outage, a
     restart); at the end the wearable waits for the service's acknowledgement and says what
@@ -91,7 +92,7 @@ def wearable_command(
     try:
         with progress_bar(f"{responder} ← {replay_file.name}") as update:
             sent = replay(replay_file, responder, session, cfg, speed, landmark_every, gnss, stop, update,
-                          on_matching=matching, on_start=started, flush_s=flush)
+                          on_matching=matching, on_start=started, flush_s=flush, ble=ble)
     except (RecordingFormatError, OSError, ValueError) as e:
         fail(str(e))
         raise typer.Exit(1)

@@ -38,6 +38,8 @@ def console_command(
     origin: list[str] = typer.Option(None, "--origin", help="the address officers open, e.g. https://10.0.0.5:8080 "
                                                            "(Host and Origin are checked against it); repeat"),
     https: bool = typer.Option(None, "--https/--no-https", help="serve the page over HTTPS (default: beyond this machine)"),
+    gateway_tls: Path = typer.Option(None, "--gateway-tls", help="the phone gateway's identity (firetrack certs issue "
+                                                                 "--role gateway): phones at /wear publish through it"),
 ):
     """Serve the command console (live map, roster, alarms, operator fixes) from a zenoh router."""
     from client.console.server import ConsoleError, start_console
@@ -55,6 +57,10 @@ def console_command(
     warn_plan_problems(cfg)
     stop = stop_on_signals()
     session = client_or_exit(connect, tls=identity)
+    gateway = None
+    if gateway_tls is not None:
+        gw_identity = tls_or_exit(gateway_tls, "gateway", what="the phone gateway")
+        gateway = client_or_exit(connect, tls=gw_identity)
     try:
         try:
             handle = start_console(session, cfg, port=port, host=host, actor=identity.name if identity else "console",
@@ -62,6 +68,8 @@ def console_command(
         except ConsoleError as e:
             fail(str(e))
             raise typer.Exit(1)
+        if gateway is not None:
+            handle.server.phones.publish_through(gateway)
         out.print(f"[bold]firetrack console[/] for incident [bold]{cfg.id}[/] ({cfg.name}) from "
                   f"{connect or 'this machine'}" + (f" as {identity.name}" if identity else ""))
         out.print(f"open {handle.url}" + ("" if roster else "   (no logins: this machine only)"))
@@ -70,5 +78,7 @@ def console_command(
         finally:
             handle.close()
     finally:
-        session.close()
+        for s in (gateway, session):
+            if s is not None:
+                s.close()
     err.print("console stopped")

@@ -98,6 +98,8 @@ def _summed(dicts) -> dict[str, int]:
     return out
 
 
+START_WAIT_S = 120.0  # s the publisher may take to connect and precompute its frames, plus
+START_WAIT_PER_WALKER_S = 0.3  # s per walker (a 30 s run of 1000 walkers: ~100 s on a loaded 2-core machine)
 WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers and graphs are built
 
 # Where the worker's time goes, by stage: (file, function) pairs whose cumulative time the
@@ -214,8 +216,15 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
                                                      start_spread_s, str(sim_id.dir) if tls else None, foot))
         child.start()
         done.callback(lambda: child.kill() if child.is_alive() else None)
-        if not ready.wait(120):
-            raise RuntimeError("the simulated wearables did not start within 120 s")
+        # the publisher simulates and encodes every frame before the clock starts: on a busy machine
+        # a thousand walkers take minutes, so wait while it is alive and working, up to a bound
+        start_wait = START_WAIT_S + START_WAIT_PER_WALKER_S * responders
+        waited = time.monotonic()
+        while not ready.wait(1.0):
+            if not child.is_alive():
+                raise RuntimeError(f"the publisher process failed while starting (exit code {child.exitcode})")
+            if time.monotonic() - waited > start_wait:
+                raise RuntimeError(f"the simulated wearables did not start within {start_wait:.0f} s")
         log(f"{responders} wearables connected; running {seconds:g} s at {rate:g} Hz ...")
         busy0, frames0, t0 = svc.busy_s, svc.frames_processed, time.monotonic()
         calls0 = svc.tracker_batches
@@ -232,7 +241,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         svc.wait_idle(5.0)
         svc_frames = svc.frames_processed
         svc_steps = sum(r.tracker.steps for r in list(svc.responders.values()))
-        others = pool.close()
+        others = pool.close(timeout=30.0)  # a loaded worker drains its backlog
         wall = time.monotonic() - t0
         accounting = [svc.frame_accounting()] + [s.get("frames_not_processed", {}) for s in others]
     per_sample = rate / 10.0
@@ -327,6 +336,10 @@ def bench_service_command(
     """N simulated wearables through a real zenoh router against the service (see client/load_bench.py)."""
     if ctx.invoked_subcommand is not None:
         return
-    result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m), workers=workers,
-                           start_spread_s=start_spread, tls=tls, foot=foot)
+    try:
+        result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m),
+                               workers=workers, start_spread_s=start_spread, tls=tls, foot=foot)
+    except RuntimeError as e:  # a process that did not start or failed: one line, not a traceback
+        err.print(f"[bold red]error:[/] {e}", highlight=False)
+        raise typer.Exit(1) from None
     print_json(result)

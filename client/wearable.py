@@ -48,7 +48,7 @@ import zenoh.ext as zext
 
 from pdr.io import load
 from service.protocol import wire
-from service.protocol.messages import recording_messages
+from service.protocol.messages import BLE_SCAN_S, recording_messages
 from service.protocol.pacing import paced
 
 MATCHING_WAIT_S = 1.5  # s a replay waits for a service to match its frames before it warns
@@ -274,12 +274,13 @@ def _undeclare(entity) -> None:
 def replay(path, responder: str, session: zenoh.Session, incident, speed: float = 1.0, landmark_every: int = 0,
            gnss: bool = True, stop: threading.Event | None = None, on_progress: Callable[[int, int], None] | None = None,
            on_matching: Callable[[bool], None] | None = None, on_start: Callable[[list], None] | None = None,
-           flush_s: float = FLUSH_S, keep_frames: int = KEEP_FRAMES) -> dict:
+           flush_s: float = FLUSH_S, keep_frames: int = KEEP_FRAMES, ble: bool = True) -> dict:
     """Publish recording ``path`` as responder ``responder``; returns the counts sent, in
     ``unheard`` how many went out while no service was subscribed, and in ``delivery`` what the
     service acknowledged (after waiting up to ``flush_s`` for the last frame)."""
     rec = load(path)
-    msgs = recording_messages(rec, responder, incident=incident, landmark_every=landmark_every, gnss=gnss)
+    msgs = recording_messages(rec, responder, incident=incident, landmark_every=landmark_every, gnss=gnss,
+                              ble_scan_s=BLE_SCAN_S if ble else 0.0)
     w = Wearable(session, incident.id, responder, on_matching=on_matching, keep_frames=keep_frames)
     if on_start is not None:
         on_start(msgs)

@@ -53,7 +53,7 @@ from pdr.constants import GRAVITY
 from pdr.events import FloorEvent, MotionEvent, MotionState, StepDetection, StepEvent
 from pdr.angles import wrap
 from pdr.floors import _REASONS, FloorChange, FloorElevations
-from pdr.heading import StepHeadings
+from pdr.heading import BUF_COLUMNS, StepHeadings
 from pdr.height import relative_height
 from pdr.pipeline import ImuFrame, PdrPipeline, PipelineSettings, _merge
 from pdr.steps.base import _TAIL_MARGIN_S
@@ -61,6 +61,7 @@ from pdr.windows import norm3
 
 _STATES = {K.WALKING: MotionState.WALKING, K.STILL: MotionState.STILL, K.NO_MOTION: MotionState.NO_MOTION}
 _EMPTY2 = np.empty((0, 2))
+HBUF_COLS = len(BUF_COLUMNS)  # the heading's per-sample columns (pdr.heading.BUF_COLUMNS)
 
 
 def _list2(n: int, cols: int):
@@ -168,7 +169,7 @@ class PdrFleet:
         self._alloc(self._first_cap)
         # typed lists of per-slot buffers
         self._bias_tails = _list2(0, 5)
-        self._hbufs = _list2(0, 5)
+        self._hbufs = _list2(0, HBUF_COLS)
         self._mot_tails = _list2(0, 3)
         self._lms = _list2(0, 2)
         self._raws = _list2(0, 2)
@@ -226,7 +227,7 @@ class PdrFleet:
 
     # the per-slot numba typed lists (2: rows of samples, 1: a vector) and their columns; in a
     # pickle each is one array of every slot's rows and the slots' row counts
-    _TYPED_LISTS = {"_bias_tails": (2, 5), "_hbufs": (2, 5), "_mot_tails": (2, 3), "_lms": (2, 2), "_raws": (2, 2),
+    _TYPED_LISTS = {"_bias_tails": (2, 5), "_hbufs": (2, HBUF_COLS), "_mot_tails": (2, 3), "_lms": (2, 2), "_raws": (2, 2),
                     "_det_tails": (2, 2), "_pres": (2, 2), "_step_times": (1, 0)}
 
     def __getstate__(self) -> dict:
@@ -292,7 +293,7 @@ class PdrFleet:
         self._fs[slot], self._ring_t[slot], self._ring_z[slot] = tr._state, tr._ring_t, tr._ring_z
         self._rr[slot], self._known[slot], self._learned[slot], self._pred[slot] = tr._r, tr._known, tr._learned_in, tr._pred
         self._bind(slot, pipe)
-        for lst, cols in ((self._bias_tails, 5), (self._hbufs, 5), (self._mot_tails, 3), (self._lms, 2),
+        for lst, cols in ((self._bias_tails, 5), (self._hbufs, HBUF_COLS), (self._mot_tails, 3), (self._lms, 2),
                           (self._raws, 2), (self._det_tails, 2), (self._pres, 2)):
             if reuse:
                 lst[slot] = np.empty((0, cols))
@@ -317,7 +318,7 @@ class PdrFleet:
         if m.fleet is not self or m.slot in self._free or m not in self.members:
             raise ValueError("release: not a current member of this fleet")
         self.members.remove(m)
-        for lst, cols in ((self._bias_tails, 5), (self._hbufs, 5), (self._mot_tails, 3), (self._lms, 2),
+        for lst, cols in ((self._bias_tails, 5), (self._hbufs, HBUF_COLS), (self._mot_tails, 3), (self._lms, 2),
                           (self._raws, 2), (self._det_tails, 2), (self._pres, 2)):
             lst[m.slot] = np.empty((0, cols))
         self._step_times[m.slot] = np.empty(0)
@@ -603,6 +604,8 @@ def _step_headings(h, buf: np.ndarray, times: list[float]) -> StepHeadings:
         if i1 <= i0:  # no sample in the step: the last one at or before it
             i0 = i1 - 1
         psi_g = float(np.mean(buf[i0:i1, 1]))
+        w0 = int(np.searchsorted(bt, tk - s.grip.window, side="right"))
+        omega, jumped = h._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7])
         k = bisect.bisect_right(hist_t, tk) - 1
         _, delta, P = hist[max(k, 0)]
         if not np.isfinite(delta):  # before the first compass epoch
@@ -621,7 +624,7 @@ def _step_headings(h, buf: np.ndarray, times: list[float]) -> StepHeadings:
                 np.array([spread]), np.array([buf[i0:i1, 3][okd].mean()]), np.array([buf[i0:i1, 4][okd].mean()]),
                 np.array([tk]),
             )[0])
-            magh = float(wrap(psi_g + math.atan2(sn, c) + 0.0)) if np.isfinite(sig_m) else math.nan
+            magh = float(wrap(psi_g + math.atan2(sn, c) + omega)) if np.isfinite(sig_m) else math.nan
         else:
             sig_m, magh = math.inf, math.nan
         if h._prev_step is None:
@@ -629,9 +632,9 @@ def _step_headings(h, buf: np.ndarray, times: list[float]) -> StepHeadings:
         else:
             dt = tk - h._prev_step[0]
             dch = psi_g - h._prev_step[1]
-            dsig = math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
+            dsig = math.inf if jumped else math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
         h._prev_step = (tk, psi_g)
-        rows.append((tk, float(wrap(dev + 0.0)), math.sqrt(P), float(wrap(dch)), dsig, magh, sig_m, dev, 0.0))
+        rows.append((tk, float(wrap(dev + omega)), math.sqrt(P), float(wrap(dch)), dsig, magh, sig_m, dev, omega))
     if not rows:
         return StepHeadings.concatenate([])
     a = np.array(rows, float)

@@ -57,6 +57,14 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
    The filter starts from the first epoch's compass offset (only the initial position is
    given, so the initial heading is the compass's) with ``P = σ_init²``.
 
+   **The gate does not lock out.** Once δ is wrong by more than the gate (a gyro drift while
+   the field was rejected, a device frame that moved), every later epoch would be gated out
+   until ``P`` had grown past the error. So a streak of gated-out epochs that agree among
+   themselves (circular spread of their δ_m below ``gate_recover_spread``) for
+   ``gate_recover_s`` seconds reopens the filter: ``P ← max(P, σ_init²)`` and the epoch is
+   gated again. A disturbed field does not agree with itself for that long while the walker
+   moves; a wrong δ does.
+
    ``σ_rw`` = 2.5°/√s with ``σ_mag`` = 30° per 0.5 s epoch make the steady-state gain about
    0.07 per epoch, i.e. the compass offset is averaged over roughly the last 10 s. That is
    short enough to forget a disturbed start and to follow the residual gyro drift (the
@@ -75,9 +83,12 @@ Per step ``k`` spanning ``(t_{k−1}, t_k]`` (at most ``max_step_duration`` long
 
 * ``device_heading`` ψ̄_k: circular mean of ψ_g over the step plus δ̂ — averaging over the
   step removes the hand's sway;
-* ``heading = device_heading + walking_offset`` (the offset from :mod:`pdr.walking_direction`,
-  0 unless one is supplied), ``heading_sigma = √(P + σ_offset²)``;
-* ``heading_change = ψ̄_g,k − ψ̄_g,k−1`` with σ² = σ_arw² Δt + (σ_b Δt)² + (k_s Δψ)²;
+* ``heading = device_heading + walking_offset``: the offset ω of the walking direction from
+  the device's forward axis, a jump state that holds 0 (the texting grip) until the walk's
+  acceleration pattern says the grip changed (:mod:`pdr.grip`), plus any offset the caller
+  supplies; ``heading_sigma = √P``;
+* ``heading_change = ψ̄_g,k − ψ̄_g,k−1`` with σ² = σ_arw² Δt + (σ_b Δt)² + (k_s Δψ)² (σ = ∞ on
+  the step where ω jumps: the gyro's turn there is the phone's, not the walker's);
 * ``mag_heading`` = ψ̄_g,k + circular mean of δ over the step (NaN when that step's field
   failed the gates) and its σ_m (∞ when disturbed) — for a fusion that wants to weigh the
   compass itself.
@@ -97,10 +108,15 @@ import numpy as np
 
 from pdr.ahrs import make_filter
 from pdr.angles import wrap  # noqa: F401  (re-exported)
+from pdr.grip import GripSettings, GripTracker
 from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass, still_bias
+from pdr.walking_direction import walking_angle
 from pdr.windows import norm3, unwrap_turns
 
 TWO_PI = 2.0 * math.pi
+# per-sample columns kept for the steps: time, gyro heading, compass offset, |B|, dip, and the
+# levelled specific force along the device's heading, to its left and up (the walking direction)
+BUF_COLUMNS = ("t", "psi", "d", "norm", "inc", "af", "al", "az")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,6 +128,10 @@ class HeadingSettings:
     # its settings: shipped defaults, but no rest detection of its own (the bias is this module's)
     ahrs_params: tuple[tuple[str, float], ...] = (("rest_time", math.inf),)
     forward_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # body axis taken as "forward"
+    # body axis that points forward when the phone stands up (forward axis vertical): the back
+    # of a phone whose screen faces the walker; (0, 0, 0): the forward axis alone
+    upright_axis: tuple[float, float, float] = (0.0, 0.0, -1.0)
+    upright_from: float = math.radians(65.0)  # rad, elevation of the forward axis where the upright axis starts to count
     declination: float = 0.0  # rad, east positive (Nuremberg 2023: +3.6° = 0.0628 rad)
     # gyro bias at standstill
     estimate_bias: bool = True
@@ -137,6 +157,10 @@ class HeadingSettings:
     sigma_rw: float = math.radians(2.5)  # rad/√s, random walk of δ (residual bias, grip changes)
     scale_error: float = 0.02  # fraction of each turn (gyro scale factor)
     gate_sigmas: float = 3.0  # innovation gate, in standard deviations
+    gate_recover_s: float = 20.0  # s of consistently gated-out compass epochs after which δ is re-decided (inf: never)
+    gate_recover_spread: float = math.radians(20.0)  # rad, their circular spread must stay below this
+    # changes of grip (walking direction − device heading as a jump state; pdr.grip)
+    grip: GripSettings = dataclasses.field(default_factory=GripSettings)
     # per-step outputs
     max_step_duration: float = 1.5  # s, a step never spans more than this
     sigma_arw: float = math.radians(0.5)  # rad/√s, gyro angle random walk
@@ -184,7 +208,9 @@ class HeadingEstimator:
     def __init__(self, settings: HeadingSettings | None = None):
         self.settings = s = settings or HeadingSettings()
         self._ahrs = make_filter(s.ahrs, dict(s.ahrs_params))
-        self._fwd = np.asarray(s.forward_axis, float) / np.linalg.norm(s.forward_axis)
+        up = np.asarray(s.upright_axis, float)
+        self._fwd = np.concatenate([np.asarray(s.forward_axis, float) / np.linalg.norm(s.forward_axis),
+                                    up / max(float(np.linalg.norm(up)), 1e-300), [math.sin(s.upright_from) ** 2]])
         self.bias = np.zeros(3)  # rad/s, current gyro bias estimate
         self._t0: float | None = None
         self._tail = {"t": np.empty(0), "g": np.empty((0, 3)), "a": np.empty(0)}
@@ -199,9 +225,11 @@ class HeadingEstimator:
         self._kf_t = -math.inf  # end time of the last epoch the filter has seen
         self._kf_psi: float | None = None  # gyro heading at that epoch end
         self._hist = deque([(-math.inf, math.nan, math.inf)])  # (epoch end, δ, P) for step lookups
+        self._rejected = [math.nan, 0.0, 0.0, 0]  # gated-out streak: start time, Σcos δ_m, Σsin δ_m, count
+        self.grip = GripTracker(s.grip)
         self._pending: list[float] = []
         self._pending_off: list[float] = []
-        self._buf = {k: np.empty(0) for k in ("t", "psi", "d", "norm", "inc")}  # samples for step means
+        self._buf = {k: np.empty(0) for k in BUF_COLUMNS}  # samples for step means and the walking direction
         self._prev_step: tuple[float, float] | None = None  # (t, mean gyro heading)
         self._index = 0
         self.samples: dict[str, np.ndarray] = {}
@@ -228,7 +256,8 @@ class HeadingEstimator:
         bias = self._bias_per_sample(t, an, gyr) if s.estimate_bias else np.tile(self.bias, (len(t), 1))
         q = self._ahrs.update(t, acc, gyr - bias)
         mag = np.ascontiguousarray(mag, float).reshape(-1, 3) if use_mag else np.empty((0, 3))
-        raw, d, norm, inc = level_and_compass(np.ascontiguousarray(q), self._fwd, mag, use_mag, s.declination)
+        raw, d, norm, inc, af, al, az = level_and_compass(np.ascontiguousarray(q), self._fwd, np.ascontiguousarray(acc),
+                                                          mag, use_mag, s.declination)
         turns, self._turns = unwrap_turns(raw, self._raw_last, self._turns)
         self._raw_last = float(raw[-1])
         psi = raw + TWO_PI * turns
@@ -239,7 +268,7 @@ class HeadingEstimator:
         # still find their samples, however large the batch; and what a step the detector
         # still holds back (up to a few steps before this batch) needs stays too
         keep = self._buf["t"] > (t[0] - 4 * s.max_step_duration)
-        for k, v in (("t", t), ("psi", psi), ("d", d), ("norm", norm), ("inc", inc)):
+        for k, v in zip(BUF_COLUMNS, (t, psi, d, norm, inc, af, al, az)):
             self._buf[k] = np.concatenate([self._buf[k][keep], v])
         return self._answer_steps()
 
@@ -338,6 +367,7 @@ class HeadingEstimator:
             self._P += s.sigma_rw**2 * dt + (s.scale_error * dpsi) ** 2
             if np.isfinite(sig):
                 nu = float(wrap(dm - self._delta))
+                self._gate(t_end, dm, nu * nu <= s.gate_sigmas**2 * (self._P + sig**2))
                 S = self._P + sig**2
                 if nu * nu <= s.gate_sigmas**2 * S:
                     K = self._P / S
@@ -345,6 +375,38 @@ class HeadingEstimator:
                     self._P *= 1.0 - K
         self._kf_t, self._kf_psi = t_end, psi_end
         self._hist.append((t_end, math.nan if self._delta is None else self._delta, self._P))
+
+    def _gate(self, t_end, dm, passes: bool) -> None:
+        """The innovation gate must not lock the compass out for good: a streak of gated-out
+        epochs that agree among themselves (circular spread below ``gate_recover_spread``) for
+        ``gate_recover_s`` seconds means δ itself is wrong (a gyro drift while the field was
+        rejected, a frame that moved): ``P`` is raised to ``σ_init²``, and the caller gates
+        the epoch again with it."""
+        s = self.settings
+        r = self._rejected
+        if passes:
+            self._rejected = [math.nan, 0.0, 0.0, 0]
+            return
+        if r[3] == 0:
+            r[0] = t_end
+        r[1] += math.cos(dm)
+        r[2] += math.sin(dm)
+        r[3] += 1
+        rho = min(max(math.hypot(r[1], r[2]) / r[3], 1e-12), 1.0)
+        if math.sqrt(-2.0 * math.log(rho)) > s.gate_recover_spread:  # not one consistent offset: start over
+            self._rejected = [t_end, math.cos(dm), math.sin(dm), 1]
+            return
+        if t_end - r[0] >= s.gate_recover_s:
+            self._P = max(self._P, s.sigma_init**2)
+            self._rejected = [math.nan, 0.0, 0.0, 0]
+
+    def _grip_step(self, t, f, l, z) -> tuple[float, bool]:
+        """The walking offset ω after one step whose window holds samples ``t``, ``f``, ``l``, ``z``
+        (:mod:`pdr.grip`)."""
+        g = self.settings.grip
+        if not g.enabled or len(t) < 3:
+            return self.grip.offset, False
+        return self.grip.step(walking_angle(t, f, l, z, g.lag))
 
     # ---------------------------------------------------------------- steps
     def steps(self, step_times, walking_offset=None) -> StepHeadings:
@@ -382,6 +444,9 @@ class HeadingEstimator:
                 before = np.flatnonzero(B["t"] <= tk)
                 sel = np.arange(len(B["t"])) == (before[-1] if before.size else 0)
             psi_g = float(np.mean(B["psi"][sel]))  # unwrapped: the arithmetic mean is circular
+            w0, w1 = np.searchsorted(B["t"], (tk - s.grip.window, tk), side="right")  # samples in (tk − window, tk]
+            omega, jumped = self._grip_step(B["t"][w0:w1], B["af"][w0:w1], B["al"][w0:w1], B["az"][w0:w1])
+            off = off + omega
             h = int(np.searchsorted(hist_t, tk, side="right")) - 1
             _, delta, P = self._hist[max(h, 0)]
             if not np.isfinite(delta):  # before the first compass epoch
@@ -408,7 +473,8 @@ class HeadingEstimator:
             else:
                 dt = tk - self._prev_step[0]
                 dch = psi_g - self._prev_step[1]
-                dsig = math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
+                # after a change of grip the gyro's turn is the phone's, not the walker's: unknown
+                dsig = math.inf if jumped else math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
             self._prev_step = (tk, psi_g)
             rows.append((tk, float(wrap(dev + off)), math.sqrt(P), float(wrap(dch)), dsig, magh, sig_m, dev, off))
         if not rows:

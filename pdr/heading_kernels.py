@@ -17,10 +17,21 @@ TWO_PI = 2.0 * math.pi
 
 
 @njit(cache=True)
-def level_and_compass(q, fwd, mag, use_mag, declination):  # pragma: no cover - compiled
+def level_and_compass(q, fwd, acc, mag, use_mag, declination):  # pragma: no cover - compiled
     """Per sample, from the attitude ``q`` (n, 4) body -> ENU, scalar first (R = R(q), Justa eq. 13):
 
-    * ``raw`` — yaw of the body's forward axis, ``atan2((R f)_y, (R f)_x)``, wrapped;
+    * ``raw`` — yaw of the device's heading vector, wrapped: ``fwd`` holds the forward axis
+      ``f``, the upright axis ``g`` and ``s₀²`` (7 numbers), and the heading vector is
+      ``h = R f + w · R g`` taken horizontally, ``atan2(h_y, h_x)``, with
+      ``w = clip(((R f)_z² − s₀²) / (1 − s₀²), 0, 1)``. Up to an elevation of ``asin s₀`` the
+      phone points with ``f`` alone; stood up further (``f`` towards vertical, where its yaw is
+      ill-conditioned: an inclination error ε across it turns it by about ε / cos(elevation))
+      ``g`` (the back of the phone, −z, for a screen facing the walker) takes over; both point
+      the same way for a phone pitched in the hand, so the heading is continuous, and a phone
+      rolled on its side keeps ``f``. ``g = 0`` gives the yaw of ``f`` alone;
+    * ``af``, ``al``, ``az`` — the specific force ``acc`` (n, 3) levelled, ``R a``, and turned
+      into the device-heading frame: along the forward axis's yaw, to its left, and up (m/s²;
+      for the walking direction, :func:`pdr.walking_direction.walking_angle`);
     * ``d`` — compass offset, ``wrap(π/2 − D − atan2(m_y, m_x))`` with ``m = R b`` the field
       levelled into ENU and ``D`` the declination: what to add to the gyro heading to point
       the device's x axis at true north (NaN without a magnetometer);
@@ -31,7 +42,12 @@ def level_and_compass(q, fwd, mag, use_mag, declination):  # pragma: no cover - 
     d = np.full(n, np.nan)
     norm = np.full(n, np.nan)
     inc = np.full(n, np.nan)
+    af = np.empty(n)
+    al = np.empty(n)
+    az = np.empty(n)
     fx, fy, fz = fwd[0], fwd[1], fwd[2]
+    gx, gy, gz = fwd[3], fwd[4], fwd[5]
+    s0 = fwd[6]
     for i in range(n):
         w, x, y, z = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
         r00 = 1.0 - 2.0 * (y * y + z * z)
@@ -40,11 +56,22 @@ def level_and_compass(q, fwd, mag, use_mag, declination):  # pragma: no cover - 
         r10 = 2.0 * (x * y + w * z)
         r11 = 1.0 - 2.0 * (x * x + z * z)
         r12 = 2.0 * (y * z - w * x)
-        raw[i] = math.atan2(r10 * fx + r11 * fy + r12 * fz, r00 * fx + r01 * fy + r02 * fz)
+        r20 = 2.0 * (x * z - w * y)
+        r21 = 2.0 * (y * z + w * x)
+        r22 = 1.0 - 2.0 * (x * x + y * y)
+        up = r20 * fx + r21 * fy + r22 * fz
+        wu = min(max((up * up - s0) / (1.0 - s0), 0.0), 1.0)
+        yaw = math.atan2(r10 * fx + r11 * fy + r12 * fz + wu * (r10 * gx + r11 * gy + r12 * gz),
+                         r00 * fx + r01 * fy + r02 * fz + wu * (r00 * gx + r01 * gy + r02 * gz))
+        raw[i] = yaw
+        ax, ay, azb = acc[i, 0], acc[i, 1], acc[i, 2]
+        ex = r00 * ax + r01 * ay + r02 * azb
+        ny = r10 * ax + r11 * ay + r12 * azb
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        af[i] = cy * ex + sy * ny
+        al[i] = cy * ny - sy * ex
+        az[i] = r20 * ax + r21 * ay + r22 * azb
         if use_mag:
-            r20 = 2.0 * (x * z - w * y)
-            r21 = 2.0 * (y * z + w * x)
-            r22 = 1.0 - 2.0 * (x * x + y * y)
             bx, by, bz = mag[i, 0], mag[i, 1], mag[i, 2]
             mx = r00 * bx + r01 * by + r02 * bz
             my = r10 * bx + r11 * by + r12 * bz
@@ -53,7 +80,7 @@ def level_and_compass(q, fwd, mag, use_mag, declination):  # pragma: no cover - 
             d[i] = math.pi - ((math.pi - a) % TWO_PI)
             norm[i] = math.sqrt(bx * bx + by * by + bz * bz)
             inc[i] = math.atan2(-mz, math.sqrt(mx * mx + my * my))
-    return raw, d, norm, inc
+    return raw, d, norm, inc, af, al, az
 
 
 # running sums of the open epoch: index, count, Σcos d, Σsin d, Σ|b|, ΣI, Σ|ω|, last ψ
@@ -118,3 +145,52 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
             still[r] = True
             cur[0], cur[1], cur[2] = g[0], g[1], g[2]
     return out, still, cur
+
+
+@njit(cache=True)
+def walking_stats(t, f, l, z, lag, pca):  # pragma: no cover - compiled
+    """(α, e, ρ, σ_z) of one window: :func:`pdr.walking_direction.walking_angle`'s arithmetic."""
+    n = t.shape[0]
+    if n < 2:
+        return 0.0, 0.0, 0.0, 0.0
+    mf = ml = mz = 0.0
+    for i in range(n):
+        mf += f[i]
+        ml += l[i]
+        mz += z[i]
+    mf /= n
+    ml /= n
+    mz /= n
+    cff = cll = cfl = czz = 0.0
+    for i in range(n):
+        a, b, c = f[i] - mf, l[i] - ml, z[i] - mz
+        cff += a * a
+        cll += b * b
+        cfl += a * b
+        czz += c * c
+    cff /= n
+    cll /= n
+    cfl /= n
+    sz = math.sqrt(czz / n)
+    tr = cff + cll
+    e = math.sqrt((cff - cll) ** 2 + 4.0 * cfl * cfl) / tr if tr > 0.0 else 0.0
+    alpha = 0.5 * math.atan2(2.0 * cfl, cff - cll) if pca else 0.0
+    ca, sa = math.cos(alpha), math.sin(alpha)
+    dt = (t[n - 1] - t[0]) / (n - 1)
+    k = max(1, int(round(lag / dt))) if dt > 0.0 else 1
+    if k >= n:
+        return alpha, e, 0.0, sz
+    c1 = c2 = su = 0.0
+    for i in range(n):
+        u = (f[i] - mf) * ca + (l[i] - ml) * sa
+        su += u * u
+        if i + k < n:
+            c2 += u * (z[i + k] - mz)  # u(t) z(t + τ)
+        if i >= k:
+            c1 += u * (z[i - k] - mz)  # u(t + τ) z(t)
+    c = (c1 - c2) / (n - k)
+    su = math.sqrt(su / n)
+    rho = abs(c) / (su * sz) if su * sz > 0.0 else 0.0
+    if c > 0.0:
+        alpha = alpha + math.pi if alpha <= 0.0 else alpha - math.pi
+    return alpha, e, rho, sz

@@ -63,6 +63,33 @@ class GnssFixes:
 
 
 @dataclass(frozen=True)
+class BeaconReadings:
+    """Received signal strengths of radio beacons (BLE advertisements), one row per reading.
+
+    ``t`` (N,) s on the device clock; ``beacon`` (N,) str, the beacon's identity as the scanner
+    saw it (a MAC address, or ``uuid:major:minor``); ``rssi`` (N,) dBm; ``tx_power`` (N,) dBm,
+    the beacon's advertised power at 1 m (NaN when it does not say).
+    """
+
+    t: np.ndarray
+    beacon: np.ndarray
+    rssi: np.ndarray
+    tx_power: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = self.t.shape[0]
+        if any(a.shape != (n,) for a in (self.t, self.beacon, self.rssi, self.tx_power)):
+            raise ValueError("beacon readings: t, beacon, rssi and tx_power must be 1-D of one length")
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    def ids(self) -> list[str]:
+        """The beacons heard, sorted."""
+        return sorted(set(self.beacon.tolist()))
+
+
+@dataclass(frozen=True)
 class ImuSamples:
     """IMU samples on one common time base (the accelerometer's)."""
 
@@ -88,6 +115,7 @@ class Recording:
     mag: Series | None = None
     pressure: Series | None = None  # values (N, 1) hPa
     gnss: GnssFixes | None = None
+    ble: BeaconReadings | None = None
     landmarks: Landmarks | None = None
     orientation_ref: Series | None = None  # (N, 4) quaternions w,x,y,z, body -> frame
     device_orientation: Series | None = None  # the phone's own estimate, for comparison only

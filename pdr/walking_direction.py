@@ -31,8 +31,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import NamedTuple
 
 import numpy as np
+
+from pdr.heading_kernels import walking_stats
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,16 +86,32 @@ class WalkingDirection:
         sel = (B["t"] > tk - s.window) & (B["t"] <= tk)
         if sel.sum() < s.min_samples:
             return 0.0
-        F, L, Z = (B[k][sel] - B[k][sel].mean() for k in ("f", "l", "z"))
-        if s.mode == "pca":
-            # blas-ok: the window is fixed by the step's time, so its shape never depends on batching
-            w, v = np.linalg.eigh(np.cov(np.vstack([F, L])))  # blas-ok: see above
-            alpha = math.atan2(v[1, 1], v[0, 1])
-            alpha = (alpha + math.pi / 2) % math.pi - math.pi / 2  # within ±90° of forward
-        else:
-            alpha = 0.0
-        U = F * math.cos(alpha) + L * math.sin(alpha)
-        dt = np.median(np.diff(B["t"][sel]))
-        n = max(1, int(round(s.lag / dt)))
-        c = np.mean(U[n:] * Z[:-n]) - np.mean(U[:-n] * Z[n:])
-        return alpha + (math.pi if c > 0 else 0.0)
+        return walking_angle(B["t"][sel], B["f"][sel], B["l"][sel], B["z"][sel], s.lag, s.mode == "pca").angle
+
+
+class WalkingAxis(NamedTuple):
+    """One window's walking direction (:func:`walking_angle`)."""
+
+    angle: float  # α, rad, CCW from the device's forward axis, in (−π, π]
+    anisotropy: float  # e = (λ₁ − λ₂)/(λ₁ + λ₂) of the horizontal swing, 0..1
+    phase: float  # |c| / (σ_u σ_z): how clearly the gait's phase shows (0: not at all)
+    vertical_std: float  # σ_z, m/s², the vertical specific force's spread (a walk: about 1)
+
+
+def walking_angle(t, f, l, z, lag: float, pca: bool = True) -> WalkingAxis:
+    """Walking direction from one window of levelled specific force in the device-heading frame.
+
+    ``f``, ``l``, ``z`` (m/s², forward, left, up; means are removed here), ``t`` their times (s).
+    ``angle`` is from the device's forward axis to the walking direction (with ``pca=False``
+    only 0 or π); the other fields say how far the window looks like walking.
+
+    The principal axis of the 2×2 covariance ``C`` of (f, l) in closed form,
+    ``α₀ = ½ atan2(2 C_fl, C_ff − C_ll)``, ``λ₁,₂ = ½ (C_ff + C_ll) ± ½ √((C_ff − C_ll)² + 4 C_fl²)``,
+    so ``e = √((C_ff − C_ll)² + 4 C_fl²) / (C_ff + C_ll)``; no eigen-solver, so the bits do not
+    depend on a BLAS. The sign from the phase test of the module docstring (``c > 0``: add π),
+    with ``u`` the swing along ``α₀`` and the lag in samples from the window's mean interval.
+    One compiled call (:func:`pdr.heading_kernels.walking_stats`): it runs once per step of
+    every responder.
+    """
+    return WalkingAxis(*walking_stats(np.ascontiguousarray(t, float), np.ascontiguousarray(f, float),
+                                      np.ascontiguousarray(l, float), np.ascontiguousarray(z, float), float(lag), bool(pca)))

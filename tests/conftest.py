@@ -1,7 +1,8 @@
 """Shared pytest fixtures.
 
 Real recordings live outside the repository, in ``../shared/data`` next to the project root
-(see that folder's README); tests that need one ask the ``shared_data`` fixture, which skips
+(see that folder's README; ``FIRETRACK_SHARED_DATA`` names another folder, e.g. from a git
+worktree); tests that need one ask the ``shared_data`` fixture, which skips
 the test with the missing path when the recording is absent.
 """
 from __future__ import annotations
@@ -18,7 +19,7 @@ from hypothesis import settings
 settings.register_profile("firetrack", deadline=None)
 settings.load_profile("firetrack")
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+SHARED_DATA = Path(os.environ.get("FIRETRACK_SHARED_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data")
 
 
 def shared_data_path(relpath: str | Path) -> Path:
@@ -65,6 +66,10 @@ _RECORDING_NAMES = {"shared_data", "shared_data_path", "SHARED_DATA"}
 # Tests the look at the code cannot classify, nodeid -> why (e.g. a command run in process that
 # starts a router): none at the time of writing; the guard below names any that appears.
 INTEGRATION: dict[str, str] = {
+    "tests/test_foxglove.py::test_serve_foxglove_prints_where_to_connect":
+        "runs serve in process (CliRunner): its router and the Foxglove server",
+    "tests/test_foxglove.py::test_serve_foxglove_without_the_package_names_the_extra":
+        "runs serve in process (CliRunner) up to its router",
 }
 
 # Unit-candidate tests moved to ``slow``: nodeid (without parameters) -> CPU seconds measured

@@ -29,7 +29,7 @@ def make_pki(d: Path) -> Path:
     """The demo incident's CA and one identity of every role (operators' passwords known)."""
     pki.init_ca(d, INCIDENT)
     for role, name in (("service", "svc"), ("router", "zenohd"), ("wearable", "ff1"), ("wearable", "ff2"),
-                       ("anchor", "a1"), ("console", "console-1"), ("simulator", "sim")):
+                       ("anchor", "a1"), ("console", "console-1"), ("simulator", "sim"), ("gateway", "gw")):
         pki.issue(d, role, name)
     pki.issue(d, "operator", "alice", password=PASSWORDS["alice"])
     pki.issue(d, "viewer", "vic", password=PASSWORDS["vic"])

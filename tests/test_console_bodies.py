@@ -105,3 +105,33 @@ def test_any_json_object_gets_an_answer_below_500(console, body, path):
     assert status < 500, (body, status, answer)
     if status >= 400:
         assert answer.get("error")
+
+
+def test_a_fix_outside_the_incidents_extent_is_refused_with_a_clear_message(console):
+    """Issue 32, attack 7: an operator's slip, x = 12,345,678, was taken (200) and stopped a track."""
+    status, body = post(console, "/api/fix", json.dumps({"responder": "foxtrot", "x": 12_345_678, "y": 2.0,
+                                                         "floor": 0}).encode())
+    assert status == 422 and "outside its extent" in body["error"] and "12,345,678 m from the incident's origin" in body["error"]
+    ok, _ = post(console, "/api/fix", json.dumps({"responder": "foxtrot", "x": 10.0, "y": 2.0, "floor": 0}).encode())
+    assert ok == 200
+
+
+def test_the_service_refuses_an_operators_fix_outside_the_extent_and_audits_it():
+    """A fix that reaches the service by another way than this console (another console, a
+    script with an operator's certificate) is held to the same extent."""
+    from service.core.incident_core import Inbound, IncidentCore
+    from tests.walkers import walk
+
+    cfg = default_incident()
+    core = IncidentCore(cfg)
+    w = walk("ff1", seconds=3.0)
+    for k, f in enumerate(w.frames):
+        core.feed(Inbound("imu", wire.key(cfg.id, "ff1", "imu"), wire.encode(f), 100.0 + 0.1 * k))
+    audits = []
+    for x in (12_345_678.0, 10.0):
+        fix = wire.Fix.checkpoint("ff1", float(w.frames[-1].t[-1]), x=x, y=2.0, floor=0, operator="o")
+        op = wire.OperatorAction(action="fix", operator="o", utc=time.time(), responder="ff1", fix=wire.encode(fix))
+        out = core.feed(Inbound("op", wire.key(cfg.id, "console", "op"), wire.encode(op), 104.0))
+        audits += [o.message for o in out if isinstance(o.message, wire.Audit)]
+    assert [(a.outcome, a.reason) for a in audits] == [("refused", "outside_extent"), ("accepted", None)]
+    assert "outside the incident's extent" in audits[0].detail

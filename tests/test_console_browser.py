@@ -31,10 +31,10 @@ from service.protocol.incident import default_incident, plan_pixel_to_enu
 from service.protocol.messages import recording_messages
 from service.protocol.pacing import paced
 from service.shell.service import IncidentService, ServiceSettings
+from tests.browser_util import console_stack, launch_chromium
 from tests.conftest import shared_data_path
 from tests.zenoh_util import client, free_port, router, wait_until
 
-CHROMIUM = Path(os.environ.get("FIRETRACK_CHROMIUM", "/usr/bin/chromium"))
 IPIN_TRIAL52 = "ipin2023/IPIN2023_T3_TrainingTrial52_repetition01.txt.gz"
 VIEWPORT = {"width": 1400, "height": 850}
 PAGE_TIMEOUT_MS = 15_000
@@ -45,33 +45,12 @@ PAGE_TIMEOUT_MS = 15_000
 # ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def browser():
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -e '.[test]')")
-    if not CHROMIUM.exists():
-        pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium (.ci/apt-packages.txt) to run the browser tests")
-    pw = sync_api.sync_playwright().start()
-    try:
-        b = pw.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=["--no-sandbox"])
-    except Exception:
-        pw.stop()
-        raise
-    yield b
-    b.close()
-    pw.stop()
+    yield from launch_chromium()
 
 
 @pytest.fixture(scope="module")
 def stack():
-    """A router on a free port, the demo incident's service and its console on it, a client session."""
-    session, endpoint = router()
-    cfg = default_incident()
-    svc = IncidentService(session, cfg, ServiceSettings()).start()
-    console = start_console(session, cfg, port=free_port())
-    cl = client(endpoint)
-    yield svc, console, cl, cfg, endpoint
-    console.close()
-    cl.close()
-    svc.close()
-    session.close()
+    yield from console_stack()
 
 
 class Page:
@@ -536,6 +515,7 @@ def test_http_api_says_what_is_wrong_and_plans_are_served(stack):
     fixes = FixCollector(cl, cfg, "foxtrot")
     status, inc = http(url + "api/incident")
     assert status == 200 and inc["id"] == cfg.id and [f["number"] for f in inc["floors"]] == [-2, -1, 0]
+    assert [(b["id"], b["floor"]) for b in inc["beacons"]] == [(b.id, b.floor) for b in cfg.beacons] != []
     plan = inc["plans"]["0"]
     if plan["url"] is not None:  # the museum's plan is in ../shared; floor 0 falls back to floor -1's
         status, png = http(url + plan["url"].lstrip("/"), timeout=60.0)  # the first request reduces a 54 Mpx PNG

@@ -355,3 +355,49 @@ def test_toml_is_read_too(tmp_path):
     bad = write(tmp_path, "id = \n", "bad.toml")
     with pytest.raises(IncidentConfigError, match="not valid TOML"):
         load_incident(bad)
+
+
+# --------------------------------------------------------------------------------------
+# Bounds (issue 32, part 6): depth, sizes, values, one short line
+# --------------------------------------------------------------------------------------
+def _one_line(p: str) -> str:
+    assert "\n" not in p and len(p) <= 1100, p[:300]
+    return p
+
+
+@pytest.mark.parametrize("suffix, text, words", [
+    (".json", "[" * 100_000 + "]" * 100_000, "nested 100,000 deep"),
+    (".json", '{"origin": ' + "{" * 50 + "}" * 50 + "}", "nested 51 deep"),
+    (".toml", "a = " + "[" * 100_000 + "]" * 100_000 + "\n", "nested 100,000 deep"),
+    (".toml", "a" + ".a" * 5000 + " = 1\n", "nested more than 32 levels"),
+    (".json", '{"name": "[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[", "origin": 1}', "origin: Input should be"),  # in a string
+])
+def test_deep_configs_are_one_line_not_a_recursion_error(tmp_path, suffix, text, words):
+    f = tmp_path / f"deep{suffix}"
+    f.write_text(text)
+    with pytest.raises(IncidentConfigError) as e:
+        load_incident(f)
+    assert words in _one_line(str(e.value))
+
+
+@pytest.mark.parametrize("cfg, words", [
+    (minimal(floor_height_m=1e308), "floor_height_m: Input should be less than or equal to 100 (got 1e+308)"),
+    (minimal(floors=[{"number": i} for i in range(200_000)]), "floors: 200,000 entries; at most 256"),
+    (minimal(roster=[{"id": f"r{i}"} for i in range(5000)]), "roster: 5,000 entries; at most 4,096"),
+    (minimal(name="x" * 1_000_000), "name: String should have at most 256 characters"),
+    (minimal(floors=[{"number": 0, "elevation_m": 1e20}]), "floors[0].elevation_m"),
+    (minimal(uwb_anchors=[{"id": "A", "x": 1e9, "y": 0}]), "uwb_anchors[0].x"),
+    (minimal(uwb_anchors=[{"id": "A", "x": 6000, "y": 0}]), "uwb_anchors[0]: (6000.0, 0.0) m is outside the incident's extent_m"),
+    (minimal(checkpoints=[{"name": "far", "x": 4000, "y": 4000, "floor": 0}]), "checkpoints[0].x, y: (4000.0, 4000.0) m is outside"),
+    (minimal(floors=[{"number": 0, "elevation_m": "x" * 100_000}] + [{"number": i, "name": 5} for i in range(1, 200)]),
+     "and 192 more problems"),
+])
+def test_sizes_and_values_are_bounded_and_errors_are_one_short_line(tmp_path, cfg, words):
+    assert words in _one_line(problem(tmp_path, cfg))
+
+
+def test_nan_and_infinity_are_refused(tmp_path):
+    f = tmp_path / "nan.json"
+    f.write_text(json.dumps(minimal(floor_height_m=float("inf"))))  # json writes Infinity
+    with pytest.raises(IncidentConfigError, match="Infinity is not a number"):
+        load_incident(f)

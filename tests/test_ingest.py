@@ -207,8 +207,9 @@ def test_flush_releases_everything_held_in_order():
 def test_a_new_device_starts_a_new_stream():
     gate = FrameGate(takeover_after_s=0.5)
     offer_all(gate, [0, 1, 2, 4])
-    # while phone-A is live, phone-B's frames on its key are someone else's: turned away
-    assert gate.offer(frame(0, device="phone-B"), 0.1) == [] and gate.counts == {"other_stream": 1}
+    # while phone-A is live, phone-B's frames on its key have not proven themselves: held as the
+    # candidate stream (not taken, not yet counted against anyone)
+    assert gate.offer(frame(0, device="phone-B"), 0.1) == [] and gate.counts == {}
     out = gate.offer(frame(0, device="phone-B"), 0.6)  # phone-A quiet for 0.5 s: B takes over
     assert [(b.device, b.seq) for b in out] == [("phone-A", 4), ("phone-B", 0)]
     assert gate.epoch == 1 and any(r == "restart" and "phone-B" in d for _, r, d in gate.events)

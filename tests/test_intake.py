@@ -248,7 +248,7 @@ def test_garbage_on_a_fresh_id_makes_no_responder_until_one_of_its_messages_deco
     s = CoreSettings(expire_unplaced_s=20.0)
     core = IncidentCore(CFG, s)
     bad = [("imu", b"\xc1\xc1"), ("imu", frame_payload("someone_else", 0, 10.0)),
-           ("fix", msgpack.packb({"v": 1, "kind": "fix", "responder": "fresh", "t": "soon", "source": "gnss"})),
+           ("imu", msgpack.packb({"v": 99, "kind": "imu"})),  # (a fix for a fresh id is refused: it makes nobody)
            ("imu", msgpack.packb([1, 2, 3]))]
     for i, (kind, p) in enumerate(bad * 6):  # 24 rejects: more than the burst alarm's threshold
         now = 1000.0 + 0.1 * i
@@ -257,11 +257,11 @@ def test_garbage_on_a_fresh_id_makes_no_responder_until_one_of_its_messages_deco
     assert core.responders == {}
     assert [o for o in core.tick(1003.0) if o.key.endswith("/fresh/status")] == []
     acc = core.frame_accounting()
-    assert (acc["msgpack"], acc["schema"], acc["fix_schema"], acc["not_a_map"]) == (6, 6, 6, 6)
+    assert (acc["msgpack"], acc["schema"], acc["version"], acc["not_a_map"]) == (6, 6, 6, 6)
     core.feed(Inbound("imu", key("fresh"), frame_payload("fresh", 0, 10.0), 1003.5))
     assert set(core.responders) == {"fresh"} and core.responders["fresh"].first_heard == 1000.0
     st = next(o.message for o in core.tick(1004.0) if o.key.endswith("/fresh/status"))
-    assert (st.rejected["msgpack"], st.rejected["schema"], st.rejected["fix_schema"]) == (6, 6, 6)
+    assert (st.rejected["msgpack"], st.rejected["schema"], st.rejected["version"]) == (6, 6, 6)
     assert "rejected_frames" in st.alarms and st.first_heard == 1000.0
     assert core.frame_accounting()["msgpack"] == 6  # counted once, now as the responder's
     # a newcomer silent for expire_unplaced_s goes, with its intake budget; its counts stay in the incident's
@@ -344,3 +344,92 @@ def test_freed_big_buffers_go_back_to_the_system_with_the_services_mmap_threshol
     grown, back = map(float, subprocess.run([sys.executable, "-c", _CHURN, "fixed"], capture_output=True, text=True,
                                             check=True).stdout.split())
     assert grown > 50 and back > 0.9 * grown
+
+
+def test_garbage_fixes_on_a_responders_key_never_throttle_its_frames():
+    """Issue 32, attack 4: an anchor sends 25 malformed fixes/s on ff2's fix key for 30 s while
+    ff2's wearable sends its 10 frames/s. Zenoh cannot tell the subscriber who sent a sample,
+    but the router lets only ff2's wearable put on ``ff2/imu``: the fixes spend the ``fix`` lane
+    of ff2, held to the bad-sender budget, named ``ff2/fix``; every frame of ff2 is taken and ff2
+    carries no ``flooding`` alarm."""
+    core = IncidentCore(CFG)
+    garbage = msgpack.packb({"v": 1, "kind": "fix", "responder": "ff2", "t": "soon", "source": "checkpoint"})
+    frames_taken = fixes_taken = fixes_refused = 0
+    for k in range(300):  # 30 s
+        now = 1000.0 + 0.1 * k
+        p = frame_payload("ff2", k, 10.0 + 0.1 * k)
+        if core.admit("imu", key("ff2"), len(p), now) is None:
+            core.feed(Inbound("imu", key("ff2"), p, now))
+            frames_taken += 1
+        for j in range(2 + (k % 2)):  # 25 per second
+            t = now + 0.03 * (j + 1)
+            if core.admit("fix", key("ff2", "fix"), len(garbage), t) is None:
+                core.feed(Inbound("fix", key("ff2", "fix"), garbage, t))
+                fixes_taken += 1
+            else:
+                fixes_refused += 1
+    st = core.status_of(core.responders["ff2"], 1030.0)
+    assert frames_taken == 300 and st.frames == 300 and "throttled" not in st.rejected
+    assert fixes_refused > 500 and st.rejected["fix_throttled"] == fixes_refused  # the bad-sender budget: ~5/s
+    assert "flooding" not in st.alarms and core.flooding_sources(1030.0) == ["ff2/fix"]
+    # a flood on the frames' key throttles the frames' lane: that is ff2's own wearable
+    for i in range(5000):
+        core.admit("imu", key("ff2"), 3, 1030.0 + i * 1e-4)
+    assert core.intake.flooding("ff2", 1031.0) and "flooding" in core.status_of(core.responders["ff2"], 1031.0).alarms
+
+
+def test_budgets_are_per_lane():
+    it = Intake(IntakeSettings(source_rate=10.0, source_burst=10.0))
+    assert it.admit(key("ff1"), 10, 0.0)[0] is None  # its wearable's first frame (a fix alone makes nobody)
+    assert [it.admit(key("ff1", "fix"), 10, 0.0)[0] for _ in range(20)].count("throttled") == 10
+    assert [it.admit(key("ff1"), 10, 0.0)[0] for _ in range(9)] == [None] * 9
+    assert it.flooding("ff1", 0.0, lane="fix") and not it.flooding("ff1", 0.0)
+    assert it.flooding_sources(0.0) == ["ff1/fix"] and it.dropped_of("ff1") == {"fix_throttled": 10}
+
+
+def test_fixes_for_unknown_responders_make_no_responder():
+    """Issue 32, attack 5: an anchor's fixes for ids nobody has made responders, published to
+    the consoles. Now such a fix keeps no intake state and makes no responder, Status or
+    newcomer; it is held a few seconds (bounded) so that a wearable's door fix sent just before
+    its first frame still places it, and dropped and counted otherwise."""
+    core = IncidentCore(CFG)
+    for i in range(1000):  # fixes for 1000 ids nobody has, in 10 s
+        rid = f"ghost{i}"
+        fix = wire.encode(wire.Fix.checkpoint(rid, 10.0, x=1.0, y=2.0, floor=0))
+        now = 1000.0 + i * 0.01
+        if core.admit("fix", key(rid, "fix"), len(fix), now) is None:
+            core.feed(Inbound("fix", key(rid, "fix"), fix, now))
+    out = core.tick(1010.0)
+    assert core.responders == {} and core._newcomers == {} and not [o for o in out if "/ghost" in o.key]
+    assert core.intake.responders == 0 and sum(len(v) for v in core._held_fixes.values()) <= core.MAX_HELD_FIXES
+    door = wire.encode(wire.Fix.checkpoint("ff7", 10.0, x=10.0, y=-5.0, floor=0, sigma=0.2))
+    assert core.admit("fix", key("ff7", "fix"), len(door), 1010.5) is None
+    core.feed(Inbound("fix", key("ff7", "fix"), door, 1010.5))
+    core.feed(Inbound("presence", key("x", "presence"), b"1", 1025.0))  # time passes: the ghosts' fixes go
+    assert core._held_fixes == {} or set(core._held_fixes) == {"ff7"}
+    assert core.frame_accounting()["fix_unknown_responder"] >= 1000 - core.MAX_HELD_FIXES
+    # a wearable whose door fix came just before its first frame is placed by it
+    core2 = IncidentCore(CFG)
+    core2.feed(Inbound("fix", key("ff7", "fix"), door, 1010.5))
+    assert core2.responders == {}
+    p = frame_payload("ff7", 0, 10.0)
+    core2.feed(Inbound("imu", key("ff7"), p, 1011.0))
+    tr = core2.responders["ff7"].tracker
+    assert tr.fixes_applied + tr.fixes_queued == 1 and "fix_unknown_responder" not in core2.frame_accounting()
+
+
+def test_a_source_pickled_before_lanes_resumes_as_its_frames_lane():
+    """A snapshot of an older service (one bucket per source) still resumes."""
+    import pickle
+    from collections import deque
+
+    from service.core.intake import SourceState, TokenBucket
+
+    it = Intake()
+    old = SourceState.__new__(SourceState)
+    old.__dict__.update({"bucket": TokenBucket(100.0, 4000.0, 0.0), "rejects": deque(), "bad": False, "throttled": 3,
+                         "last_throttled": 5.0, "dropped": {"throttled": 3}})
+    it.sources["ff2"] = old
+    back = pickle.loads(pickle.dumps(it))
+    assert back.flooding("ff2", 10.0) and back.admit(key("ff2"), 10, 11.0) == (None, "ff2")
+    assert back.dropped_of("ff2") == {"throttled": 3}

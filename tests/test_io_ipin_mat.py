@@ -85,6 +85,9 @@ def test_real_mat_walks_read_like_the_text_logs(shared_data, name):
     rec = load(shared_data(f"ipin2023/{name}"))
     txt = load(shared_data("ipin2023/IPIN2023_T3_TrainingTrial52_repetition01.txt.gz"))
     assert rec.kind == "ipin" and rec.warnings == []
+    # the beacons: some of the museum's six MACs, on the sensor clock, in dBm
+    assert set(rec.ble.ids()) <= {f"BE:AC:20:23:00:0{k}" for k in range(1, 7)} and len(rec.ble) > 100
+    assert rec.acc.t[0] - 10.0 < rec.ble.t[0] and rec.ble.t[-1] < rec.acc.t[-1] + 10.0 and rec.ble.rssi.max() < -30.0
     # same kind of walk: floors 0 and -2, landmarks inside the IMU span, 50 Hz accelerometer
     assert set(rec.landmarks.floor) == {0, -2} and rec.landmarks.floor[0] == 0
     assert rec.acc.t[0] < rec.landmarks.t[0] and rec.landmarks.t[-1] < rec.acc.t[-1]

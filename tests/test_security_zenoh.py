@@ -426,3 +426,28 @@ def test_only_consoles_give_orders_and_a_wearable_hears_and_answers_its_own(pkid
             w1.close()
             for s in (s1, s2, console):
                 s.close()
+
+
+def test_a_phone_gateway_publishes_for_the_rosters_wearables_only(pkidir):
+    """The console's phone gateway (role gateway) speaks for every wearable of the roster, as
+    the phones it enrols, with their acknowledgements; for a name not in the roster the router
+    refuses it, and it cannot give orders or act as an operator."""
+    from client.wearable import Wearable
+
+    with secure_service(pkidir) as (svc, endpoint, tap):
+        gw = tls_client(endpoint, identity(pkidir, "gw"))
+        ff1, ff7 = Wearable(gw, INCIDENT, "ff1"), Wearable(gw, INCIDENT, "ff7")
+        try:
+            for w in (ff1, ff7):
+                for b in walking_frames(w.responder, 1.0):
+                    w.send("imu", b)
+            assert wait_until(lambda: "ff1" in svc.responders, 10)
+            assert ff1.flush(10.0), ff1.delivery()  # the service's Status reached the gateway: acknowledged
+            gw.put(wire.key(INCIDENT, "ff1", "command"), wire.encode(wire.Command(
+                responder="ff1", id="gw-1", action="evacuate", issued_at=time.time())))
+            time.sleep(SETTLE_S)
+            assert "ff7" not in svc.responders and svc.responders["ff1"].commands == {}
+        finally:
+            ff1.close()
+            ff7.close()
+            gw.close()

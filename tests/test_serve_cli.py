@@ -263,3 +263,99 @@ def test_without_a_config_an_install_without_the_demo_config_says_what_to_give(m
     assert e.value.exit_code == 2
     out = capsys.readouterr()
     assert "--config FILE" in out.out + out.err
+
+
+def _children(pid: int) -> list[int]:
+    """The live processes whose parent is ``pid`` (from /proc)."""
+    import os
+
+    out = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                stat = f.read()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()  # after "pid (comm) ": state, ppid, ...
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out.append(int(entry))
+    return out
+
+
+def _alive(pids: list[int]) -> list[int]:
+    import os
+
+    alive = []
+    for p in pids:
+        try:
+            with open(f"/proc/{p}/stat") as f:
+                if f.read().split(") ", 1)[1][0] != "Z":
+                    alive.append(p)
+        except OSError:
+            pass
+    return alive
+
+
+def test_serve_refuses_more_workers_than_cores_with_one_line_and_starts_nothing():
+    """Issue 32, part 6: ``serve --workers 100000`` was a process storm (load 394, the OOM killer)."""
+    import multiprocessing
+
+    from client.cli import app
+    from service.shell.workers import usable_cores
+
+    for n in (100_000, 0, -3, usable_cores() + 1):
+        r = CliRunner().invoke(app, ["serve", "--workers", str(n), "--seconds", "0", "--no-console"])
+        assert r.exit_code == 2, r.output
+        assert r.output.count("\n") == 1 and f"--workers must be between 1 and {usable_cores()}" in r.output
+        assert f"got {n}" in r.output
+    assert multiprocessing.active_children() == []
+
+
+@pytest.mark.parametrize("how", ["SIGTERM", "SIGKILL"])
+def test_serve_with_two_workers_leaves_no_process_behind(how):
+    """SIGTERM: serve ends within seconds, its worker process with it; SIGKILL (no goodbye):
+    the worker dies with its parent (PR_SET_PDEATHSIG)."""
+    from service.shell.workers import usable_cores
+
+    if usable_cores() < 2:
+        pytest.skip("--workers 2 needs 2 cores")
+    port = free_port()
+    proc = _serve(port, "--workers", "2")
+    try:
+        _wait_for_line(proc, "serving incident demo", timeout=120)
+        assert wait_until(lambda: len(_children(proc.pid)) >= 1, 30)
+        workers = _children(proc.pid)
+        t0 = time.monotonic()
+        proc.send_signal(getattr(signal, how))
+        rest, _ = proc.communicate(timeout=30)
+        took = time.monotonic() - t0
+        assert wait_until(lambda: not _alive(workers), 10), f"left behind: {_alive(workers)}"
+        print(f"FIGURE serve --workers 2, {how}: ended in {took:.2f} s, {len(workers)} child process(es), none left")
+        if how == "SIGTERM":
+            assert proc.returncode == 0 and took < 15.0, rest
+            assert "stopped;" in rest and "Traceback" not in rest
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+@pytest.mark.parametrize("name, text", [
+    ("deep.json", "[" * 100_000 + "]" * 100_000),
+    ("huge.toml", "floor_height_m = 1e308\n[origin]\nlat = 49.46\nlon = 11.11\n"),
+    ("floors.json", json.dumps({"origin": {"lat": 49.46, "lon": 11.11}, "floors": [{"number": i} for i in range(200_000)]})),
+])
+def test_serve_refuses_a_hostile_config_with_one_short_line(tmp_path, name, text):
+    """Issue 32, part 6: a 100,000-deep config gave a RecursionError traceback, 1e308 was taken,
+    200,000 floors gave a 4.4 MB error line."""
+    import multiprocessing
+
+    from client.cli import app
+
+    f = tmp_path / name
+    f.write_text(text)
+    r = CliRunner().invoke(app, ["serve", "--config", str(f), "--seconds", "0", "--no-console"])
+    assert r.exit_code == 2 and isinstance(r.exception, SystemExit), r.output[:500]
+    assert r.output.count("\n") == 1 and len(r.output) < 1200 and name in r.output, r.output[:500]
+    assert "Traceback" not in r.output and multiprocessing.active_children() == []

@@ -29,14 +29,42 @@ def frame(seq, t0=None, device="phone-A", boot=None):
 # The gate: streams by (device, boot, seq)
 # --------------------------------------------------------------------------------------
 def test_frames_of_another_stream_cannot_take_a_live_stream_over():
-    gate = FrameGate(takeover_after_s=0.5)
+    gate = FrameGate()
     released = []
-    for s in range(100):  # an honest stream at 20 frames/s, an injected one between its frames
+    for s in range(200):  # an honest stream at 20 frames/s, an injected one between its first 100 frames
         released += [(b.device, b.seq) for b in gate.offer(frame(s, boot="honest"), s * 0.05)]
-        released += [(b.device, b.seq) for b in gate.offer(frame(s % 3, t0=1e6 + s, device="evil"), s * 0.05 + 0.01)]
-        released += [(b.device, b.seq) for b in gate.offer(frame(s, t0=1e6 + s, boot="honest"), s * 0.05 + 0.02)]
-    assert released == [("phone-A", s) for s in range(100)] and gate.epoch == 0
-    assert gate.counts == {"other_stream": 100, "duplicate": 100}
+        if s < 100:
+            released += [(b.device, b.seq) for b in gate.offer(frame(s % 3, t0=1e6 + s, device="evil"), s * 0.05 + 0.01)]
+            released += [(b.device, b.seq) for b in gate.offer(frame(s, t0=1e6 + s, boot="honest"), s * 0.05 + 0.02)]
+    assert released == [("phone-A", s) for s in range(200)] and gate.epoch == 0
+    # the injected frames were held as a candidate (3 of them) or turned away; the held ones too, in time
+    assert gate.counts == {"other_stream": 100, "duplicate": 100} and gate.contested == 100
+
+
+def test_a_burst_of_new_streams_is_refused_while_the_real_one_speaks_and_a_quick_restart_loses_nothing():
+    """Issue 32, attack 6: the responder's own certificate sends a 5 s burst with a new boot id
+    at 50 frames/s while the real wearable goes on at 10 frames/s: every real frame is taken,
+    the burst is turned away (counted, ``contested``). Then the real wearable restarts 1 s after
+    its last frame (sooner than ``takeover_after_s``): its frames wait as the candidate and are
+    all released once the old stream's 2 s of silence prove it gone."""
+    gate = FrameGate()
+    released = []
+    for k in range(100):  # 10 s of the real stream
+        released += [(b.boot, b.seq) for b in gate.offer(frame(k, boot="real"), 100.0 + 0.1 * k)]
+        if 30 <= k < 80:
+            for j in range(5):
+                gate.offer(frame(j + 5 * (k - 30), t0=7.0 + 0.05 * j, boot=f"fake{k % 2}"), 100.0 + 0.1 * k + 0.01 * (j + 1))
+    gate.expire(115.0)
+    assert released == [("real", k) for k in range(100)] and gate.boot == "real" and gate.streams == 1
+    assert gate.contested == 250 and gate.counts == {"other_stream": 250}
+    # the real wearable restarts: new boot, seq from 0, first frame 1 s after its last one
+    last = 115.0
+    gate.offer(frame(100, boot="real"), 115.0)
+    out = []
+    for k in range(40):
+        out += gate.offer(frame(k, t0=50.0 + 0.05 * k, boot="again"), last + 1.0 + 0.1 * k)
+    assert [b.seq for b in out] == list(range(40)) and gate.boot == "again" and gate.lost == 0
+    assert gate.contested == 250 and gate.streams == 2
 
 
 def test_a_new_boot_is_a_new_stream_at_once_and_the_old_one_is_retired():
@@ -113,10 +141,11 @@ CFG = default_incident()
 KEY = wire.key(CFG.id, "ff1", "imu")
 
 
-def run(core, frames_at, tick_every=1.0, fixes=()):
+def run(core, frames_at, tick_every=1.0, fixes=(), admit=False):
     """Feed ``(frame, receive time)`` in order with a tick every ``tick_every`` s of receive time;
-    ``fixes`` are ``(receive time, Fix)`` fed when their time comes. Returns poses and every
-    Status the ticks answered."""
+    ``fixes`` are ``(receive time, Fix)`` fed when their time comes; with ``admit`` each frame
+    goes through the intake first, as in the service. Returns poses and every Status the ticks
+    answered."""
     poses, statuses = [], []
     last_tick = -math.inf
     pending = sorted(fixes, key=lambda f: f[0])
@@ -124,7 +153,9 @@ def run(core, frames_at, tick_every=1.0, fixes=()):
         while pending and pending[0][0] <= rt:
             frt, fix = pending.pop(0)
             poses += _poses(core.feed(Inbound("fix", wire.key(CFG.id, "ff1", "fix"), wire.encode(fix), frt)))
-        poses += _poses(core.feed(Inbound("imu", KEY, wire.encode(f), rt)))
+        payload = wire.encode(f)
+        if not admit or core.admit("imu", KEY, len(payload), rt) is None:
+            poses += _poses(core.feed(Inbound("imu", KEY, payload, rt)))
         if rt - last_tick >= tick_every:
             last_tick = rt
             statuses += [o.message for o in core.tick(rt) if isinstance(o.message, wire.Status)]
@@ -249,7 +280,8 @@ def test_a_fix_after_a_gap_re_anchors_the_track(gap_reanchor_s):
         sm = core.track("ff1")["track"]  # the graph's estimate (the published pose closes in step by step)
         assert math.hypot(sm["x"][-1] - (last.x + 25.0), sm["y"][-1] - last.y) < 3.0
     else:
-        assert tr.fix_rejects.get("gnss_gate") == 1 and not out
+        # held out: by the walk gate (dead reckoning since the start fix) before the graph's own GNSS gate
+        assert tr.fix_rejects.get("walk_gate", 0) + tr.fix_rejects.get("gnss_gate", 0) == 1 and not out
     run(core, tail)
     assert core.counters.errors == 0
 
@@ -268,3 +300,28 @@ def test_device_time_fixes_follow_the_stream_clock():
     # taken at once (on the track's clock it is 0.5 s old; read as track time it would be ~1000 s old)
     assert r.fixes_rejected == {} and r.tracker.fix_rejects == {} and r.tracker.fixes_queued == 0
     assert out and math.hypot(out[-1].x - 3.0, out[-1].y - 4.0) < 1.5
+
+
+def test_a_burst_of_fresh_streams_cannot_take_the_track_over_in_the_core():
+    """Issue 32, attack 6 in the core: a 5 s burst (30 frames/s) with fresh boot ids on the
+    responder's key while the real wearable walks: every real frame is taken, the poses are
+    those of a run without the burst, the burst is counted (``other_stream``) and alarmed
+    (``stream_contested``) and the intake does not throttle the real frames."""
+    w = walk(seconds=40.0, seed=5)
+    frames_at = at_rate(w.frames, 7000.0)
+    clean, _ = run(IncidentCore(CFG), frames_at)
+    core = IncidentCore(CFG)
+    fake = restamped(w.frames[:150], dt=-3.0, seq0=0, boot="forged")
+    mixed = list(frames_at)
+    for j, f in enumerate(fake):  # 150 frames in 5 s, from 10 s on, two boots in turn
+        g = f.model_copy(update={"boot": f"forged{j % 2}"})
+        mixed.append((g, 7010.0 + j / 30.0 + 0.003))
+    mixed.sort(key=lambda e: e[1])
+    poses, statuses = run(core, mixed, admit=True)
+    r = core.responders["ff1"]
+    st = core.status_of(r, 7040.0)
+    assert r.gate.accepted == len(w.frames) and st.streams == 1 and st.rejected.get("other_stream") == 150
+    assert "throttled" not in st.rejected and r.gate.contested == 150
+    assert [(p.x, p.y) for p in poses] == [(p.x, p.y) for p in clean]
+    assert any("stream_contested" in s.alarms for s in statuses)
+    assert "stream_contested" not in core.status_of(r, 7040.0 + 20.0).alarms

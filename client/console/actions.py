@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 
 import zenoh
@@ -75,6 +76,9 @@ class OperatorActions:
         numbers = [f.number for f in self.cfg.floors]
         if floor not in numbers:
             raise HttpError(400, f"floor {floor} is not configured for incident {self.cfg.id!r}; floors: {numbers}")
+        if not self.cfg.within_extent(x, y):
+            raise HttpError(422, f"x, y = ({x:.6g}, {y:.6g}) m is {math.hypot(x, y):,.0f} m from the incident's origin, "
+                                 f"outside its extent ({self.cfg.extent_m:g} m): check the numbers")
         return wire.Fix.checkpoint(rid, t, x=x, y=y, floor=floor, sigma=sigma, operator=operator)
 
     async def _publish_action(self, action: wire.OperatorAction) -> str:

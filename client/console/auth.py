@@ -16,11 +16,23 @@ carries it), ``Secure`` on HTTPS, and ends after :data:`SESSION_MAX_S` or at log
 the identity in the roster ends its sessions within a second. Viewers read; only operators
 act (fix, checkpoint, acknowledge, PAR), and every action names the operator.
 
+**Guessing.** A password login is limited per address (:data:`LOGIN_FAILURES` failures within
+:data:`LOGIN_WINDOW_S`) and per account (:data:`ACCOUNT_FAILURES` within
+:data:`ACCOUNT_WINDOW_S`, whatever the addresses): beyond either the answer is 429, "locked",
+before any password is looked at. An attempt counts as a failure from the moment it starts (a
+success takes it back), so concurrent guesses cannot slip past the count. A user name the
+roster does not know is hashed against a dummy hash of the same cost, so known and unknown
+names take the same time to answer (no user enumeration), and unknown names are counted like
+known ones. scrypt (about 16 MiB and 50 ms) runs on :data:`HASH_THREADS` threads off the event
+loop, so logins never stall the console's other requests. A locked account can still log in
+with its client certificate.
+
 **Without a roster** (the one-command demo) the console serves this machine only, and whoever
 is at it acts as operator ``local``; the page says so.
 """
 from __future__ import annotations
 
+import asyncio
 import ipaddress
 import logging
 import secrets
@@ -28,6 +40,7 @@ import ssl
 import threading
 import time
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -38,6 +51,10 @@ SESSION_COOKIE = "firetrack_session"
 SESSION_MAX_S = 12 * 3600.0  # s: one shift; then the operator logs in again
 LOGIN_FAILURES = 5  # failed logins from one address within LOGIN_WINDOW_S ...
 LOGIN_WINDOW_S = 60.0  # s: ... and that address waits this long (429)
+ACCOUNT_FAILURES = 5  # failed logins for one user name, from any addresses, within ACCOUNT_WINDOW_S lock it
+ACCOUNT_WINDOW_S = 900.0  # s
+MAX_TRACKED = 10_000  # addresses and user names whose failures are kept (beyond, the oldest are forgotten)
+HASH_THREADS = 1  # password hashes computed at once (16 MiB each; one core stays free for the console)
 OPEN_USER = "local"  # who acts in the demo, without a roster
 
 
@@ -123,7 +140,10 @@ class Logins:
         self.clock = clock
         self._lock = threading.Lock()
         self._sessions: dict[str, Session] = {}
-        self._failures: dict[str, deque] = {}
+        self._failures: dict[str, deque] = {}  # address -> times of failed (or ongoing) attempts
+        self._account_failures: dict[str, deque] = {}  # user name -> the same
+        self._hasher: ThreadPoolExecutor | None = None
+        self._dummy_hash: str | None = None
         self.roster = None
         self._watcher = None
         self.on_revoked = None  # callable(list of sessions ended) from the roster watcher's thread
@@ -141,6 +161,8 @@ class Logins:
     def close(self) -> None:
         if self._watcher is not None:
             self._watcher.close()
+        if self._hasher is not None:
+            self._hasher.shutdown(wait=False, cancel_futures=True)
 
     # ------------------------------------------------------------------ sessions
     def session(self, token: str | None) -> Session | None:
@@ -169,17 +191,42 @@ class Logins:
             log.warning("console: %s logged out", s.user)
 
     # ------------------------------------------------------------------ logins
-    def throttled(self, address: str) -> bool:
+    def throttled(self, address: str, user=None) -> str | None:
+        """Why a login from ``address`` as ``user`` is refused before any password is looked at
+        (``"address"`` or ``"account"``), or None."""
         now = self.clock()
         with self._lock:
-            q = self._failures.get(address)
-            while q and now - q[0] > LOGIN_WINDOW_S:
-                q.popleft()
-            return bool(q) and len(q) >= LOGIN_FAILURES
+            if _recent(self._failures.get(address), now, LOGIN_WINDOW_S) >= LOGIN_FAILURES:
+                return "address"
+            if _recent(self._account_failures.get(_account(user)), now, ACCOUNT_WINDOW_S) >= ACCOUNT_FAILURES:
+                return "account"
+        return None
 
-    def _failed(self, address: str, user) -> None:
+    def _attempt(self, address: str, user) -> tuple[str, float] | None:
+        """Start a password attempt: refused (None) when the address or the account is locked,
+        else counted as a failure until :meth:`_succeeded` takes it back."""
+        now = self.clock()
         with self._lock:
-            self._failures.setdefault(address, deque(maxlen=LOGIN_FAILURES)).append(self.clock())
+            if (_recent(self._failures.get(address), now, LOGIN_WINDOW_S) >= LOGIN_FAILURES or
+                    _recent(self._account_failures.get(_account(user)), now, ACCOUNT_WINDOW_S) >= ACCOUNT_FAILURES):
+                return None
+            _note(self._failures, address, now, LOGIN_FAILURES)
+            _note(self._account_failures, _account(user), now, ACCOUNT_FAILURES)
+        return address, now
+
+    def _succeeded(self, ticket: tuple[str, float], user) -> None:
+        address, t = ticket
+        with self._lock:
+            for book, name in ((self._failures, address), (self._account_failures, _account(user))):
+                q = book.get(name)
+                if q is not None and t in q:
+                    q.remove(t)
+
+    def count_failure(self, address: str, user) -> None:
+        """A failed login (or a wrong phone enrolment code) from ``address``: after
+        LOGIN_FAILURES within LOGIN_WINDOW_S the address is :meth:`throttled`."""
+        with self._lock:
+            _note(self._failures, address, self.clock(), LOGIN_FAILURES)
         log.warning("console: failed login as %r from %s", user, address)
 
     def _login_identity(self, user: str):
@@ -190,13 +237,49 @@ class Logins:
             return None
         return ident
 
+    def _stored_hash(self, ident) -> str:
+        """The hash a password is checked against: the identity's, or for a name that cannot
+        log in (unknown, revoked, a wearable, no password) a dummy of the same cost."""
+        if ident is not None and ident.password:
+            return ident.password
+        if self._dummy_hash is None:
+            from service.protocol.access import hash_password
+
+            self._dummy_hash = hash_password(secrets.token_urlsafe(16))
+        return self._dummy_hash
+
     def with_password(self, user, password, address: str) -> Session | None:
+        """A password login, hashing in the calling thread (see :meth:`login_with_password`)."""
+        ticket = self._attempt(address, user)
+        if ticket is None:
+            return None
+        return self._judge(ticket, user, password, self._check(user, password))
+
+    async def login_with_password(self, user, password, address: str) -> tuple[Session | None, str | None]:
+        """``(session, None)``, ``(None, "wrong")`` or ``(None, "locked")``: the check of
+        :meth:`with_password` with its hash on the hashing threads, off the event loop."""
+        ticket = self._attempt(address, user)
+        if ticket is None:
+            return None, "locked"
+        if self._hasher is None:
+            self._hasher = ThreadPoolExecutor(HASH_THREADS, thread_name_prefix="firetrack-login")
+        ok = await asyncio.get_running_loop().run_in_executor(self._hasher, self._check, user, password)
+        s = self._judge(ticket, user, password, ok)
+        return s, None if s is not None else "wrong"
+
+    def _check(self, user, password) -> tuple[bool, object]:
         from service.protocol.access import check_password
 
         ident = self._login_identity(user)
-        if ident is None or not check_password(password, ident.password):
-            self._failed(address, user)
+        good = check_password(password if isinstance(password, str) else "", self._stored_hash(ident))
+        return good and ident is not None and isinstance(password, str), ident
+
+    def _judge(self, ticket, user, password, checked) -> Session | None:
+        ok, ident = checked
+        if not ok:
+            log.warning("console: failed login as %r from %s", str(user)[:64], ticket[0])
             return None
+        self._succeeded(ticket, user)
         return self._start(user, ident.role, "password")
 
     def with_certificate(self, der: bytes | None, address: str) -> Session | None:
@@ -214,7 +297,7 @@ class Logins:
             return None
         ident = self._login_identity(cn)
         if ident is None or ident.serial != format(cert.serial_number, "x"):
-            self._failed(address, cn)
+            self.count_failure(address, cn)
             return None
         return self._start(cn, ident.role, "certificate")
 
@@ -230,6 +313,29 @@ class Logins:
             log.warning("console: %s is revoked; its session ended", s.user)
         if ended and self.on_revoked is not None:
             self.on_revoked(ended)
+
+
+def _account(user) -> str:
+    """The name an account's failures are counted under (any value a body may carry)."""
+    return user[:128] if isinstance(user, str) else "<not a name>"
+
+
+def _recent(q: deque | None, now: float, window: float) -> int:
+    """How many times in ``q`` lie within ``window`` s before ``now`` (the older ones go)."""
+    while q and now - q[0] > window:
+        q.popleft()
+    return len(q) if q else 0
+
+
+def _note(book: dict[str, deque], name: str, now: float, keep: int) -> None:
+    """A failure of ``name`` at ``now``; at most :data:`MAX_TRACKED` names are kept."""
+    q = book.pop(name, None)  # re-inserted: the dict's order is the last failure's
+    if q is None:
+        q = deque(maxlen=keep)
+        while len(book) >= MAX_TRACKED:
+            del book[next(iter(book))]
+    q.append(now)
+    book[name] = q
 
 
 def server_ssl_context(tls, request_client_cert: bool = True) -> ssl.SSLContext:

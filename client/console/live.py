@@ -127,6 +127,11 @@ class LiveBoard:
             p = self._pose.get(responder)
         return None if p is None else int(p["floor"])
 
+    def latest(self, responder: str) -> tuple[dict | None, dict | None]:
+        """The responder's latest pose and status as the page reads them (None: not yet)."""
+        with self._lock:
+            return self._pose.get(responder), self._status.get(responder)
+
     def responders(self) -> list[str]:
         with self._lock:
             return sorted(set(self._pose) | set(self._status))

@@ -38,8 +38,8 @@ class LoginRoutes:
         if self.logins.open:
             return web.json_response(self._session_json(request[SESSION_KEY]))
         address = request.remote or "?"
-        if self.logins.throttled(address):
-            return error_response(429, "too many failed logins from this address: wait a minute")
+        if self.logins.throttled(address) == "address":
+            return error_response(429, "locked: too many failed logins from this address; wait a minute")
         try:
             body = await read_json(request)
         except HttpError as e:
@@ -49,7 +49,10 @@ class LoginRoutes:
             if s is None:
                 return error_response(401, "no client certificate of an operator or viewer of this incident was presented")
         else:
-            s = self.logins.with_password(body.get("user"), body.get("password"), address)
+            s, why = await self.logins.login_with_password(body.get("user"), body.get("password"), address)
+            if why == "locked":
+                return error_response(429, "locked: too many failed logins from this address or for this account; "
+                                           "wait, or log in with the client certificate")
             if s is None:
                 return error_response(401, "wrong user or password")
         resp = web.json_response(self._session_json(s))

@@ -25,6 +25,7 @@ HTTP API (JSON; errors are ``{"error": "..."}`` with a 4xx status naming what is
                         time, published as an operator action (``.../{actor}/op``) naming the operator
 ``POST /api/checkpoint``  ``{name, x, y, floor}`` [``sigma_m``, ``note``]: add a named checkpoint
 ``POST /api/ack``       ``{responder, alarm}``: an alarm acknowledged (recorded by the service)
+``/wear``, ``/api/phones``  phones as wearables (:mod:`client.console.phone_gateway`)
 ======================  =========================================================================
 
 The routes are grouped by what they serve: this module keeps the lifecycle, the page, the
@@ -66,6 +67,7 @@ from client.console.auth import (
 )
 from client.console.live import LiveBoard
 from client.console.login_routes import LoginRoutes
+from client.console.phone_gateway import PhoneGateway
 from client.console.plans import grid_matrix, plan_png, plan_problem, served_plan
 from client.console.requests import POST_MAX_BYTES, SESSION_KEY, error_response
 from client.console.track_routes import TrackRoutes
@@ -79,6 +81,7 @@ log = logging.getLogger("firetrack.console")
 # can be text/plain (the Windows registry): say what .js and .css are.
 mimetypes.add_type("text/javascript", ".js")
 mimetypes.add_type("text/css", ".css")
+mimetypes.add_type("application/manifest+json", ".webmanifest")
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 BATCH_PERIOD_S = 0.15  # one update message per page at most this often
@@ -135,17 +138,15 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
         self.site: SitePolicy | None = None
         self.audits: list[dict] = []
         self.flags: dict[str, dict] = {}  # responder -> its latest flagged fix (audit)
-        self.cfg = cfg
-        self.host = host
-        self.port = port
-        self.batch_period_s = batch_period_s
-        self.lost_contact_s = lost_contact_s
+        self.cfg, self.host, self.port = cfg, host, port
+        self.batch_period_s, self.lost_contact_s = batch_period_s, lost_contact_s
         self.static_dir = Path(static_dir)
         self.board = LiveBoard()
         self.pages: set[_Page] = set()
         self.fixes_sent = 0
         self.commands_sent = 0
         self.added_checkpoints: set[str] = set()
+        self.phones = PhoneGateway(session, cfg.id, self.board, logins=self.logins)  # /wear: phones as wearables
         self._subs: list = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
@@ -228,6 +229,7 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
         r.add_post("/api/checkpoint", self._checkpoint)
         r.add_post("/api/command", self._command)
         r.add_post("/api/ack", self._ack)
+        self.phones.add_routes(r, self.static_dir, self._actor_session, lambda: self.url)
         runner = web.AppRunner(app, access_log=None, shutdown_timeout=1.0)
         await runner.setup()
         ssl_ctx = server_ssl_context(self.tls, request_client_cert=not self.logins.open) if self.https else None
@@ -263,6 +265,7 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
             except Exception as e:  # shutting down: say so, go on stopping the loop
                 log.warning("console shutdown: %s", e)
         self._stop_loop()
+        self.phones.close()
         self.logins.close()
 
     async def _shutdown(self) -> None:
@@ -364,7 +367,8 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
             return error_response(403, problem)
         session = self.logins.session(request.cookies.get(SESSION_COOKIE))
         request[SESSION_KEY] = session
-        if session is None and request.path not in PUBLIC_PATHS and not request.path.startswith("/static/"):
+        if (session is None and request.path not in PUBLIC_PATHS + PhoneGateway.PUBLIC
+                and not request.path.startswith("/static/")):
             return error_response(401, "log in first (POST /api/login)")
         return await handler(request)
 
@@ -383,6 +387,8 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
             "id": cfg.id, "name": cfg.name, "origin": cfg.origin.model_dump(), "start_floor": cfg.start_floor,
             "floors": [{"number": f.number, "name": f.name, "elevation_m": f.elevation_m} for f in cfg.floors],
             "checkpoints": self._checkpoints_json(), "plans": plans,
+            "beacons": [{"id": b.id, "name": b.name, "x": b.x, "y": b.y, "floor": b.floor, "sigma_m": b.sigma_m}
+                        for b in cfg.beacons],
             "roster": [m.model_dump() for m in cfg.roster],
             "settings": {"lost_contact_s": self.lost_contact_s, "batch_period_s": self.batch_period_s,
                          "trail_points": self.board.trail_points},

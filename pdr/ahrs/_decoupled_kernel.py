@@ -202,6 +202,16 @@ def decoupled_run(s, p, t, acc, gyr, mag, use_mag, turn, out):  # pragma: no cov
                 dt = 0.0
             elif dt > p[P_MAX_DT]:
                 dt = p[P_MAX_DT]
+                # A gap: how the sensor turned during it is unknown, so the memory of gravity in I
+                # (the low-passed a_I) no longer points where gravity is. Kept, it would take
+                # several tau_acc, slewed at acc_rate_max, to learn the new tilt, and the heading
+                # meanwhile integrates the rates about a tilted axis (a 1.3 s gap in a phone walk
+                # turned its steps by 130 deg). So the inclination starts again as at the first
+                # sample: the running mean of a_I over tau_acc, levelled at once.
+                s[S_ACC_INIT_T] = 0.0
+                s[S_ACC_INIT_N] = 0.0
+                s[S_ACC_MEAN], s[S_ACC_MEAN + 1], s[S_ACC_MEAN + 2] = 0.0, 0.0, 0.0
+                s[S_Q0_GIVEN] = 0.0
         if t[i] == t[i]:
             s[S_T] = t[i]
         if not finite:

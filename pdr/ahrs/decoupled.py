@@ -21,7 +21,8 @@ be trusted. Quaternions are scalar first, Hamilton, body -> frame. Per sample, w
    ``acc_rate_max·dt`` (ours: a long, one-sided acceleration, e.g. a lift or a car, can
    then tilt the estimate only that fast). The first ``tau_acc`` seconds use the running
    mean of ``a_I`` instead, turned onto z in full (no rate limit), so the start needs no
-   settling; a filter given a start orientation ``q0`` instead starts the low-pass at
+   settling; so do the ``tau_acc`` seconds after a gap longer than ``max_dt`` (how the
+   sensor turned in it is unknown, and the low-passed ``a_I`` would point the wrong way); a filter given a start orientation ``q0`` instead starts the low-pass at
    q0's vertical, so it keeps q0 and corrects it like any later error.
 
    **Fast path** (ours; the constant-step accelerometer correction of FSCF, Justa, Šmídl,

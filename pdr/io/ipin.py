@@ -13,9 +13,14 @@ line type; then one reading per line, ``;``-separated, the first field its type:
     AHRS;AppTs;SensorTs;pitch;roll;yaw;q2;q3;q4;accuracy    the phone's own orientation
     GNSS;AppTs;UnixTs;lat;lon;alt;bearing;accuracy_m;speed;sat_view;sat_used
     POSI;AppTs;counter;lat;lon;floor;building    ground truth: walker on a surveyed landmark
+    BLE4;AppTs;iBeacon;MAC;RSSI;Power;Major;Minor;UUID     one BLE advertisement heard (dBm)
+    BLE4;AppTs;Eddystone;MAC;RSSI;instanceID;...
 
 The header writes ``Mag_X(uT);;Mag_Y`` but the files have single separators; both are read.
-WIFI, BLE4, LIGH, SOUN and the other documented types are skipped and only counted.
+BLE4 lines become :class:`pdr.recording.BeaconReadings` (:func:`beacon_readings`): the beacon
+named by its MAC, the iBeacon ``Power`` field (its calibrated RSSI at 1 m, dBm) as tx power when
+it is not 0 (the IPIN beacons all say 0: unknown). WIFI, LIGH, SOUN and the other documented
+types are skipped and only counted.
 
 Clocks. ``SensorTs`` is the device sensor clock (seconds since boot), accurate sample to
 sample: every series in the Recording is on it. ``AppTs`` is when the app read a value, on
@@ -41,7 +46,7 @@ import numpy as np
 from pdr.io._common import Notes, time_order
 from pdr.io._text import drop_partial_last_line, parse_rows, read_text
 from pdr.io.errors import RecordingFormatError
-from pdr.recording import GnssFixes, Landmarks, Recording, Series
+from pdr.recording import BeaconReadings, GnssFixes, Landmarks, Recording, Series
 
 
 @dataclass(frozen=True)
@@ -62,7 +67,8 @@ _PARSED = {
     _POSI: _LineKind(7, (1, 2, 3, 4, 5, 6)),  # AppTs, counter, lat, lon, floor, building
 }
 # The other types the logger documents: counted, not read.
-_IGNORED = frozenset("LIGH PROX HUMI TEMP WIFI BLUE BLE4 SOUN RFID IMUX IMUL IMUI".split())
+_IGNORED = frozenset("LIGH PROX HUMI TEMP WIFI BLUE SOUN RFID IMUX IMUL IMUI".split())
+_BLE4 = "BLE4"  # read field by field (text fields): beacon_readings()
 # MAGN as the header spells it, with an empty field after Mag_X.
 _MAGN_DOUBLE_SEP_COLS = (1, 2, 3, 5, 6)
 
@@ -159,6 +165,7 @@ def load_ipin(path: str | Path) -> Recording:
     gnss = gnss_fixes(rows(_GNSS), offset, meta, notes)
     landmarks = landmark_table(rows(_POSI), offset, path, lambda k: _line_number(lines, "POSI;", k), meta, notes)
     warn_landmarks_outside(landmarks, acc, notes)
+    ble = beacon_readings(groups.get(_BLE4 + ";", []), offset, notes, lambda k: _line_number(lines, "BLE4;", k))
 
     return Recording(
         source=str(path),
@@ -168,6 +175,7 @@ def load_ipin(path: str | Path) -> Recording:
         mag=series(_MAGN, magn, magn[:, 2:5]),
         pressure=series(_PRES, pres, pres[:, 2:3]),
         gnss=gnss,
+        ble=ble,
         landmarks=landmarks,
         device_orientation=series(_AHRS, ahrs, quaternion_from_rotation_vector(ahrs[:, 2:5])),
         frame="ENU",
@@ -213,7 +221,7 @@ def _count_types(groups: dict[str, list[str]]) -> tuple[dict[str, int], dict[str
         if key.startswith("%") or not key.strip():
             continue
         kind = key[:4]
-        if key[4:5] == ";" and (kind in _PARSED or kind in _IGNORED):
+        if key[4:5] == ";" and (kind in _PARSED or kind in _IGNORED or kind == _BLE4):
             counts[kind] = len(members)
         else:
             unknown[key] = len(members)
@@ -337,3 +345,40 @@ def landmark_table(p: np.ndarray, offset: float, path, line_of, meta: dict, note
         floor=p[:, 4].astype(int),
         counter=p[:, 1].astype(int),
     )
+
+
+def beacon_readings(lines: list[str], offset: float, notes: Notes, line_of) -> BeaconReadings | None:
+    """BLE4 lines -> readings on the sensor clock (``offset``: app -> sensor; BLE4 has only the
+    app's time). A line without a MAC or a numeric RSSI is skipped with one warning naming the
+    first (``line_of(k)``: the file line of the k-th BLE4 line)."""
+    if not lines:
+        return None
+    t, ids, rssi, tx, bad = [], [], [], [], []
+    for k, line in enumerate(lines):
+        f = line.rstrip().split(";")
+        try:
+            app_t, mac, level = float(f[1]), f[3].strip().upper(), float(f[4])
+            power = float(f[5]) if f[2] == "iBeacon" and f[5].strip() else 0.0
+        except (IndexError, ValueError):
+            bad.append(k)
+            continue
+        if not mac or not (np.isfinite(app_t) and np.isfinite(level)):
+            bad.append(k)
+            continue
+        t.append(app_t + offset)
+        ids.append(mac)
+        rssi.append(level)
+        tx.append(power if power != 0.0 and np.isfinite(power) else np.nan)
+    if bad:
+        notes.warn(f"{len(bad)} BLE4 line(s) without a MAC or a numeric RSSI skipped, first at line {line_of(bad[0])}")
+    return beacon_table(t, ids, rssi, tx)
+
+
+def beacon_table(t, ids, rssi, tx) -> BeaconReadings | None:
+    """Readings (times already on the sensor clock) in time order; None when there are none."""
+    if len(t) == 0:
+        return None
+    t_arr = np.asarray(t, float)
+    order = np.argsort(t_arr, kind="stable")
+    return BeaconReadings(t=t_arr[order], beacon=np.asarray(ids, dtype=object)[order],
+                          rssi=np.asarray(rssi, float)[order], tx_power=np.asarray(tx, float)[order])

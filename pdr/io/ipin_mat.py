@@ -35,6 +35,7 @@ from pdr.io._common import Notes, time_order
 from pdr.io._mat import load_mat, numeric
 from pdr.io.errors import RecordingFormatError
 from pdr.io.ipin import (
+    beacon_table,
     check_pressure,
     gnss_fixes,
     landmark_table,
@@ -89,6 +90,7 @@ def load_ipin_mat(path: str | Path) -> Recording:
         landmarks = landmark_table(rows, offset, path, lambda k: None, meta, notes)
     acc = series("Acce", acce, lambda a: a[:, 2:5])
     warn_landmarks_outside(landmarks, acc, notes)
+    ble = _ble4(m.get("Ble4"), offset, path, notes)
     return Recording(
         source=str(path),
         kind="ipin",
@@ -97,12 +99,39 @@ def load_ipin_mat(path: str | Path) -> Recording:
         mag=series("Magn", arr["Magn"], lambda a: a[:, 2:5]),
         pressure=series("Pres", pres, lambda a: a[:, 2:3]),
         gnss=gnss,
+        ble=ble,
         landmarks=landmarks,
         device_orientation=series("Ahrs", arr["Ahrs"], lambda a: quaternion_from_rotation_vector(a[:, 5:8])),
         frame="ENU",
         meta=meta,
         warnings=notes.messages,
     )
+
+
+def _ble4(cells, offset: float, path, notes: Notes):
+    """``Ble4``: a cell array N x 3 (AppTs, MAC, RSSI dBm) -> beacon readings on the sensor clock;
+    rows that do not read as such are skipped with a warning."""
+    if cells is None or getattr(cells, "size", 0) == 0:
+        return None
+    if cells.ndim != 2 or cells.shape[1] < 3:
+        notes.warn(f"Ble4: expected N x 3 cells (AppTs, MAC, RSSI), found shape {cells.shape}; beacons skipped")
+        return None
+    t, ids, rssi, bad = [], [], [], 0
+    for row in cells:
+        try:
+            app_t, mac, level = float(np.ravel(row[0])[0]), str(np.ravel(row[1])[0]).strip().upper(), float(np.ravel(row[2])[0])
+        except (IndexError, TypeError, ValueError):
+            bad += 1
+            continue
+        if not (mac and np.isfinite(app_t) and np.isfinite(level)):
+            bad += 1
+            continue
+        t.append(app_t + offset)
+        ids.append(mac)
+        rssi.append(level)
+    if bad:
+        notes.warn(f"Ble4: {bad} row(s) without a time, a MAC or an RSSI skipped")
+    return beacon_table(t, ids, rssi, np.full(len(t), np.nan))
 
 
 def _table(m: dict, key: str, ncols: int, path) -> np.ndarray | None:

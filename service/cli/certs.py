@@ -53,7 +53,7 @@ def init_command(
 @app.command("issue")
 def issue_command(
     directory: Path = DIR_OPTION,
-    role: str = typer.Option(..., "--role", help="service | console | operator | viewer | wearable | anchor | simulator | router"),
+    role: str = typer.Option(..., "--role", help="service | console | operator | viewer | wearable | anchor | simulator | gateway | router"),
     name: str = typer.Option(..., "--name", help="the identity: a wearable's responder id, an operator's login name"),
     san: list[str] = typer.Option(None, "--san", help="an address it is reached at (router, service, console); repeat"),
     hours: float = typer.Option(None, "--hours", help="validity, h (default 24, never beyond the CA)"),

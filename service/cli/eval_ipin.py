@@ -34,14 +34,23 @@ def eval_ipin(
     files: list[Path] = typer.Argument(..., help="IPIN 2023 walks: GetSensorData logs (.txt, .txt.gz) or the organisers' .mat"),
     fix_every: int = typer.Option(0, "--fix-every", "-k", help="hand landmarks 0, K, 2K, ... to the tracker as checkpoint fixes (0: only the first)"),
     no_gnss: bool = typer.Option(False, "--no-gnss", help="leave the logs' GNSS fixes out"),
+    ble: bool = typer.Option(False, "--ble", help="feed the logs' BLE beacon readings as ble scans (beacons from the incident config)"),
     engine: str = typer.Option("fusion", "--engine", help="fusion (gtsam factor graph) or dr (dead reckoning alone)"),
     incident: Path = typer.Option(None, "--incident", help="incident config (origin, floors, floor plans); default: the IPIN museum demo"),
     cv: bool = typer.Option(False, "--cv", help="leave-one-route-out cross-validation of the tuned settings (routes: trial numbers)"),
+    cv_grid: str = typer.Option("pdr", "--cv-grid", help="what --cv chooses: pdr (step length, PDR heading, GNSS spacing) or ble (the beacon model; with --ble)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
     plot: Path = typer.Option(None, "--plot", help="write a PNG per file (track, heading evidence, floors over time) into this folder"),
     submit: Path = typer.Option(None, "--submit", help="write each walk's live estimate in the IPIN 2023 Track 3 result format "
                                                        "(<walk>.est, with its ground truth GT_<walk>.csv) into this folder and "
                                                        "score those files the organisers' way"),
+    perturb: str = typer.Option(None, "--perturb", help="robustness suite: run every walk as logged and under each "
+                                "perturbation NAME[,NAME...] or 'all' (names: pdr/evaluation/robustness.py)"),
+    seed: int = typer.Option(27, "--seed", help="the robustness suite's random seed"),
+    write_baseline: Path = typer.Option(None, "--write-baseline", help="track every walk at K = 0 and 3 and write "
+                                        "the per-walk regression baseline (JSON) to this path"),
+    check_baseline: Path = typer.Option(None, "--check-baseline", help="track every walk of this baseline at K = 0 "
+                                        "and 3 and name each figure worse by more than 0.5 m (exit 1 if any)"),
 ):
     """Error at each scored landmark = horizontal distance + 15 m x |floor error|; p75 and median pooled over all files."""
     from service.core.tracker import tracker_settings_for
@@ -62,6 +71,19 @@ def eval_ipin(
     except IncidentConfigError as e:
         fail(str(e))
         raise typer.Exit(2)
+    modes = [o for o, v in (("--cv", cv), ("--perturb", perturb), ("--write-baseline", write_baseline),
+                            ("--check-baseline", check_baseline)) if v]
+    if len(modes) > 1:
+        fail(f"{' and '.join(modes)} cannot be combined")
+        raise typer.Exit(2)
+    if perturb is not None:
+        from pdr.evaluation.robustness import names_from
+
+        try:
+            names = names_from(perturb)
+        except ValueError as e:
+            fail(str(e))
+            raise typer.Exit(2)
     started = time.process_time()
     walks, skipped = walk_files(files)
     if skipped:
@@ -72,14 +94,30 @@ def eval_ipin(
     if not recordings:
         fail("no walk with landmarks to score")
         raise typer.Exit(2)
+    if perturb is not None:
+        from service.cli.eval_ipin_robust import robustness
+
+        robustness(recordings, cfg, names, fix_every, not no_gnss, settings, seed, as_json)
+        raise typer.Exit(1 if bad else 0)
+    if write_baseline is not None or check_baseline is not None:
+        from service.cli.eval_ipin_baseline import baseline_command
+
+        code = baseline_command(recordings, cfg, settings, not no_gnss, write_baseline, check_baseline, incident)
+        raise typer.Exit(code or (1 if bad else 0))
     cache = PdrCache()
     if cv:
-        from service.review.ipin_cv import cross_validate, default_candidate
+        from service.review.ipin_cv import BLE_GRID, TUNING_GRID, cross_validate, default_candidate
         from service.review.ipin_cv import report as cv_report
 
-        res = cross_validate(recordings, cfg, fix_every, not no_gnss, settings, cache=cache, progress=progress)
-        default = default_candidate(settings)
-        report = {**_report(res.runs[default or res.in_sample], fix_every, not no_gnss, engine), "cv": cv_report(res, default)}
+        if cv_grid not in ("pdr", "ble") or (cv_grid == "ble" and not ble):
+            fail(f"--cv-grid must be pdr, or ble with --ble; got {cv_grid!r}")
+            raise typer.Exit(2)
+        grid = BLE_GRID if cv_grid == "ble" else TUNING_GRID
+        res = cross_validate(recordings, cfg, fix_every, not no_gnss, settings, cache=cache, progress=progress,
+                             grid=grid, use_ble=ble)
+        default = default_candidate(settings, grid)
+        report = {**_report(res.runs[default or res.in_sample], fix_every, not no_gnss, engine), "cv": cv_report(res, default),
+                  "ble": ble}
         pooled = report["cv"]["pooled"]["live"]
         report["in_sample_p75_m"] = report["p75_m"]
         report.update(p75_m=pooled["p75_m"], median_m=pooled["median_m"], floor_accuracy=pooled["floor_accuracy"],
@@ -88,10 +126,11 @@ def eval_ipin(
     else:
         runs: list[IpinRun] = []
         for rec in progress(recordings, "tracking"):
-            runs.append(run_ipin(rec, cfg, fix_every, not no_gnss, settings, pdr_cache=cache))
+            runs.append(run_ipin(rec, cfg, fix_every, not no_gnss, settings, pdr_cache=cache, use_ble=ble))
         report = _report(runs, fix_every, not no_gnss, engine)
     if submit is not None:
         report["submission"] = _submit(runs, cfg, submit)
+    report["ble"] = ble
     report["cpu_s"] = time.process_time() - started
     if plot is not None:
         from service.review.ipin_plot import plot_run

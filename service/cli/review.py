@@ -33,8 +33,14 @@ def reprocess_command(
                                                         "(smoothed), live.csv (the live poses with their covariance), "
                                                         "tracks.kml (Google Earth, live and smoothed) and foxglove.mcap "
                                                         "(Foxglove; needs the [foxglove] extra)"),
+    accept_damaged: bool = typer.Option(False, "--accept-damaged", help="a recording cut or corrupt somewhere (a "
+                                        "crash, a bad disk) is reprocessed as far as it reads, and the exit code is 0"),
 ):
-    """Run the service pipeline offline over the recorded inputs and compare with the poses recorded live."""
+    """Run the service pipeline offline over the recorded inputs and compare with the poses recorded live.
+
+    A recording that is cut off or has a corrupt chunk (CRC) is read as far as it can be; each
+    place is named with its byte offset, and the exit code is 1 unless ``--accept-damaged``."""
+    from service.review.recording_reader import TruncatedRecordingWarning
     from service.review.reprocess import reprocess
 
     if not file.is_file():
@@ -50,8 +56,11 @@ def reprocess_command(
     except (ValueError, OSError) as e:
         fail(str(e))
         raise typer.Exit(1)
-    for w in caught:  # a torn recording: one clear line, not a Python warning
-        warn(str(w.message))
+    for w in caught:  # one clear line, not a Python warning
+        if not issubclass(w.category, TruncatedRecordingWarning):  # the damage is said below
+            warn(str(w.message))
+    for d in rep["damage"]:
+        (warn if accept_damaged else fail)(f"{d['file']}: {d['problem']}")
     tracks = rep.pop("tracks")
     live = rep.pop("live_tracks")
     events = rep.pop("events")
@@ -67,7 +76,15 @@ def reprocess_command(
             raise typer.Exit(1)
     if as_json:
         print_json({k: (None if isinstance(v, float) and math.isinf(v) else v) for k, v in rep.items()})
-        return
+    else:
+        _print_table(file, rep)
+    if rep["damage"] and not accept_damaged:
+        fail(f"{file}: damaged in {len(rep['damage'])} place(s); {rep['inputs']} inputs were read and reprocessed. "
+             "A recording cut by a crash ends like this: pass --accept-damaged to take what was read")
+        raise typer.Exit(1)
+
+
+def _print_table(file: Path, rep: dict) -> None:
     table = Table(title=f"reprocessed {file.name}: {rep['inputs']} inputs in {rep['cpu_s']:.2f} s CPU"
                         + (f" ({rep['realtime_factor']:.0f}x real time)" if rep["realtime_factor"] else ""))
     for col in ("responder", "steps", "live track m", "smoothed track m", "poses", "recorded", "max deviation m"):

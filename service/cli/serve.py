@@ -13,6 +13,7 @@ The console is the client layer's (``client/console``): the top of the house, wh
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -74,15 +75,13 @@ def serve_command(
 ):
     """Run the service for one incident: one pipeline per responder, poses and status out."""
     setup_logging(verbose)
+    _workers_or_exit(workers)
     identity = tls_or_exit(tls, "service", what="serve")
     security = security_or_exit(identity, roster, incident_id, router=not connect)
     cfg = incident_or_exit(config, incident_id or (security.roster.incident if security and security.roster else None))
     warn_plan_problems(cfg)
     settings = _service_settings(cfg, security, max_responders, admit_burst, admit_per_s, roster_only, expire_after)
     settings.catch_all = catch_all
-    if workers < 1:
-        fail(f"--workers must be at least 1, got {workers}")
-        raise typer.Exit(2)
     if workers > 1 and record is not None:
         fail("--record records one process's inputs; with --workers > 1 run `firetrack record` beside the service")
         raise typer.Exit(2)
@@ -92,8 +91,10 @@ def serve_command(
     if foxglove is not None and not 0 <= foxglove <= 65535:
         fail(f"--foxglove must be a port number (0-65535), got {foxglove}")
         raise typer.Exit(2)
+    _exit_if_stuck(stop)
     with running_service(cfg, listen, connect, record, console, port, settings=settings, workers=workers,
-                         security=security, foxglove=(foxglove_host, foxglove) if foxglove is not None else None) as (svc, where):
+                         security=security, stop=stop,
+                         foxglove=(foxglove_host, foxglove) if foxglove is not None else None) as (svc, where):
         out.print(f"[bold]firetrack[/] serving incident [bold]{cfg.id}[/] ({cfg.name}) on {where}"
                   + (f" as {identity.name}, mutual TLS" if identity else ""))
         if console:
@@ -102,6 +103,36 @@ def serve_command(
             out.print(f"foxglove: {svc.foxglove_url} (Foxglove: Open connection, Foxglove WebSocket)")
         stop.wait(None if math.isinf(seconds) else seconds)
     out.print(f"stopped; {len(svc.responders)} responder(s), {svc.frames_processed} frames processed")
+
+
+STOP_GRACE_S = 15.0  # s after SIGTERM/SIGINT within which serve has ended, whatever it was doing
+
+
+def _workers_or_exit(workers: int) -> None:
+    """``--workers`` within 1 .. the cores this process may use (one worker per core: more only
+    make processes fight for them), or one line and exit code 2."""
+    from service.shell.workers import usable_cores
+
+    cores = usable_cores()
+    if not 1 <= workers <= cores:
+        fail(f"--workers must be between 1 and {cores} (the cores this machine gives serve), got {workers}")
+        raise typer.Exit(2)
+
+
+def _exit_if_stuck(stop) -> None:
+    """After a stop signal, the process ends within :data:`STOP_GRACE_S` even if shutting down
+    hangs (a worker that will not stop, a router that will not close): exit code 1, and the
+    worker processes die with it (:func:`service.shell.workers.die_with_parent`)."""
+    import os
+    import threading
+
+    def watch() -> None:
+        stop.wait(None)
+        time.sleep(STOP_GRACE_S)
+        err.print(f"still shutting down {STOP_GRACE_S:g} s after the signal: exiting now", highlight=False)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="firetrack-stop-watchdog", daemon=True).start()
 
 
 def _service_settings(cfg, security, max_responders, admit_burst, admit_per_s, roster_only, expire_after):
@@ -188,9 +219,10 @@ class running_service:
     """Context manager: session (router or client), service, optional recorder and console."""
 
     def __init__(self, cfg, listen=None, connect=None, record: Path | None = None, console: bool = False,
-                 port: int = 8080, settings=None, workers: int = 1, security: Security | None = None,
+                 port: int = 8080, settings=None, workers: int = 1, security: Security | None = None, stop=None,
                  foxglove: tuple[str, int] | None = None):
         self.cfg, self.listen, self.connect, self.workers = cfg, listen, connect, workers
+        self.stop = stop  # a signal's stop: the worker start-up ends early
         self.foxglove = foxglove  # (host, port) of the live Foxglove server, or None
         self.record, self.console, self.port, self.settings = record, console, port, settings
         self.security = security
@@ -228,9 +260,9 @@ class running_service:
             ep = (self.connect or self.listen or [default_endpoint(tls)])[0].replace("0.0.0.0", "127.0.0.1")
             pool = WorkerPool(ep, self.cfg, self.workers, tls_dir=str(tls.dir) if tls is not None else None,
                               roster=str(sec.roster_path) if sec is not None and sec.roster_path else None,
-                              settings=self.settings)
+                              settings=self.settings, cancel=self.stop)
             self._closers.append(pool.close)
-            if not pool.wait_ready(60):
+            if not pool.wait_ready(60) and not (self.stop is not None and self.stop.is_set()):
                 err.print("[yellow]warning:[/] not every worker process started within 60 s")
         if self.console:
             if _console_starter is None:

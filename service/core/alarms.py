@@ -7,8 +7,13 @@
 ``disconnected``    the wearable's liveliness token is gone
 ``recording_failed`` the incident is no longer being recorded (disk full, ...)
 ``flooding``        the responder's key sent more than its budget (:mod:`service.core.intake`)
+``stream_contested`` frames of another stream (boot) turned away within ``rejected_window_s``
+                    while the real one spoke (:class:`service.core.gate.FrameGate`)
 ``par_unanswered``  a roll call (PAR) unanswered after ``command_answer_s``
 ``evacuation_unacknowledged`` an evacuation order unacknowledged after ``command_answer_s``
+``track_degraded``  the estimator could not take an input and restarted the track from dead
+                    reckoning (:class:`service.fusion.estimators.FusionEstimator`), within the last
+                    ``TRACK_DEGRADED_S`` of the responder's walk
 ==================  ==========================================================================
 
 Man-down is judged on frames: a no-motion state whose stillness began before a gap in the
@@ -27,6 +32,9 @@ REJECTED = "rejected_frames"
 DISCONNECTED = "disconnected"
 RECORDING = "recording_failed"
 FLOODING = "flooding"
+CONTESTED = "stream_contested"
+TRACK_DEGRADED = "track_degraded"
+TRACK_DEGRADED_S = 30.0  # s of device time a restarted track stays flagged: long enough to be seen
 NO_MOTION_AFTER_S = 30.0  # s of stillness that make no motion, when the motion model does not say (the PASS rule)
 UNANSWERED = {"par": "par_unanswered", "evacuate": "evacuation_unacknowledged"}
 
@@ -48,6 +56,10 @@ def of_responder(r, now: float, settings, recording_failed: bool = False, floodi
         out.append(RECORDING)
     if flooding:
         out.append(FLOODING)
+    if now - r.gate.last_contested <= settings.rejected_window_s:
+        out.append(CONTESTED)
+    if r.tracker.device_time - getattr(r.tracker, "degraded_at", math.nan) <= TRACK_DEGRADED_S:
+        out.append(TRACK_DEGRADED)
     for action, order in r.commands.items():
         if order["acked_at"] is None and now - order["issued_at"] > settings.command_answer_s:
             out.append(UNANSWERED[action])

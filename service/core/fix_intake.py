@@ -4,6 +4,8 @@ A mixin of :class:`service.core.incident_core.IncidentCore` (its state and setti
 """
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 import math
 
@@ -14,6 +16,7 @@ from service.core.tracker import (
     CheckpointFix,
 )
 from service.protocol import wire
+from service.protocol.incident import MAX_BEACONS
 
 log = logging.getLogger("firetrack.service")
 
@@ -34,10 +37,12 @@ class FixIntake:
                                    detail=detail, flags=["implausible_jump"], jump_m=verdict.jump_m,
                                    walkable_m=verdict.walkable_m, t=fix.t, received=now))
 
-    def _take_fix(self, r: Responder, fix: wire.Fix):
+    def _take_fix(self, r: Responder, fix: wire.Fix, authoritative: bool = False):
         """A decoded fix for ``r`` to its tracker: ``(outcome, reason, detail, verdict)``,
         outcome ``accepted`` or ``refused`` (reason and detail say why), ``verdict`` the
-        plausibility of a checkpoint fix (None for other sources)."""
+        plausibility of a checkpoint fix (None for other sources). An ``authoritative`` checkpoint
+        (an operator who sees the responder) is flagged when implausible but not held out by the
+        estimator's walk gate: it is how a commander corrects a track that has drifted far."""
         self._run_backlog(r)  # the frames that came before the fix go first (its time is judged against them)
         try:
             fix = self._on_device_clock(r, fix)
@@ -58,6 +63,13 @@ class FixIntake:
                 log.warning("%s: checkpoint fix %.0f m from the %s, at most %.0f m walkable: taken, flagged",
                             r.id, verdict.jump_m, verdict.against.replace("_", " "), verdict.walkable_m)
             r.last_checkpoint = Reference(domain.t, domain.x, domain.y, domain.sigma)
+            if authoritative:
+                domain = dataclasses.replace(domain, authoritative=True)
+        if getattr(domain, "source", None) == "ble":  # when each beacon was last heard, for Status and the console
+            heard = r.__dict__.setdefault("beacons_heard", {})
+            for reading in domain.readings:
+                if reading.beacon in heard or len(heard) < MAX_BEACONS:
+                    heard[reading.beacon] = max(heard.get(reading.beacon, -math.inf), domain.t)
         pose = r.tracker.on_fix(domain)
         log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
         if pose is not None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from service.fusion.fixes import checkpoint, gnss, uwb
+from service.fusion.fixes import ble, checkpoint, gnss, uwb
 from service.fusion.fixes.base import FixRejected
 
 __all__ = ["FixRejected", "FixType", "fix_type_of", "register_fix_type"]
@@ -39,5 +39,5 @@ def fix_type_of(source: str) -> FixType:
         raise FixRejected("unknown_source", f"no fix type {source!r} is registered (known: {', '.join(_TYPES)})") from None
 
 
-for _module in (checkpoint, gnss, uwb):
+for _module in (checkpoint, gnss, uwb, ble):
     register_fix_type(FixType(_module.__name__.rsplit(".", 1)[1], _module.to_local))

@@ -52,13 +52,22 @@ forgotten) when
   last released one): the wearable's counter restarted, whatever its ``boot`` says;
 * a frame's seq jumps ahead by more than ``max_seq_jump``: a counter that restarted elsewhere,
   not a loss (which would otherwise count that many frames lost);
-
-but only once the current stream has been silent for ``takeover_after_s``: a wearable that
-restarts goes quiet first, while frames of another stream interleaved with a live one are
-someone else's on this responder's key. They are turned away (``other_stream``, ``seq_jump``)
-and cannot take the track over;
 * without a ``boot`` (an older wearable), a frame that would be rejected as above after
   ``restart_after_s`` of silence (a rebooted wearable whose clock also went back).
+
+**A stream cannot be taken over.** A new ``(device, boot)`` must prove itself: it replaces the
+current stream only once the current one has been silent (no frame naming it heard) for
+``takeover_after_s`` (2 s: a wearable that restarts goes quiet first, and starting again takes
+it longer than that), or when it *continues* the current one (its seq is the next one and its
+first sample follows the last released one within ``max_gap_s``) after ``restart_quiet_s`` of
+quiet. Until then its frames are a **candidate**: held (one candidate at a time, at most
+``max_held`` frames, for at most ``2 * takeover_after_s``), so a restart that comes sooner than
+the old stream's silence is proven loses nothing; they are released in order when it takes over.
+Frames of any other stream, and candidate frames that age out or do not fit, are turned away
+(``other_stream``) and counted in :attr:`FrameGate.contested` (``last_contested``: the core's
+``stream_contested`` alarm); the real stream keeps being tracked. The counter restarts and jumps
+within one ``(device, boot)`` need ``restart_quiet_s`` of quiet; before that they are turned
+away (``seq_jump``, or as duplicates).
 
 Every new stream is a gap (``gaps``); its receive-time gap adds to ``gap_s``. Within an epoch
 released times strictly increase; the incident core continues the responder's track across
@@ -80,19 +89,28 @@ GATE_REASONS = ("duplicate", "late", "time_order", "old_stream", "other_stream",
 RESEND_WAIT_S = 2.0  # s an asked-for gap is waited for
 MAX_HELD = 64  # frames held while an asked-for gap is waited for
 MAX_HELD_SAMPLES = 8192  # and samples in them (a frame holds up to MAX_SAMPLES)
+TAKEOVER_AFTER_S = 2.0  # s of silence of the current stream before another (device, boot) may replace it
+RESTART_QUIET_S = 0.5  # s of quiet before a counter restart, or a stream that continues the current one
 
 
 class FrameGate:
     """Per-responder reorder buffer and reject counter: ``released = gate.offer(batch, now)``."""
 
-    # class defaults: gates restored from a snapshot taken before resends existed
+    # class defaults: gates restored from a snapshot taken before resends (and candidates) existed
     _asked: tuple[int, int] | None = None  # the run last asked for
     resend_wait_s, max_held, max_held_samples = RESEND_WAIT_S, MAX_HELD, MAX_HELD_SAMPLES
+    restart_quiet_s = RESTART_QUIET_S
+    _stream_heard: float | None = None  # receive time of the newest frame naming the current stream
+    _candidate: tuple[str, str | None] | None = None  # the stream that waits to take over ...
+    _candidate_held: dict | None = None  # ... its frames: seq -> (frame, receive time)
+    contested = 0  # frames of other streams turned away (or of a candidate that did not take over)
+    last_contested = -math.inf  # receive time of the newest one
 
     def __init__(self, reorder_window: int = 4, max_gap_s: float = 0.5, *, max_hold_s: float = 1.0,
                  restart_after_s: float = 30.0, max_events: int = 256, max_seq_jump: int = 100_000,
-                 max_retired: int = 16, takeover_after_s: float = 0.5, resend_wait_s: float = RESEND_WAIT_S,
-                 max_held: int = MAX_HELD, max_held_samples: int = MAX_HELD_SAMPLES):
+                 max_retired: int = 16, takeover_after_s: float = TAKEOVER_AFTER_S, resend_wait_s: float = RESEND_WAIT_S,
+                 max_held: int = MAX_HELD, max_held_samples: int = MAX_HELD_SAMPLES,
+                 restart_quiet_s: float = RESTART_QUIET_S):
         if reorder_window < 0:
             raise ValueError(f"reorder_window must be >= 0, got {reorder_window}")
         if not max_gap_s > 0 or not max_hold_s > 0 or not restart_after_s > 0:
@@ -110,6 +128,7 @@ class FrameGate:
         self.restart_after_s = float(restart_after_s)
         self.max_seq_jump = int(max_seq_jump)
         self.takeover_after_s = float(takeover_after_s)
+        self.restart_quiet_s = float(restart_quiet_s)
         self.events: deque[tuple[float, str, str]] = deque(maxlen=max_events)
         self._counts: Counter[str] = Counter()
         self.offered = 0  # frames passed to offer()
@@ -190,26 +209,71 @@ class FrameGate:
         """Take one frame; return the frames released by it, in order (possibly none)."""
         self.offered += 1
         out = self.expire(receive_time)
-        silence = receive_time - self.last_heard if self.last_heard is not None else 0.0
-        quiet = self._released_at is None or receive_time - self._released_at >= self.takeover_after_s
         stream = (batch.device, batch.boot)
         if self._stream is not None and stream != self._stream:
             if batch.boot is not None and stream in self._retired:
                 self._reject(receive_time, "old_stream", f"seq {batch.seq} of device {batch.device!r} boot "
                                                          f"{batch.boot!r}, which a newer stream replaced")
                 return out
-            if not quiet:
-                self._reject(receive_time, "other_stream", f"seq {batch.seq} of device {batch.device!r} boot "
-                                                           f"{batch.boot!r} while {self._stream} is live")
+            if not self._proves_itself(batch, receive_time):
+                self._hold_candidate(batch, receive_time)
                 return out
-            old_device, old_boot = self._stream
-            why = (f"device changed from {old_device!r} to {batch.device!r}" if batch.device != old_device
-                   else f"device {batch.device!r} restarted (boot {old_boot!r} -> {batch.boot!r})")
-            if old_boot is not None:
-                self._retired.append(self._stream)
-            out += self._restart(receive_time, why)
+            out += self._take_over(stream, receive_time)
+        return out + self._offer_in_stream(batch, receive_time)
+
+    def _proves_itself(self, batch: ImuBatch, now: float) -> bool:
+        """May the frame of another stream replace the current one? After ``takeover_after_s``
+        of the current stream's silence, or continuing it (next seq, next sample) after
+        ``restart_quiet_s`` of quiet."""
+        heard = self._stream_heard if self._stream_heard is not None else self._released_at
+        silent = math.inf if heard is None else now - heard
+        if silent >= self.takeover_after_s:
+            return True
+        return (silent >= self.restart_quiet_s and self._last_seq is not None and batch.seq == self._last_seq + 1
+                and self._last_t is not None and 0.0 < float(batch.t[0]) - self._last_t <= self.max_gap_s)
+
+    def _hold_candidate(self, batch: ImuBatch, now: float) -> None:
+        """A frame of a stream that has not proven itself: held as the candidate's (the first
+        such stream, within ``max_held`` frames), else turned away."""
+        stream = (batch.device, batch.boot)
+        if self._candidate is None or not self._candidate_held:
+            self._candidate, self._candidate_held = stream, {}
+        held = self._candidate_held
+        if stream == self._candidate and len(held) < self.max_held and batch.seq not in held:
+            held[batch.seq] = (batch, now)
+            return
+        self._contest(now, f"seq {batch.seq} of device {batch.device!r} boot {batch.boot!r} while {self._stream} "
+                           "is live")
+
+    def _contest(self, now: float, detail: str) -> None:
+        self.contested += 1
+        self.last_contested = now
+        self._reject(now, "other_stream", detail)
+
+    def _take_over(self, stream: tuple[str, str | None], now: float) -> list[ImuBatch]:
+        """``stream`` replaces the current one: the current is retired, the candidate's held
+        frames (if ``stream`` is the candidate) are offered first, in seq order."""
+        old_device, old_boot = self._stream
+        why = (f"device changed from {old_device!r} to {stream[0]!r}" if stream[0] != old_device
+               else f"device {stream[0]!r} restarted (boot {old_boot!r} -> {stream[1]!r})")
+        if old_boot is not None:
+            self._retired.append(self._stream)
+        held = (self._candidate_held or {}) if self._candidate == stream else {}
+        self._candidate, self._candidate_held = None, None
+        out = self._restart(min([now, *(rt for _, rt in held.values())]), why)  # the gap ends at its first frame
+        self._stream, self._stream_heard = stream, None
+        for seq in sorted(held):
+            out += self._offer_in_stream(held[seq][0], held[seq][1])
+        return out
+
+    def _offer_in_stream(self, batch: ImuBatch, receive_time: float) -> list[ImuBatch]:
+        """A frame of the current stream (or the first of the gate, or of a stream taking over)."""
+        out: list[ImuBatch] = []
+        silence = receive_time - self.last_heard if self.last_heard is not None else 0.0
+        quiet = self._released_at is None or receive_time - self._released_at >= self.restart_quiet_s
         self.last_heard = receive_time
-        self._stream = stream
+        self._stream_heard = max(receive_time, self._stream_heard or -math.inf)
+        self._stream = (batch.device, batch.boot)
         verdict = self._seq_verdict(batch)
         if verdict is not None and quiet and self._counter_restarted(batch):
             out += self._restart(receive_time, f"seq {batch.seq} after seq {self._last_seq} while time went on "
@@ -271,12 +335,26 @@ class FrameGate:
         """Release held frames whose wait exceeded ``max_hold_s`` (``resend_wait_s`` for an asked-for
         gap); the missing ones are declared lost."""
         out: list[ImuBatch] = []
+        if self._candidate_held:
+            out += self._settle_candidate(now)
         while self._held:
             wait = self.resend_wait_s if self._waiting() else self.max_hold_s
             if not now - min(rt for _, rt in self._held.values()) > wait:
                 break
             self._skip_to_held(now, out, f"not received within {wait:g} s")
         return out
+
+    def _settle_candidate(self, now: float) -> list[ImuBatch]:
+        """The candidate takes over once the current stream has been silent for
+        ``takeover_after_s``; its frames held longer than ``2 * takeover_after_s`` are turned away."""
+        held = self._candidate_held
+        for seq in [s for s, (_, rt) in held.items() if now - rt > 2 * self.takeover_after_s]:
+            b, _ = held.pop(seq)
+            self._contest(now, f"seq {seq} of device {b.device!r} boot {b.boot!r}: the stream did not take over "
+                               f"from the live {self._stream} within {2 * self.takeover_after_s:g} s")
+        if held and self._proves_itself(held[min(held)][0], now):
+            return self._take_over(self._candidate, now)
+        return []
 
     def flush(self) -> list[ImuBatch]:
         """Release everything held, in order (missing frames are declared lost)."""

@@ -88,6 +88,7 @@ from service.core.core_types import (
 from service.core.fix_intake import FixIntake
 from service.core.frame_rounds import FrameRounds
 from service.core.gate import FrameGate
+from service.core.held_fixes import HeldFixes
 from service.core.intake import OPERATORS, Intake
 from service.core.operations import OperatorDesk
 from service.core.pose_output import PoseOutput
@@ -103,7 +104,7 @@ from service.protocol.incident import IncidentConfig
 
 log = logging.getLogger("firetrack.service")
 
-class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
+class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
     """Every responder of one incident: ``outputs = core.feed_round(inbound)``, ``core.tick(now)``."""
 
     def __init__(self, incident: IncidentConfig, settings: CoreSettings | None = None):
@@ -129,6 +130,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         self._expiry_checked = -math.inf
         self._last_tick = -math.inf  # service time of the last tick (spreads idle Statuses)
         self._newcomers: dict[str, Newcomer] = {}  # admitted ids none of whose messages decoded yet (bounded)
+        self._held_fixes: dict = {}  # fixes for ids with no responder yet (service.core.held_fixes)
         pipeline = settings.tracker.pipeline
         # the handheld pipelines of all responders, run a stage at a time over the round (pdr.fleet)
         self.fleet = (PdrFleet(pipeline, FloorElevations(incident.elevations()))
@@ -228,7 +230,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
                     r.rejects.append(now)
                 else:
                     self._newcomer(source, now).rejects.append(now)
-                self.intake.note_reject(source, now)
+                self.intake.note_reject(source, now, kind)
         return reason
 
     # ------------------------------------------------------------------ queries
@@ -262,7 +264,9 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
             alarms=current, alarms_since={k: r.alarm_since[k] for k in current}, rejected=rejected,
             frames=g.accepted, gaps=g.gaps, last_heard=heard, steps=tr.steps,
             fixes={"applied": tr.fixes_applied, "queued": tr.fixes_queued,
-                   **({"flagged": r.fixes_flagged} if r.fixes_flagged else {})}, utc_offset=r.utc_offset,
+                   **({"flagged": r.fixes_flagged} if r.fixes_flagged else {}),
+                   **({"degraded": tr.degraded} if getattr(tr, "degraded", 0) else {})}, utc_offset=r.utc_offset,
+            beacons_heard={b: t - r.t_offset for b, t in getattr(r, "beacons_heard", {}).items()},
             last_fix=tr.last_fix, first_heard=r.first_heard, commands={a: dict(o) for a, o in r.commands.items()},
             lost=g.lost, gap_s=g.gap_s, streams=g.streams, device=g.device, boot=g.boot, seq=g.last_seq,
             missing=None if g.missing is None else list(g.missing),
@@ -305,6 +309,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
     def _take(self, item: Inbound) -> None:
         kind, key, payload, now = item
         self._now = now
+        self.intake.in_hand = kind  # a reject of this message is charged to its lane (service.core.intake)
         if now - self._expiry_checked >= 1.0 or now < self._expiry_checked:
             self._expire(now)
         if kind in self.counters.received:
@@ -339,7 +344,8 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
             return None, None
         r = self.responders.get(rid)
         if r is None:
-            self._newcomer(rid, now).last_input = now
+            if self.intake.in_hand != "fix":  # a fix for nobody keeps no state (see _decode_for)
+                self._newcomer(rid, now).last_input = now
             return rid, None
         self._touch(r)
         r.last_input = now
@@ -374,12 +380,18 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
                 what = "frame" if frames else "fix"
                 raise wire.WireError("schema", f"responder {msg.responder!r} in a {what} on the key of {rid!r}")
         except wire.WireError as e:
+            if r is None and not frames:  # a bad fix for nobody: counted for the incident, no state made
+                self._unattributed(f"fix_{e.reason}", rid, e.detail, now)
+                return None, None
             if r is None:  # a newcomer: no responder is made for a message that is none of its
                 self._newcomer_reject(rid, "frames" if frames else "fixes", e.reason, e.detail, now)
             elif frames:
                 self._reject(r, e.reason, e.detail, now)
             else:
                 self._count_fix_reject(r, e.reason, e.detail)
+            return None, None
+        if r is None and not frames:  # fixes make no responder: only a wearable's frames do (issue 32)
+            self._hold_fix(rid, msg, now)
             return None, None
         return msg, (r if r is not None else self._new_responder(rid, now))
 
@@ -391,7 +403,7 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         book[reason] = book.get(reason, 0) + 1
         if reason != "duplicate":
             n.rejects.append(now)
-            self.intake.note_reject(rid, now)
+            self.intake.note_reject(rid, now, "imu" if counts == "frames" else "fix")
         self.reject_log.note(rid, reason if counts == "frames" else f"fix_{reason}", detail, now)
 
     def _new_responder(self, rid: str, now: float) -> Responder:
@@ -407,12 +419,16 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
         self.responders[rid] = r
         self._touch(r)
         log.info("responder %s appeared", rid)
+        if self._held_fixes:
+            self._take_held_fixes(r, now)
         return r
 
     def _expire(self, now: float) -> None:
         """Responders silent for ``expire_after_s`` (``expire_unplaced_s`` if no frame of theirs
         was ever released) leave: their memory goes, their track stays in the recording."""
         self._expiry_checked = now
+        if self._held_fixes:
+            self._expire_held_fixes(now)
         s = self.settings
         for rid in [rid for rid, n in self._newcomers.items() if now - n.last_input > s.expire_unplaced_s]:
             self._forget_newcomer(rid)
@@ -450,10 +466,12 @@ class IncidentCore(FrameRounds, FixIntake, OperatorDesk, PoseOutput):
 
     def _note_reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
         """Every reject feeds the burst alarm and the source's budget (a duplicate, which
-        retransmission makes, does neither); the log gets a few lines per window."""
+        retransmission makes, does neither; frames of a contested stream feed the alarm only:
+        the budget of the key is the real stream's too); the log gets a few lines per window."""
         if reason != "duplicate":
             r.rejects.append(now)
-            self.intake.note_reject(r.id, now)
+            if reason not in ("other_stream", "old_stream"):
+                self.intake.note_reject(r.id, now, "imu")
         self.reject_log.note(r.id, reason, detail, now)
 
     def _error(self, what: str) -> None:

@@ -117,6 +117,9 @@ class OperatorDesk:
                                    detail=f"{actor} {'is revoked' if reason == 'revoked' else 'may not act as an operator'}",
                                    **base))
             return
+        if op.action == "beacon":
+            self._drop_beacon(op, base)
+            return
         if op.action != "fix":
             log.info("%s (%s): %s %s", actor, op.operator, op.action, op.responder or op.name or op.order or "")
             self._audit(wire.Audit(outcome="recorded", **base))
@@ -134,13 +137,47 @@ class OperatorDesk:
                               ("unknown_responder", f"no frame of {op.responder!r} has been taken yet"))
             self._audit(wire.Audit(outcome="refused", reason=reason, detail=detail, **base))
             return
+        x, y = getattr(fix, "x", None), getattr(fix, "y", None)
+        if x is not None and y is not None and not self.incident.within_extent(x, y):  # a slip of the hand
+            self._audit(wire.Audit(outcome="refused", reason="outside_extent", t=fix.t, **base,
+                                   detail=f"({x:.6g}, {y:.6g}) m is outside the incident's extent "
+                                          f"({self.incident.extent_m:g} m from the origin)"))
+            return
         self._touch(r)
-        outcome, reason, detail, verdict = self._take_fix(r, fix)
+        outcome, reason, detail, verdict = self._take_fix(r, fix, authoritative=True)
         flagged = verdict is not None and verdict.implausible
         self._audit(wire.Audit(outcome=outcome, reason=reason, detail=detail, t=fix.t,
                                flags=["implausible_jump"] if flagged else [],
                                jump_m=verdict.jump_m if verdict is not None else None,
                                walkable_m=verdict.walkable_m if verdict is not None else None, **base))
+
+    def _drop_beacon(self, op, base: dict) -> None:
+        """A breadcrumb: beacon ``op.name`` is where ``op.responder`` is estimated now, on their
+        floor, its sigma their position's largest 1-sigma (m); it joins the incident's beacons."""
+        from service.core.plausibility import semi_major
+        from service.protocol.incident import MAX_BEACONS, Beacon
+
+        r = self.responders.get(op.responder)
+        live = r.tracker.live if r is not None else None
+        refuse = (("unknown_responder", f"{op.responder} has no position yet") if live is None else
+                  ("duplicate", f"beacon {op.name!r} is placed already") if self.incident.beacon(op.name) is not None else
+                  ("full", f"the incident has {MAX_BEACONS} beacons already") if len(self.incident.beacons) >= MAX_BEACONS
+                  else None)
+        if refuse is None:
+            try:
+                b = Beacon(id=op.name, x=live.x, y=live.y, floor=live.floor, sigma_m=max(semi_major(live.cov), 0.1),
+                           note=f"dropped by {op.responder} at device time {live.t:.1f} s ({op.operator})")
+                self.incident._resolve_checkpoint(b)
+            except ValueError as e:  # an id a beacon cannot have
+                refuse = ("schema", str(e).splitlines()[-1][:500])
+        if refuse is not None:
+            self._audit(wire.Audit(outcome="refused", reason=refuse[0], detail=refuse[1], **base))
+            return
+        self.incident.beacons.append(b)
+        log.info("%s (%s): beacon %s dropped by %s at (%.1f, %.1f) floor %d, sigma %.1f m", base["actor"],
+                 op.operator, b.id, op.responder, b.x, b.y, b.floor, b.sigma_m)
+        self._audit(wire.Audit(outcome="accepted", t=live.t, detail=f"beacon {b.id} at ({b.x:.1f}, {b.y:.1f}) m, floor "
+                                                                     f"{b.floor}, sigma {b.sigma_m:.1f} m", **base))
 
     def _audit(self, a: wire.Audit) -> None:
         self.audits += 1

@@ -101,7 +101,7 @@ class PoseOutput:
         state = {"incident": self.id, "responders": {rid: blobs[rid] for rid in self.responders},
                  "volatile": volatile, "tracker_settings": self.settings.tracker, "unattributed": self.unattributed,
                  "counters": self.counters, "presence": self._presence, "intake": self.intake, "now": self._now,
-                 "access": self.access, "newcomers": self._newcomers, "fleet": self.fleet,
+                 "access": self.access, "newcomers": self._newcomers, "held_fixes": self._held_fixes, "fleet": self.fleet,
                  "expiry_checked": self._expiry_checked}
         # the fleet's members are its responders': the fleet names them by slot
         return snapshots.dumps(state, {FleetMember: _member_slot_of})
@@ -178,6 +178,7 @@ class PoseOutput:
         core.access, core._revoked = acc, frozenset(acc.revoked) if acc.enforce else frozenset()
         intake.set_roster(frozenset(acc.wearables))  # today's roster and the policy's wearables
         core._newcomers = state["newcomers"]
+        core._held_fixes = state.get("held_fixes", {})  # snapshots before issue 32 have none
         return core
 
 

@@ -45,6 +45,7 @@ class Responder:
     logged: deque = field(default_factory=lambda: deque(maxlen=64))
     last_checkpoint: object | None = None  # service.core.plausibility.Reference of the last checkpoint fix taken
     fixes_flagged: int = 0  # checkpoint fixes taken but flagged as implausible jumps
+    beacons_heard: dict = field(default_factory=dict)  # beacon id -> device time (s) of the newest scan that heard it
 
 
 @dataclass

@@ -100,6 +100,20 @@ class ResponderTracker:
         self.last_fix: dict | None = None  # the last fix applied: source and device time
         self._first_step_after_placement = True
         self._gap: tuple[float, float] | None = None  # (t_from, sigma_m) of a gap the next step crosses
+        self._degraded_before = 0  # graph restarts of the estimators replaced by a new placement
+        self._degraded_at_before = math.nan
+
+    @property
+    def degraded(self) -> int:
+        """How often the estimator could not go on and restarted the track from dead reckoning
+        (:class:`service.fusion.estimators.FusionEstimator`); 0 for estimators that cannot fail."""
+        return self._degraded_before + int(getattr(self.estimator, "degraded", 0))
+
+    @property
+    def degraded_at(self) -> float:
+        """Device time (s) of the latest restart, NaN if none."""
+        t = getattr(self.estimator, "degraded_at", math.nan)
+        return t if math.isfinite(t) else self._degraded_at_before
 
     def _motion_factory(self, carry: str):
         if self.settings.motion is not None:
@@ -253,6 +267,8 @@ class ResponderTracker:
         floor = fix.floor if fix.floor is not None else self.model.floor
         self.baseline.start(fix.t, fix.x, fix.y, math.nan, math.nan, fix.sigma, floor)
         self.pdr_track.append((fix.t, fix.x, fix.y, floor))
+        if self.estimator is not None:  # its restarts stay counted
+            self._degraded_before, self._degraded_at_before = self.degraded, self.degraded_at
         self.estimator = None  # a new track: the estimator starts at the first step from here
         self._first_step_after_placement = True
 
@@ -307,12 +323,14 @@ class ResponderTracker:
                 self._anchor_floor(fix.floor, fix.t)
             # the floor is the motion model's (anchored above): estimators get x, y only
             fix = dataclasses.replace(fix, floor=None)
-            if self.baseline is not None:
-                self.baseline.add_fix(fix)
         if self.estimator is None:  # before the track has a first step: counted
+            if isinstance(fix, CheckpointFix):
+                self.baseline.add_fix(fix)
             self.fixes_unused += 1
             return None
         outcome = self.estimator.add_fix(fix)
+        if isinstance(fix, CheckpointFix) and outcome.verdict != "rejected":  # a refused fix moves no track
+            self.baseline.add_fix(fix)
         if outcome.verdict == "unused":
             self.fixes_unused += 1
             return None

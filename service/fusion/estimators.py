@@ -24,7 +24,9 @@ import numpy as np
 from pdr.angles import wrap
 from pdr.dead_reckoning import DeadReckoning
 from pdr.events import PoseEstimate, StepEvent
+from service.fusion.dead_reckoning import dr_propagate
 from service.fusion.fixes import CheckpointFix
+from service.fusion.published import FusionEvent
 
 
 class FixOutcome(NamedTuple):
@@ -103,29 +105,55 @@ class FusionEstimator:
     walked along its heading change, scaled by the graph's step-length factor — with the
     covariance of ``(x, y, θ)`` grown by each step's noise (:func:`dr_propagate`). The batches
     depend on the steps' device times only, so the poses are the same whatever the rounds.
+
+    **Cannot crash, cannot hide** (issue 32). Every fix is first judged against what the walk
+    allows (:class:`service.fusion.walk_gate.WalkGate`); one held out never reaches the graph
+    (``rejected``, reason ``walk_gate``). Any exception from the graph, or a pose that
+    :meth:`WalkGate.diverged` calls impossible, restarts the track: a new graph from the
+    reference (dead reckoning since the last trusted fix), the history so far kept for
+    :meth:`smoothed_track`, the event counted in ``degraded`` with its time (``degraded_at``,
+    device clock) and reason, which the core turns into the ``track_degraded`` alarm.
     """
 
     def __init__(self, settings=None):
         from service.fusion.graph import (
             TrackFusion,  # gtsam: loaded when a track starts
         )
+        from service.fusion.walk_gate import WalkGate
 
+        self._make = TrackFusion
         self.fusion = TrackFusion(settings)
+        self.gate = WalkGate(self.fusion.settings)
         self._every = self.fusion.settings.update_interval_s
         self._steps = 0
         self._pending: list[StepEvent] = []
         self._last_update_t = -math.inf
         self._dr: tuple | None = None  # (t, x, y, θ, Σ as 6 floats, scale, source, floor) of the live pose
+        self._past: dict[str, np.ndarray] | None = None  # smoothed track of the graphs before a restart
+        self.degraded = 0  # restarts of the graph (an exception, a diverged pose)
+        self.degraded_at = math.nan  # s, device time of the last one
+        self.degraded_reason = ""
 
     def start(self, t, x, y, heading, heading_sigma, position_sigma, floor) -> None:
+        self.gate.start(t, x, y, position_sigma, floor, heading, heading_sigma)
         self._base(self.fusion.start(t, x, y, heading, heading_sigma, position_sigma, floor))
 
     def add_step(self, ev: StepEvent) -> PoseEstimate:
         self._steps = ev.index
+        self.gate.add_step(ev, *self._heading_after(ev))
         self._pending.append(ev)
         if ev.t - self._last_update_t >= self._every:
             return self._pose(self._flush())
         return self._propagate(ev)
+
+    def _heading_after(self, ev: StepEvent) -> tuple[float, float]:
+        """(heading, sigma) (rad) the live pose walks step ``ev`` along (the graph's, turned by the
+        gyro): the walk gate's dead reckoning follows it, as the PDR's own absolute heading drifts
+        where the graph's compass and fixes do not."""
+        th, cov = self._dr[3], self._dr[4]
+        turn = ev.heading_change if math.isfinite(ev.heading_change) else (
+            wrap(ev.heading - th) if math.isfinite(ev.heading) else 0.0)
+        return wrap(th + turn), math.sqrt(cov[5]) if cov[5] > 0 else math.nan
 
     def flush(self) -> PoseEstimate | None:
         """The steps waiting for an update go into the graph now (end of the stream)."""
@@ -133,10 +161,50 @@ class FusionEstimator:
 
     def _flush(self):
         events, self._pending = self._pending, []
-        fp = self.fusion.add_steps(events) if events else self.fusion.live
+        if not events:
+            fp = self.fusion.live
+            self._last_update_t = fp.t
+            self._base(fp)
+            return fp
+        return self._guarded(lambda: self.fusion.add_steps(events), events[-1].t, events[-1].floor)
+
+    def _guarded(self, update, t: float, floor: int):
+        """``update()`` of the graph, its pose checked; on an exception or a diverged pose the
+        track restarts from the reference (class docstring). Returns the graph's new pose."""
+        try:
+            fp = update()
+            why = self.gate.diverged(fp)
+        except Exception as e:  # gtsam's IndeterminateSystemException, a missing variable, ...
+            why = f"{type(e).__name__}: {str(e).splitlines()[0][:200] if str(e) else ''}"
+        if why is not None:
+            fp = self._restart(why, t, floor)
         self._last_update_t = fp.t
         self._base(fp)
         return fp
+
+    def _restart(self, why: str, t: float, floor: int):
+        """A new graph from dead reckoning since the last trusted fix; the old one's track kept."""
+        old = self.fusion
+        try:
+            past = old.smoothed_track()
+        except Exception:
+            past = None
+        if past is not None:
+            ok = np.isfinite(past["x"]) & np.isfinite(past["y"])
+            past = {k: v[ok] for k, v in past.items()}
+            self._past = past if self._past is None else _joined(self._past, past)
+        p, walked = self.gate.point
+        heading = p.heading if math.isfinite(p.heading) else (self._dr[3] if self._dr else 0.0)
+        sigma = math.sqrt(max(float(np.linalg.eigvalsh(np.asarray(p.cov, float))[-1]), 0.0)) + self.gate.allowance(walked)
+        s = old.settings
+        self.fusion = self._make(s)
+        self.fusion.events.extend(old.events)
+        self.fusion.rejected.update(old.rejected)
+        self.degraded += 1
+        self.degraded_at = max(t, p.t)
+        self.degraded_reason = why
+        return self.fusion.start(max(t, p.t), p.x, p.y, wrap(heading), s.restart_heading_sigma_rad,
+                                 max(sigma, s.checkpoint_sigma_floor_m), floor)
 
     def _base(self, fp) -> None:
         c = np.asarray(fp.cov)
@@ -167,27 +235,46 @@ class FusionEstimator:
 
     def add_gap(self, sigma_m: float) -> None:
         self.fusion.add_gap(sigma_m)
+        self.gate.add_gap(sigma_m)
 
     def add_fix(self, fix) -> FixOutcome:
+        if not callable(getattr(fix, "factors", None)):
+            raise TypeError(f"add_fix expects a fix with factors(ctx), got {type(fix).__name__}")
         self._flush()
+        verdict = self.gate.judge(fix)
+        if not verdict.ok:
+            self.fusion.rejected[verdict.reason] += 1
+            self.fusion.events.append(FusionEvent(fix.t, "rejected", getattr(fix, "source", type(fix).__name__),
+                                                  f"{verdict.reason}: {verdict.detail}", verdict.info or {}))
+            return FixOutcome("rejected", reason=verdict.reason)
         before = Counter(self.fusion.rejected)
-        fp = self.fusion.add_fix(fix)
-        if fp is None:
-            reason = next(iter(Counter(self.fusion.rejected) - before), "rejected")
-            return FixOutcome("rejected", reason=reason)
-        self._base(fp)
+        degraded = self.degraded
+        fp = self._guarded(lambda: self.fusion.add_fix(fix) or self.fusion.live, fix.t, self._dr[7])
+        if self.degraded != degraded:  # the graph could not take it: held out, the track restarted
+            self.fusion.rejected["estimator_error"] += 1
+            return FixOutcome("rejected", reason="estimator_error")
+        rejected = Counter(self.fusion.rejected) - before
+        if rejected:
+            return FixOutcome("rejected", reason=next(iter(rejected)))
+        self.gate.take(fix, verdict)
         return FixOutcome("applied", self._pose(fp))
 
     def set_floor(self, t: float, floor: int) -> PoseEstimate:
         self._flush()
-        fp = self.fusion.set_floor(t, floor)
-        self._base(fp)
-        return self._pose(fp)
+        return self._pose(self._guarded(lambda: self.fusion.set_floor(t, floor), t, floor))
 
     def smoothed_track(self) -> dict[str, np.ndarray]:
-        """The graph's smoothed track, and the steps waiting for the next update as dead
-        reckoning from its newest pose (a query must not change when the graph updates)."""
-        out = self.fusion.smoothed_track()
+        """The graph's smoothed track (after the tracks of graphs that were restarted), and the
+        steps waiting for the next update as dead reckoning from its newest pose (a query must not
+        change when the graph updates)."""
+        try:
+            out = self.fusion.smoothed_track()
+        except Exception:  # the graph failed since its last update: its newest pose is the live one
+            out = {k: np.array([v], dtype=float if k not in ("floor", "index") else np.int64)
+                   for k, v in zip(("t", "x", "y", "heading", "floor", "index"), (self._dr[0], self._dr[1], self._dr[2],
+                                                                                  self._dr[3], self._dr[7], self._steps))}
+        if self._past is not None:
+            out = _joined(self._past, out)
         if not self._pending:
             return out
         x, y, th = float(out["x"][-1]), float(out["y"][-1]), float(out["heading"][-1])
@@ -195,8 +282,7 @@ class FusionEstimator:
         rows = []
         for ev in self._pending:
             turn = ev.heading_change if math.isfinite(ev.heading_change) else 0.0
-            th = th + turn
-            x, y = x + ev.length * scale * math.cos(th), y + ev.length * scale * math.sin(th)
+            x, y, th, _ = dr_propagate(x, y, th, _NO_COV, ev.length * scale, 0.0, turn, 0.0, 0.0)
             rows.append((ev.t, x, y, wrap(th), ev.floor, ev.index))
         extra = np.array(rows, float)
         for i, k in enumerate(("t", "x", "y", "heading", "floor", "index")):
@@ -208,32 +294,13 @@ class FusionEstimator:
                             getattr(fp, "heading_sigma", math.nan))
 
 
-def dr_propagate(x: float, y: float, th: float, cov: tuple, length: float, length_sigma: float, turn: float,
-                 turn_sigma: float, lateral_sigma: float) -> tuple[float, float, float, tuple]:
-    """One step of dead reckoning with its covariance (first order): the heading turns by
-    ``turn``, the step of ``length`` is walked along the new heading θ' (as the graph's step
-    factor, :func:`service.fusion.noise.step_covariance`)::
+_NO_COV = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
-        x' = x + L cos θ',   y' = y + L sin θ',   θ' = θ + Δθ
-        Σ' = F (Σ + diag(0, 0, σ_Δθ²)) Fᵀ + R diag(σ_L², σ_lat²) Rᵀ,   F = [[1, 0, −L sin θ'], [0, 1, L cos θ'], [0, 0, 1]]
 
-    ``cov`` is the symmetric 3x3 of (x, y, θ) as six floats ``(xx, xy, xθ, yy, yθ, θθ)``."""
-    xx, xy, xt, yy, yt, tt = cov
-    th = th + turn
-    tt = tt + turn_sigma * turn_sigma
-    c, s = math.cos(th), math.sin(th)
-    a, b = -length * s, length * c  # ∂(x, y)/∂θ
-    # F Σ Fᵀ with F = [[1, 0, a], [0, 1, b], [0, 0, 1]]
-    nxx = xx + 2 * a * xt + a * a * tt
-    nxy = xy + a * yt + b * xt + a * b * tt
-    nyy = yy + 2 * b * yt + b * b * tt
-    nxt = xt + a * tt
-    nyt = yt + b * tt
-    la, lo = length_sigma * length_sigma, lateral_sigma * lateral_sigma
-    nxx += la * c * c + lo * s * s
-    nxy += (la - lo) * c * s
-    nyy += la * s * s + lo * c * c
-    return x + length * c, y + length * s, th, (nxx, nxy, nxt, nyy, nyt, tt)
+def _joined(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Track ``a`` then the rows of ``b`` after its last time (a restarted graph's track after the old one's)."""
+    keep = b["t"] > a["t"][-1] if len(a["t"]) else np.ones(len(b["t"]), bool)
+    return {k: np.concatenate([a[k], np.asarray(b[k])[keep].astype(a[k].dtype)]) for k in a}
 
 
 _ESTIMATORS: dict[str, Callable[..., TrackEstimator]] = {}

@@ -80,12 +80,23 @@ this round: K = 0 4.05 m and 12/40, K = 3 2.03 m and 3/40):
   scale from indoor GNSS stretched tracks: in sample, K = 0 live p75 3.63 m with σ 0.08 against
   3.54 m without, and 4 walks instead of 2 more than 0.5 m above dead reckoning (K = 3 1.922 vs
   1.921 m); a step-length bias is better met by a fix every few landmarks than by GNSS.
+
+Issue 32 ("the estimator cannot crash and cannot hide"; service/fusion/walk_gate.py):
+
+* ``walk_gate_probability = 0.999`` (χ²₂ 13.8), ``walk_gate_drift = 0.05`` m/m,
+  ``walk_gate_margin_m = 1``: K = 3 live p75 1.925 → 1.925 m in sample, 1.898 → 1.898 m
+  cross-validated, one walk +0.32 m (Trial24 rep02). p = 0.99 / 0.95: 1.955 / 1.971 m with
+  Trial03 rep04 +0.89 m, and no clearer bound on a drag (ten 5 m checkpoints every 3 s: 10.8 m
+  at 0.999, 15.8 m at 0.99, 8.4 m at 0.95).
+* ``divergence_m = 50``, ``divergence_sigma_m = 1000``: only a graph that has left any walk
+  behind (an absurd fix the gate did not see) restarts; ``restart_heading_sigma_rad = 0.3``.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from service.fusion.fixes.ble import BleSettings
 from service.fusion.noise import KERNELS
 
 
@@ -144,6 +155,15 @@ class FusionSettings:
     uwb_kernel_width: float = 1.345  # sigmas
     uwb_gate_probability: float | None = None  # χ²(1) gate on the range innovation; None: off
     uwb_anchor_sigma_m: float = 0.01  # m, prior on a surveyed anchor position
+    # what the walk allows (service/fusion/walk_gate.py) and when a graph has failed
+    walk_gate_probability: float | None = 0.999  # χ² probability of a fix's noise radius against dead reckoning since the last trusted fix; None: no gate
+    walk_gate_drift: float = 0.05  # m per m walked since the last trusted fix: drift the reference's covariance does not model
+    walk_gate_margin_m: float = 1.0  # m, survey error of a fix and the slip between its time and its step
+    divergence_m: float = 50.0  # m, a graph pose further than this beyond the walk's radius from the reference has diverged
+    divergence_sigma_m: float = 1000.0  # m, a graph pose with a larger position sigma has diverged
+    restart_heading_sigma_rad: float = 0.3  # rad, heading sigma of a track restarted from dead reckoning
+    # BLE beacons: the path-loss model and its noise (service/fusion/fixes/ble.py)
+    ble: BleSettings = field(default_factory=BleSettings)
     # published pose
     display_gain: float = 0.5  # share of the gap to the graph's estimate the live pose closes per step (1: none kept)
     # time
@@ -158,7 +178,7 @@ class FusionSettings:
                     "unknown_turn_sigma_rad", "lateral_sigma_m", "mag_sigma_floor_rad", "mag_kernel_width",
                     "checkpoint_sigma_floor_m", "gnss_max_accuracy_m", "gnss_kernel_width", "uwb_sigma_floor_m",
                     "uwb_kernel_width", "uwb_anchor_sigma_m", "pdr_heading_sigma_rad", "pdr_heading_white_rad",
-                    "step_motion_s", "stop_turn_s")
+                    "step_motion_s", "stop_turn_s", "divergence_m", "divergence_sigma_m", "restart_heading_sigma_rad")
         for name in positive:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -169,7 +189,7 @@ class FusionSettings:
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"FusionSettings.{name} must be >= 1, got {getattr(self, name)!r}")
         for name in ("update_interval_s", "fix_extra_updates", "turn_walk", "stairs_turn_sigma_rad", "mag_min_interval_s", "gnss_min_interval_s", "fix_before_start_tolerance_s",
-                     "stop_turn_sigma_rad"):
+                     "stop_turn_sigma_rad", "walk_gate_drift", "walk_gate_margin_m"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"FusionSettings.{name} must be >= 0, got {getattr(self, name)!r}")
         for name in ("pdr_heading_interval_s", "pdr_heading_time_s"):
@@ -183,7 +203,7 @@ class FusionSettings:
             raise ValueError(f"FusionSettings.display_gain must lie in (0, 1], got {self.display_gain!r}")
         if self.length_scale_sigma is not None and not (math.isfinite(self.length_scale_sigma) and self.length_scale_sigma > 0):
             raise ValueError(f"FusionSettings.length_scale_sigma must be a finite number > 0 or None, got {self.length_scale_sigma!r}")
-        for name in ("gnss_gate_probability", "uwb_gate_probability"):
+        for name in ("gnss_gate_probability", "uwb_gate_probability", "walk_gate_probability"):
             p = getattr(self, name)
             if p is not None and not 0.0 < p < 1.0:
                 raise ValueError(f"FusionSettings.{name} must be in (0, 1) or None, got {p!r}")

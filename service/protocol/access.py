@@ -22,6 +22,10 @@ console,        subscribe to ``*/pose``, ``*/status``, ``*/audit``; query ``*/tr
 operator        ``firetrack/{i}/{me}/op`` (its own actions only) and orders ``*/command``
 viewer          subscribe to ``*/pose``, ``*/status``, ``*/audit``; query ``*/track``
 simulator       like a wearable for every responder id ``{me}-...`` (exercises, the load bench)
+gateway         like a wearable for every wearable of the roster, and reads statuses (the
+                console's phone gateway, ``firetrack console --gateway-tls``: phones publish
+                through it; which phone may speak for which responder is the console's
+                enrolment, :mod:`client.console.enrolment`)
 router          nothing as a client (a standalone zenohd's own certificate)
 everyone        receive subscriber and queryable *declarations* (not data): a publisher's
                 matching status and a client's routing need them
@@ -215,7 +219,8 @@ def access_control(roster: Roster, incident: str | None = None) -> dict:
 
     if subject("services", roster.names("service")):
         policies.append({"id": "services", "rules": ["service-all"], "subjects": ["services"]})
-    if subject("readers", roster.names(*READING_ROLES)):
+    gateways = roster.names("gateway")
+    if subject("readers", roster.names(*READING_ROLES, "gateway")):
         policies.append({"id": "readers", "rules": ["read-in", "read-out", "tracks-query", "tracks-reply"],
                          "subjects": ["readers"]})
     if subject("anchors", roster.names("anchor")):
@@ -237,7 +242,7 @@ def access_control(roster: Roster, incident: str | None = None) -> dict:
                       _rule(ids[3], ["reply"], ["egress"], [f"{me}/track"]),
                       _rule(ids[4], ["declare_subscriber"], ["ingress"], [f"{me}/command"]),
                       _rule(ids[5], ["put"], ["egress"], [f"{me}/command"])]
-            subject(f"{role}-{name}", [name])
+            subject(f"{role}-{name}", [name] + (gateways if role == "wearable" else []))
             policies.append({"id": f"{role}-{name}", "rules": ids, "subjects": [f"{role}-{name}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 

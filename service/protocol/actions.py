@@ -32,7 +32,7 @@ from pydantic_core import PydanticCustomError
 from service.protocol.arrays import Finite, Id
 from service.protocol.schema import MESSAGE_TYPES, WireMessage
 
-ACTIONS = ("fix", "checkpoint", "ack", "par", "evacuate")
+ACTIONS = ("fix", "checkpoint", "ack", "par", "evacuate", "beacon")
 OUTCOMES = ("accepted", "refused", "recorded")
 
 
@@ -44,11 +44,14 @@ class OperatorAction(WireMessage):
     ``alarm`` (the alarm acknowledged). ``par`` (a roll call) and ``evacuate`` (an evacuation
     order): ``order``, the id of the :class:`service.protocol.schema.Command` sent to each of
     ``responders``' wearables (on their ``.../command`` keys, which name no sender: this action
-    is the record of who issued it). ``utc`` is the console's clock when the person acted.
+    is the record of who issued it). ``beacon``: ``responder`` dropped a beacon named ``name``
+    (the id its scans give) where they stand now: the service places it at their current
+    estimate, on their floor, with their position's uncertainty, and later scans of it by
+    anyone are ``ble`` fixes (a breadcrumb). ``utc`` is the console's clock when the person acted.
     """
 
     KIND: ClassVar[str] = "op"
-    action: Literal["fix", "checkpoint", "ack", "par", "evacuate"] = Field(description="what the person did")
+    action: Literal["fix", "checkpoint", "ack", "par", "evacuate", "beacon"] = Field(description="what the person did")
     operator: str = Field(min_length=1, max_length=128, description="the person logged in at the console")
     utc: Finite = Field(description="s, Unix time UTC of the console's clock when the person acted")
     responder: Id | None = Field(None, description="actions fix, ack: the responder it concerns")
@@ -56,7 +59,7 @@ class OperatorAction(WireMessage):
     alarm: str | None = Field(None, max_length=64, description="action ack: the alarm acknowledged")
     order: str | None = Field(None, max_length=64, description="actions par, evacuate: the order's id")
     responders: list[Id] | None = Field(None, max_length=10_000, description="actions par, evacuate: to whom")
-    name: str | None = Field(None, max_length=128, description="action checkpoint: its name")
+    name: str | None = Field(None, max_length=128, description="action checkpoint: its name; beacon: the id scans name it by")
     x: Finite | None = Field(None, description="action checkpoint: m, east of the incident origin (ENU)")
     y: Finite | None = Field(None, description="action checkpoint: m, north of the incident origin (ENU)")
     floor: int | None = Field(None, description="action checkpoint: floor number (0 = ground, -1 = first basement)")
@@ -66,7 +69,7 @@ class OperatorAction(WireMessage):
     def _fields_of_action(self) -> OperatorAction:
         need = {"fix": ("responder", "fix"), "checkpoint": ("name", "x", "y", "floor"),
                 "ack": ("responder", "alarm"), "par": ("order", "responders"),
-                "evacuate": ("order", "responders")}[self.action]
+                "evacuate": ("order", "responders"), "beacon": ("responder", "name")}[self.action]
         missing = [n for n in need if getattr(self, n) is None]
         if missing:
             raise PydanticCustomError("action_fields", f"a {self.action} action needs {', '.join(missing)}")
@@ -87,7 +90,7 @@ class Audit(WireMessage):
     KIND: ClassVar[str] = "audit"
     actor: Id = Field(description="who published: the console/operator certificate, or the wearable")
     operator: str | None = Field(None, max_length=128, description="the person logged in, for an operator action")
-    action: Literal["fix", "checkpoint", "ack", "par", "evacuate", "device_fix"] = Field(
+    action: Literal["fix", "checkpoint", "ack", "par", "evacuate", "beacon", "device_fix"] = Field(
         description="the operator action judged, or device_fix for a wearable's own checkpoint fix")
     outcome: Literal["accepted", "refused", "recorded"] = Field(
         description="accepted: goes to the track; refused: never reaches it (see reason); recorded: no track effect")

@@ -8,6 +8,8 @@ source          fields (besides ``responder``, ``t``, ``time_base``, ``operator`
 ``gnss``        ``lat``, ``lon`` (deg, WGS-84), ``accuracy`` (m, the receiver's 1-sigma radius)
 ``uwb``         ``anchor`` (an anchor id of the incident), ``range`` (m, 3D, to the anchor),
                 ``sigma`` (m)
+``ble``         one scan: ``beacons`` (ids, as the incident's ``beacons`` name them), ``rssi``
+                (dBm, the mean heard from each over the scan), ``period`` (s, ending at ``t``)
 ==============  =========================================================================
 
 A new source (a BLE beacon, a door sensor) is a subclass of :class:`Fix` with ``source:
@@ -65,5 +67,32 @@ class UwbFixMessage(Fix):
     sigma: Finite = Field(gt=0.0, description="m, 1-sigma of the range")
 
 
-for _m in (CheckpointFixMessage, GnssFixMessage, UwbFixMessage):
+MAX_SCAN_BEACONS = 64  # beacons one scan may name
+
+
+class BleFixMessage(Fix):
+    """One BLE scan of the responder's wearable: the beacons it heard and how strongly."""
+
+    SOURCE: ClassVar[str] = "ble"
+    source: Literal["ble"] = "ble"
+    beacons: list[str] = Field(min_length=1, max_length=MAX_SCAN_BEACONS,
+                               description="beacon ids (MAC, or uuid:major:minor) as the incident config names them")
+    rssi: list[Finite] = Field(min_length=1, max_length=MAX_SCAN_BEACONS,
+                               description="dBm, the mean received strength of each beacon over the scan")
+    period: Finite = Field(0.0, ge=0.0, le=60.0, description="s, the scan's length, ending at t")
+
+    @model_validator(mode="after")
+    def _paired(self) -> BleFixMessage:
+        if len(self.beacons) != len(self.rssi):
+            raise PydanticCustomError("fix_fields", "a ble fix gives one rssi per beacon")
+        for b in self.beacons:
+            if not 0 < len(b) <= 128:
+                raise PydanticCustomError("fix_fields", "a beacon id has 1 to 128 characters")
+        for v in self.rssi:
+            if not -127.0 <= v <= 20.0:
+                raise PydanticCustomError("fix_fields", f"rssi {v} dBm is outside -127..20")
+        return self
+
+
+for _m in (CheckpointFixMessage, GnssFixMessage, UwbFixMessage, BleFixMessage):
     register_fix_message(_m)

@@ -66,7 +66,7 @@ class Georeference(_Config):
     centre_lon: float | None = Field(None, ge=-180.0, le=180.0)
     rotation_deg: float | None = None
     metres_per_pixel: float | None = Field(None, gt=0.0)
-    control_points: list[ControlPoint] | None = None
+    control_points: list[ControlPoint] | None = Field(None, max_length=1000)
 
     @model_validator(mode="after")
     def _one_style(self) -> Georeference:
@@ -94,7 +94,7 @@ class FloorPlan(_Config):
     """A floor's plan image and its georeference. ``image`` relative to the config file."""
 
     floor: int
-    image: str = Field(min_length=1)
+    image: str = Field(min_length=1, max_length=4096)
     georeference: Georeference
     size_px: tuple[int, int] | None = Field(None, description="image width, height in pixels (read from the image if absent)")
 

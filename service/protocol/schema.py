@@ -25,7 +25,7 @@ REJECT_REASONS = (
     "oversize", "msgpack", "not_a_map", "version", "kind", "schema", "shape", "nonfinite", "time_order", "rate",
 )
 
-CARRY_POSITIONS = ("handheld", "pocket", "bag", "armband", "waist", "foot", "unknown")
+CARRY_POSITIONS = ("handheld", "pocket", "bag", "armband", "waist", "chest", "foot", "unknown")
 
 
 class WireError(ValueError):
@@ -100,7 +100,7 @@ class ImuBatch(WireMessage):
     mag: Mag | None = None
     pressure_t: Seconds | None = None
     pressure: Hpa | None = None
-    carry: Literal["handheld", "pocket", "bag", "armband", "waist", "foot", "unknown"] = Field(
+    carry: Literal["handheld", "pocket", "bag", "armband", "waist", "chest", "foot", "unknown"] = Field(
         "unknown", description="where the device is worn; chooses the motion model (foot: the ZUPT INS)")
     utc_offset: Finite | None = Field(
         None, description="s: UTC (Unix seconds) minus the device clock, the wearable's latest estimate; "
@@ -325,6 +325,9 @@ class Status(WireMessage):
     steps: int = Field(0, ge=0, description="steps (strides) counted")
     fixes: dict[str, int] = Field(default_factory=dict, description="fixes applied and queued (waiting for a step); "
                                                                     "the rejected ones are in rejected")
+    beacons_heard: dict[str, float] = Field(default_factory=dict, max_length=512,
+                                            description="per beacon of the incident: s, device clock of the newest "
+                                                        "ble scan of the responder that heard it")
     utc_offset: Finite | None = Field(None, description="s: UTC minus the device clock, as the wearable last said")
     lost: int = Field(0, ge=0, description="frames known lost (sequence numbers that never arrived)")
     gap_s: Finite = Field(0.0, ge=0.0, description="s of the responder's time not covered by frames, over all gaps")

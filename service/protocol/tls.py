@@ -23,7 +23,7 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
-ROLES = ("service", "router", "console", "operator", "viewer", "wearable", "anchor", "simulator")
+ROLES = ("service", "router", "console", "operator", "viewer", "wearable", "anchor", "simulator", "gateway")
 CA_FILE = "ca.crt"
 CERT_FILE = "cert.pem"
 KEY_FILE = "key.pem"

@@ -133,14 +133,14 @@ def _p75(errors: list[LandmarkErrors]) -> float:
 
 def cross_validate(recordings, incident, fix_every: int, use_gnss: bool, base_settings,
                    grid: tuple[Candidate, ...] = TUNING_GRID, cache: PdrCache | None = None,
-                   progress=lambda items, what: items) -> CvResult:
+                   progress=lambda items, what: items, use_ble: bool = False) -> CvResult:
     """Run every candidate on every walk, then choose per held-out route (module docstring)."""
     cache = cache if cache is not None else PdrCache()
     routes = [route_of(r.source) for r in recordings]
     runs: dict[str, list[IpinRun]] = {}
     for cand in progress(grid, "cross-validation grid"):
         settings = apply_overrides(base_settings, cand.overrides)
-        runs[cand.name] = [run_ipin(rec, incident, fix_every, use_gnss, settings, pdr_cache=cache)
+        runs[cand.name] = [run_ipin(rec, incident, fix_every, use_gnss, settings, pdr_cache=cache, use_ble=use_ble)
                            for rec in recordings]
     res = CvResult(fix_every, grid, runs, routes)
     names = [c.name for c in grid]
@@ -191,3 +191,22 @@ def _with_defaults(settings):
 
         return dataclasses.replace(settings, fusion=FusionSettings())
     return settings
+
+
+
+def _ble_grid() -> tuple[Candidate, ...]:
+    """The numbers of the beacon model chosen on the IPIN walks (``eval ipin --ble --cv --cv-grid
+    ble``), at the shipped PDR and fusion settings (their own choice is ``--cv-grid pdr``): the path-loss
+    exponent n, the weakest reading used (dBm; the far field is mostly multipath) and the
+    shadowing sigma (dB) and the kernel (Cauchy redescends: a wild reading loses its pull, but so
+    does a true large correction; Huber keeps a bounded pull). Six points: the survey check's fit
+    (n 1.7, every reading, 7 dB) and steeper, near-field-only models, with either kernel."""
+    points = ((1.7, -95.0, 7.0, "cauchy"), (2.2, -82.0, 7.0, "cauchy"), (2.2, -75.0, 7.0, "cauchy"),
+              (2.5, -75.0, 5.0, "cauchy"), (2.2, -75.0, 7.0, "huber"), (2.5, -75.0, 5.0, "huber"))
+    return tuple(Candidate(f"ble n={n:g} rssi≥{lo:g} dBm σ={sd:g} dB {kernel}", (
+        ("fusion.ble.path_loss_exponent", n), ("fusion.ble.min_rssi_dbm", lo), ("fusion.ble.sigma_db", sd),
+        ("fusion.ble.kernel", kernel)))
+        for n, lo, sd, kernel in points)
+
+
+BLE_GRID: tuple[Candidate, ...] = _ble_grid()

@@ -33,7 +33,7 @@ from pdr.pipeline import PdrPipeline
 from pdr.recording import Recording
 from service.core.incident_core import CoreSettings
 from service.core.tracker import TrackerSettings
-from service.protocol.messages import recording_messages
+from service.protocol.messages import BLE_SCAN_S, recording_messages
 from service.review.walk import run_walk
 
 RESPONDER = "walk"
@@ -190,9 +190,11 @@ class _EventLog:
 # One walk
 # ------------------------------------------------------------------------------------------
 def run_ipin(rec: Recording, incident, fix_every: int = 0, use_gnss: bool = True,
-             settings: TrackerSettings | None = None, pdr_cache: PdrCache | None = None) -> IpinRun:
+             settings: TrackerSettings | None = None, pdr_cache: PdrCache | None = None,
+             use_ble: bool = False) -> IpinRun:
     """Track one IPIN walk through the incident core, from the messages a wearable would send;
-    see the module docstring."""
+    see the module docstring. ``use_ble``: the log's beacon readings go as ``ble`` scans
+    (:data:`service.protocol.messages.BLE_SCAN_S`) against the incident's ``beacons``."""
     if rec.landmarks is None or len(rec.landmarks) == 0:
         raise ValueError(f"{rec.source}: no landmarks (POSI lines) to start from and score against")
     lm = rec.landmarks
@@ -211,7 +213,8 @@ def run_ipin(rec: Recording, incident, fix_every: int = 0, use_gnss: bool = True
         return log.wrap(model)
 
     gnss = use_gnss and settings.engine == "fusion"
-    msgs = recording_messages(rec, RESPONDER, incident=cfg, landmark_every=fix_every, gnss=gnss)
+    msgs = recording_messages(rec, RESPONDER, incident=cfg, landmark_every=fix_every, gnss=gnss,
+                              ble_scan_s=BLE_SCAN_S if use_ble and settings.engine == "fusion" else 0.0)
     # the walk starts at its first landmark: no entry guess before it (entry_sigma_m=None)
     core_settings = CoreSettings(tracker=dataclasses.replace(settings, motion=motion), entry_sigma_m=None)
     run = run_walk(msgs, cfg, RESPONDER, core_settings)

@@ -17,7 +17,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import zstandard
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError, RecordLengthLimitExceeded
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Chunk, Message, Metadata
 from mcap.stream_reader import StreamReader, breakup_chunk
@@ -77,8 +77,10 @@ class RecordingReader:
     """An iterator over a recording's messages in receive-time order; see :func:`read_recording`.
 
     After iteration ``truncated`` tells whether the file ended before its footer (or held a
-    corrupt chunk), ``unreadable_bytes`` how many bytes from there to its end could not be
-    read, and ``stop_reason`` why reading stopped.
+    corrupt chunk), ``unreadable_bytes`` how many bytes could not be read (corrupt chunks, and
+    from a cut to the end), ``stop_reason`` the first problem and ``damage`` every one, as
+    ``(byte offset, what)``. A chunk whose CRC or compression is broken is skipped and reading
+    goes on with the next one; a cut, or broken framing, ends the reading there.
     """
 
     def __init__(self, path, kinds=None, responders=None, start=None, ordered: bool = True):
@@ -91,6 +93,7 @@ class RecordingReader:
         self.truncated = False
         self.unreadable_bytes = 0
         self.stop_reason: str | None = None
+        self.damage: list[tuple[int, str]] = []  # (byte offset, what is wrong there), in file order
         self.incident: str | None = None
         if not self.path.is_file():
             raise FileNotFoundError(f"recording {self.path} does not exist or is not a file")
@@ -136,9 +139,10 @@ class RecordingReader:
                     break  # pass 1 found this chunk cut off
                 try:
                     items = breakup_chunk(rec, validate_crc=True)
-                except _READ_ERRORS as e:  # a corrupt chunk: the file is readable only up to here
-                    self._stopped(before, f"chunk at byte {before}: {_describe(e)}")
-                    break
+                except _READ_ERRORS as e:  # a corrupt chunk: its messages are lost, the next chunk is read
+                    self._damaged(before, after - before, f"chunk at byte {before} ({after - before} bytes): "
+                                                          f"{_describe(e)}")
+                    items = []
                 for item in items:
                     if isinstance(item, Channel):
                         channels[item.id] = (item.topic, parse_key(item.topic))
@@ -156,8 +160,9 @@ class RecordingReader:
             yield heapq.heappop(heap)[2]
         if self.truncated:
             warnings.warn(TruncatedRecordingWarning(
-                f"recording {self.path} is cut off ({self.stop_reason}): read up to its last complete "
-                f"chunk; {self.unreadable_bytes} bytes at the end are unreadable"), stacklevel=2)
+                f"recording {self.path} is damaged ({'; '.join(w for _, w in self.damage[:3])}"
+                f"{f'; {len(self.damage) - 3} more' if len(self.damage) > 3 else ''}): read what could be read; "
+                f"{self.unreadable_bytes} bytes are unreadable"), stacklevel=2)
 
     def _message(self, item: Message, channels, start_ns) -> RecordedMessage | None:
         try:
@@ -177,9 +182,14 @@ class RecordingReader:
         )
 
     def _stopped(self, offset: int, reason: str) -> None:
+        """Reading ends at ``offset``: the rest of the file is unreadable."""
+        self._damaged(offset, self.path.stat().st_size - offset, reason)
+
+    def _damaged(self, offset: int, nbytes: int, reason: str) -> None:
         self.truncated = True
-        self.unreadable_bytes = self.path.stat().st_size - offset
-        self.stop_reason = reason
+        self.unreadable_bytes += nbytes
+        self.stop_reason = self.stop_reason or reason
+        self.damage.append((offset, reason))
 
 
 # What a cut-off or damaged file raises inside the mcap reader: a short read (struct.error,
@@ -210,7 +220,12 @@ def _walk(path: Path, report: RecordingReader | None) -> Iterator[tuple[object, 
                 yield record, good
         except _READ_ERRORS as e:
             if report is not None:
-                report._stopped(good, f"at byte {good}: {_describe(e)}")
+                # the file ends inside a record (a short read, or a length longer than what is left)
+                cut = isinstance(e, (EndOfFile, RecordLengthLimitExceeded, struct.error, EOFError))
+                if good == size:  # between two records: the writer stopped before its footer
+                    report._stopped(good, f"cut off at byte {good} of {size}: no footer (the writer was stopped)")
+                else:
+                    report._stopped(good, f"{'cut off' if cut else 'corrupt'} at byte {good} of {size}: {_describe(e)}")
 
 
 def read_recording(path, kinds: Iterable[str] | None = None, responders: Iterable[str] | None = None,

@@ -126,6 +126,8 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         "realtime_factor": duration / cpu if cpu > 0 and duration else None,
         "segments": len(replay.segments),
         "resumed_segments": [k for k, _ in replay.resumes],
+        # where the recording is cut or corrupt (chunk CRCs are checked): what lay there was not reprocessed
+        "damage": [{"file": f, "offset": off, "problem": what} for f, off, what in replay.damage],
     }
 
 

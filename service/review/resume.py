@@ -263,6 +263,7 @@ class SegmentReplay:
         self.core = IncidentCore(incident, settings)
         self.resumes: list[tuple[int, str]] = []
         self.truncated = False
+        self.damage: list[tuple[str, int, str]] = []  # (segment file, byte offset, what): where it is cut or corrupt
 
     def __iter__(self):
         with warnings.catch_warnings():
@@ -292,6 +293,7 @@ class SegmentReplay:
                         yield m, []
                 yield from self._round(pending)
                 self.truncated = self.truncated or reader.truncated
+                self.damage += [(str(seg), offset, what) for offset, what in reader.damage]
 
     def _round(self, pending):
         if not pending:

@@ -15,20 +15,49 @@ from __future__ import annotations
 
 import json
 import multiprocessing as mp
+import os
+import signal
+import sys
 import time
 from pathlib import Path
+
+CLOSE_TIMEOUT_S = 10.0  # s all workers together get to drain and stop before they are killed
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity), the bound of ``--workers``."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def die_with_parent(parent: int) -> None:
+    """Linux: the kernel sends this process SIGKILL when its parent ends, however it ends
+    (SIGKILL, a crash, ``os._exit``), so no worker outlives its ``serve``. Elsewhere a no-op."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    PR_SET_PDEATHSIG = 1
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # the parent ended before the request was made
+        os._exit(1)
 
 
 def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop, ready, stats_path: str | None,
                 log_poses: bool = False, tls_dir: str | None = None,
-                roster: str | None = None, settings=None) -> None:  # pragma: no cover - runs in a child process
-    import signal
-
+                roster: str | None = None, settings=None, parent: int | None = None) -> None:  # pragma: no cover - runs in a child process
     from service.protocol.incident import incident_from_dict
     from service.protocol.session import open_client
     from service.shell.service import IncidentService
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us through ``stop``
+    if parent is not None:
+        die_with_parent(parent)
     cfg = incident_from_dict(config, base_dir=base_dir)
     tls = access = watcher = None
     if tls_dir is not None:  # the same service identity as worker 0, and the same roster
@@ -86,7 +115,10 @@ class WorkerPool:
     """Workers 1..K-1 of an incident (worker 0 is the caller's own IncidentService)."""
 
     def __init__(self, endpoint: str, cfg, n: int, stats_dir: str | None = None, log_poses: bool = False,
-                 tls_dir: str | None = None, roster: str | None = None, settings=None):
+                 tls_dir: str | None = None, roster: str | None = None, settings=None, cancel=None):
+        """``cancel``: an event (the command's signal stop) that ends the start-up early: no
+        more workers are started once it is set."""
+        self.cancel = cancel
         self.ctx = mp.get_context("spawn")
         self.stop = self.ctx.Event()
         self.procs = []
@@ -94,24 +126,41 @@ class WorkerPool:
         config = cfg.model_dump(mode="json")
         base = str(getattr(cfg, "_base_dir", Path.cwd()))
         for k in range(1, n):
+            if cancel is not None and cancel.is_set():
+                break
             ready = self.ctx.Event()
             path = str(Path(stats_dir) / f"worker{k}.json") if stats_dir else None
             p = self.ctx.Process(target=worker_main,
                                  args=(endpoint, config, base, k, n, self.stop, ready, path, log_poses, tls_dir, roster,
-                                       settings),  # the same ServiceSettings as worker 0 (intake, expiry, ...)
+                                       settings,  # the same ServiceSettings as worker 0 (intake, expiry, ...)
+                                       os.getpid()),
                                  name=f"firetrack-worker-{k}", daemon=True)
             p.start()
             self.procs.append((p, ready))
             self.stats_paths.append(path)
 
     def wait_ready(self, timeout: float = 60.0) -> bool:
+        """Every worker started within ``timeout`` s (False at once when ``cancel`` is set)."""
         deadline = time.monotonic() + timeout
-        return all(r.wait(max(0.0, deadline - time.monotonic())) for _, r in self.procs)
+        for _, ready in self.procs:
+            while not ready.wait(0.1):
+                if time.monotonic() > deadline or (self.cancel is not None and self.cancel.is_set()):
+                    return False
+        return True
 
-    def close(self, timeout: float = 20.0) -> list[dict]:
+    def close(self, timeout: float = CLOSE_TIMEOUT_S) -> list[dict]:
+        """Stop every worker: ``timeout`` s for all of them together to drain and end, then the
+        rest are killed; none is left behind."""
         self.stop.set()
+        for p, ready in self.procs:  # still starting: it serves nobody yet, nothing to drain
+            if not ready.is_set() and p.is_alive():
+                p.kill()
+        deadline = time.monotonic() + timeout
         for p, _ in self.procs:
-            p.join(timeout)
+            p.join(max(0.0, deadline - time.monotonic()))
+        for p, _ in self.procs:
             if p.is_alive():
                 p.kill()
+        for p, _ in self.procs:
+            p.join(5.0)
         return [json.loads(Path(s).read_text()) for s in self.stats_paths if s and Path(s).exists()]

@@ -33,6 +33,7 @@ class CheckpointFix:
     floor: int | None = None
     sigma: float = 0.5
     name: str | None = None
+    authoritative: bool = False  # placed by a logged-in operator: re-anchors whatever dead reckoning says
     source = "checkpoint"
     display = "snap"
 

@@ -14,6 +14,7 @@ import {ellipseAxes} from "./map/projection.js";
 import {centreOn, map} from "./map/view.js";
 import {drawCheckpoints, setFloor} from "./map/floors.js";
 import {responderAt} from "./map/responders.js";
+import {renderPhoneButtons} from "./phones.js";
 
 let addMode = false, pin = null, onSelect = () => {};
 
@@ -33,6 +34,7 @@ export function select(id, centre = false) {
 export function renderSelection() {
   const r = S.selected ? S.responders.get(S.selected) : null;
   setText($("sel-id"), S.selected || "none");
+  renderPhoneButtons();
   $("btn-fix-cp").disabled = !r || !$("cp-select").value;
   const flag = r ? S.flags[r.id] : null;
   $("sel-flag").hidden = !flag;

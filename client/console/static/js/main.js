@@ -30,6 +30,7 @@ import {drawResponders, flashPhase, initResponders} from "./map/responders.js";
 import {bindRoster, renderRoster} from "./roster.js";
 import {evaluateAlarms} from "./alarms.js";
 import {bindPar} from "./par.js";
+import {bindPhones} from "./phones.js";
 import {bindActions, fillCheckpointList, onMapClick, renderSelection, select, setAddMode} from "./actions.js";
 import {bindReview, reviewPositions, setReviewOffset} from "./review.js";
 
@@ -92,11 +93,13 @@ async function start() {
   bindActions(renderRoster);
   bindReview();
   bindPar();
+  bindPhones();
   const inc = await getJSON("/api/incident");
   S.incident = inc;
   S.settings = {...S.settings, ...inc.settings};
   S.floors = inc.floors;
   S.checkpoints = inc.checkpoints;
+  S.beacons = inc.beacons || [];
   seedRoster(inc.roster);
   $("incident-name").textContent = `${inc.name || inc.id}`;
   document.title = `firetrack · ${inc.name || inc.id}`;

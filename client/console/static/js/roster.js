@@ -33,6 +33,16 @@ function lastFix(r, now) {
   const age = off == null ? NaN : now - (f.t + off);
   return {text: `${f.source} ${ago(age)}`, age};
 }
+/** The beacon this responder heard last (Status.beacons_heard: device times) and how long ago. */
+function lastBeacon(r, now) {
+  const heard = r.status && r.status.beacons_heard, off = r.status && r.status.utc_offset;
+  const ids = heard ? Object.keys(heard) : [];
+  if (!ids.length) return {text: "—", age: Infinity};
+  const id = ids.reduce((a, b) => (heard[b] > heard[a] ? b : a));
+  const b = S.beacons.find((q) => q.id.toUpperCase() === id.toUpperCase());
+  const age = off == null ? NaN : now - (heard[id] + off);
+  return {text: `${(b && b.name) || id} ${ago(age)}`, age};
+}
 const inside = (r, now) => (r.status && r.status.first_heard ? now - r.status.first_heard : NaN);
 const motion = (r, now) => {
   if (!r.status) return "—";
@@ -49,6 +59,7 @@ const COLUMNS = [
   {key: "heard", label: "HEARD", value: (r, now) => (r.status ? heardAgo(r, now) : Infinity), text: (r, now) => ago(heardAgo(r, now))},
   {key: "motion", label: "MOTION", value: (r) => (r.status ? r.status.motion : ""), text: motion},
   {key: "fix", label: "LAST FIX", value: (r, now) => lastFix(r, now).age, text: (r, now) => lastFix(r, now).text},
+  {key: "beacon", label: "BEACON", value: (r, now) => lastBeacon(r, now).age, text: (r, now) => lastBeacon(r, now).text},
   {key: "inside", label: "IN BLDG", value: (r, now) => inside(r, now) || -1, text: (r, now) => ago(inside(r, now))},
   {key: "steps", label: "STEPS", value: steps, text: (r) => String(steps(r))},
   {key: "gaps", label: "GAPS", value: (r) => (r.status ? r.status.gap_s || 0 : 0), text: gapText},

@@ -10,6 +10,7 @@ export const S = {
   plans: {},              // floor -> frame (map/projection.js floorFrame) with url, width, height, fallback, problem
   floor: 0,
   checkpoints: [],
+  beacons: [],            // BLE beacons of the incident config: {id, name, x, y, floor, sigma_m}
   responders: new Map(),  // id -> {id, member, pose, status, trail: [[t, x, y, floor]], lastRx}
   roster: new Map(),      // id -> {id, name, team, role}: who is expected (incident config)
   alarms: new Map(),      // "id|kind" -> {key, responder, kind, active, acked, count, raisedAt, clearedAt}

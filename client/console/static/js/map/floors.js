@@ -32,10 +32,19 @@ export function buildFloors(incident) {
   drawCheckpoints();
 }
 
-/** (Re)draw every floor's checkpoints: a yellow diamond and its name; clicks go through to the map. */
+/** (Re)draw every floor's checkpoints (a yellow diamond and its name) and BLE beacons (a blue
+    dot and its name, or id); clicks go through to the map. */
 export function drawCheckpoints() {
   for (const [n, {checkpoints}] of floors) {
     checkpoints.clearLayers();
+    for (const b of S.beacons) {
+      if (b.floor !== n) continue;
+      L.marker(S.plans[n].toLatLng(b.x, b.y), {
+        interactive: false, keyboard: false,
+        icon: L.divIcon({className: "beacon", iconSize: null, html: "<div></div>"}),
+      }).bindTooltip(b.name || b.id, {permanent: true, direction: "right", className: "checkpoint-label beacon-label"})
+        .addTo(checkpoints);
+    }
     for (const c of S.checkpoints) {
       if (c.floor !== n) continue;
       L.marker(S.plans[n].toLatLng(c.x, c.y), {
