@@ -1,4 +1,6 @@
-"""Shards by key (issue 29, part 2): a worker subscribes to its own responders' frames only.
+"""Shards by key (issue 29, part 2): a worker subscribes to its own responders' frames only,
+whether it is one of ``serve --workers K``'s processes or a ``serve --shard i/N`` of its own
+(the last test: two of them on a mesh of two routers).
 
 A real router on loopback, worker 0 in this process and worker 1 in its own (spawned) process,
 wearables (:class:`client.wearable.Wearable`: a presence token, advanced publishers) on a
@@ -9,7 +11,11 @@ wildcard, as before the routes, they are every frame of theirs: the catch-all sh
 from __future__ import annotations
 
 import dataclasses
+import signal
+import subprocess
+import sys
 import tempfile
+import threading
 
 import numpy as np
 
@@ -139,6 +145,39 @@ def test_a_route_declared_after_the_wearable_began_fetches_what_it_sent_before()
             s.close()
 
 
+def test_the_first_frames_no_route_heard_are_asked_for_and_resent_by_the_wearable():
+    """The first-frames race, made certain: a wearable without zenoh's keep (nothing for the
+    route's history to fetch) sends its first frames before any worker subscribes. The route's
+    first frame is then seq 12; the gate holds it, the Status asks for [0, 11], the wearable
+    resends them from its own keep, and every frame is tracked (none lost, counted or not)."""
+    cfg = default_incident()
+    rid = next(r for r in (f"first{i}" for i in range(50)) if in_shard(r, 1, 2))
+    rs, endpoint = router()
+    cl, svc_session = client(endpoint), client(endpoint)
+    w = Wearable(cl, cfg.id, rid, zenoh_keep=False)
+    frames = walking_frames(rid, SECONDS)
+    svc = None
+    try:
+        for b in frames[:12]:
+            w.send("imu", b)
+        svc = IncidentService(svc_session, cfg, ServiceSettings(warm_up=False), shard=(1, 2)).start()
+        assert wait_until(lambda: rid in svc._routes, 30), "no route declared for the announced responder"
+        assert wait_until(lambda: w.heard, 10), "the route does not match the wearable's frames"
+        for b in frames[12:]:
+            w.send("imu", b)
+        assert w.flush(60), w.delivery()
+        assert w.resent >= 12, w.resent
+        assert svc.frames_processed == len(frames) and svc.core.frame_accounting().get("lost", 0) == 0, \
+            (svc.frames_processed, svc.core.frame_accounting())
+        assert svc.core.responders[rid].gate.first_of_stream.seq == 0
+    finally:
+        w.close()
+        if svc is not None:
+            svc.close()
+        for s in (cl, svc_session, rs):
+            s.close()
+
+
 def test_a_route_stays_while_its_responder_is_away_and_goes_when_the_core_lets_it_go():
     cfg = default_incident()
     rid, other = [r for r in (f"gone{i}" for i in range(50)) if in_shard(r, 0, 2)][:2]
@@ -171,3 +210,82 @@ def test_a_route_stays_while_its_responder_is_away_and_goes_when_the_core_lets_i
         svc.close()
         for s in (cl, svc_session, rs):
             s.close()
+
+
+def _serve_shard(endpoint: str, part: str, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "client.cli", "serve", "--no-console", "--connect", endpoint,
+                             "--shard", part, *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _line(proc: subprocess.Popen, text: str, timeout: float) -> str:
+    """The first line of ``proc``'s output that holds ``text`` (read on a thread: bounded)."""
+    found: list[str] = []
+    seen: list[str] = []
+
+    def read() -> None:
+        for line in proc.stdout:
+            seen.append(line)
+            if text in line:
+                found.append(line)
+                return
+
+    th = threading.Thread(target=read, daemon=True)
+    th.start()
+    th.join(timeout)
+    assert found, f"{text!r} not printed within {timeout} s: {''.join(seen)[-2000:]}"
+    return found[0]
+
+
+def test_two_shard_processes_on_a_mesh_of_two_routers_track_everyone_once_as_one_process_does():
+    """The acceptance of shards by key: ``serve --shard 0/2`` on router A and ``--shard 1/2`` on
+    router B, the routers linked; wearables on both routers (so frames cross the link both
+    ways). Every responder is tracked by exactly one process, each process hears its own
+    responders' frames only, and the tracks equal one process's, bit for bit."""
+    cfg = default_incident()
+    frames = _frames()
+    ra, ep_a = router()
+    rb, ep_b = router(connect=ep_a)
+    procs = [_serve_shard(ep_a, "0/2"), _serve_shard(ep_b, "1/2")]
+    sessions = [client(ep_a), client(ep_b)]
+    wearables: list[Wearable] = []
+    try:
+        for p in procs:
+            _line(p, "serving incident demo", 180)
+        wearables = [Wearable(sessions[i % 2], cfg.id, r) for i, r in enumerate(IDS)]
+        for k in range(len(frames[IDS[0]])):
+            for w in wearables:
+                w.send("imu", frames[w.responder][k])
+        for w in wearables:
+            assert w.flush(90), (w.responder, w.delivery())
+        assert all(w.delivery()["service_lost"] == 0 for w in wearables), [w.delivery() for w in wearables]
+        tracks = _tracks(sessions[1], cfg)
+        for w in wearables:
+            w.close()
+        wearables = []
+        stops = []
+        for p in procs:
+            p.send_signal(signal.SIGINT)
+            stops.append(_line(p, "stopped;", 60))
+            assert p.wait(30) == 0
+    finally:
+        for w in wearables:
+            w.close()
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait(10)
+        for s in (*sessions, rb, ra):
+            s.close()
+    assert sorted(tracks) == sorted(IDS) and all(len(v) == 1 for v in tracks.values()), \
+        {r: len(v) for r, v in tracks.items()}
+    for k, line in enumerate(stops):  # each process took its own responders' frames, and heard nobody else's
+        own = [r for r in IDS if in_shard(r, k, 2)]
+        n = sum(len(frames[r]) for r in own)
+        assert f"{len(own)} responder(s), {n} frames processed; frames heard: {n} of this shard's, 0 of others'" \
+            in line, (k, line)
+    ref, _, _ = _run(1)
+    for r in IDS:
+        (a,), (b,) = tracks[r], ref[r]
+        assert a["t"].size > 10, (r, a["t"].size)
+        for field in ("t", "x", "y", "floor", "heading"):
+            assert np.array_equal(a[field], b[field], equal_nan=True), (r, field)

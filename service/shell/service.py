@@ -36,6 +36,9 @@ the diagram's wildcards are then the presence and the few callback kinds.
 Snapshots. With a recorder and a state file (:class:`service.review.resume.StateFile`), the
 worker writes the core's snapshot beside the recording every ``snapshot_every_s`` after a
 round, once what the core has seen is safely in the recording; ``serve`` resumes from it.
+With a ``snapshot_feed`` it also puts them on zenoh while a standby follows, and its
+``fence`` (its epoch) stops every publication once a service of a higher epoch took over
+(:mod:`service.shell.standby`).
 """
 from __future__ import annotations
 
@@ -123,6 +126,9 @@ class IncidentService(RoundIntake, ShardRoutes, SnapshotWriter):
         self._present: set[str] = set()  # own responders whose presence token is up
         self.heard = {"own": 0, "others": 0}  # samples taken from the frames' subscribers, by owner (this worker or not)
         self.access = access  # the policy fed to the core before any input (None: the open demo)
+        self.fence = None  # service.shell.standby.Fence: this service's epoch; fenced, it publishes no more
+        self.snapshot_feed = None  # service.shell.standby.SnapshotFeed: snapshots to a standby that follows
+        self.fenced_dropped = 0  # messages not published because a service of a higher epoch took over
         self._looks = 0  # times the worker looked for input ...
         self._last_busy_look = 0  # ... and the last time it found some (wait_idle)
 
@@ -349,6 +355,11 @@ class IncidentService(RoundIntake, ShardRoutes, SnapshotWriter):
 
     # ------------------------------------------------------------------ output
     def _publish(self, out: list[Outbound]) -> None:
+        fence = self.fence
+        if fence is not None and fence.fenced.is_set():  # another service publishes for these responders now
+            self.fenced_dropped += len(out)
+            return
+        tag = fence.tag if fence is not None else None  # who published: the attachment names the epoch
         for o in out:
             msg = o.message
             if isinstance(msg, wire.Pose):  # stamped when it leaves, not when the round began
@@ -358,7 +369,7 @@ class IncidentService(RoundIntake, ShardRoutes, SnapshotWriter):
             if pub is None:
                 pub = self._publishers[o.key] = self.session.declare_publisher(o.key)
             try:
-                pub.put(payload)
+                pub.put(payload, attachment=tag)
             except Exception:
                 log.exception("publishing on %s", o.key)
             if isinstance(msg, wire.Pose) and self.pose_hook is not None:

@@ -12,9 +12,12 @@ owns an id) appears, it declares that responder's own advanced subscribers::
     token of r gone, and the core let r go ──► undeclare both (bounded state)
 
 The token is declared after the wearable's publishers, and the owner declares the subscribers
-a moment later still; nothing sent in between is lost: the advanced subscriber detects the
-advanced publisher (``detect_late_publishers``) and fetches its keep, in order, as it does for
-a service that starts after the wearable. Fixes are fetched from the keep only for a responder
+a moment later still; what was sent in between comes from the wearable's keep: the advanced
+subscriber detects the advanced publisher (``detect_late_publishers``) and fetches it, as it
+does for a service that starts after the wearable. When a live frame beats that reply, zenoh
+drops the kept frames it overtook (the first-frames race); the gate then holds the stream's
+first frame and asks the wearable for ``[0, seq - 1]`` (``CoreSettings.ask_from_start``), so
+they are resent, or counted lost if the wearable no longer has them. Fixes are fetched from the keep only for a responder
 this worker does not track yet (a fix already applied must not be applied twice after a new
 declaration: fixes have no seq numbers).
 
@@ -68,13 +71,12 @@ class ShardRoutes:
         routed = key.rsplit("/", 2)[-2] != "*"
         if routed:  # one responder's: a smaller channel each
             size = max(1, size // 10)
-        # A route's publisher exists before its token, so the history query made when the
-        # subscriber is declared finds it; zenoh holds the live samples back until that query
-        # is answered. Detecting late publishers too would query the same keep a second time,
-        # and a live sample that arrives while only that second query is pending is delivered
-        # at once, after which the kept ones it overtook are dropped (seen: a route declared
-        # 50 ms after its wearable began at 1 frame/ms lost its first 67 frames, silently).
-        hist = zext.HistoryConfig(detect_late_publishers=not routed, max_samples=st.history_frames if kind == "imu"
+        # Late publishers are detected on a route too: the route's first history query can reach
+        # the router before the wearable's keep is known there (it then finds nothing, and a
+        # wearable that has gone quiet would never be asked again). A second query may lose the
+        # race with a live sample, after which zenoh drops the kept frames it overtook; the gate
+        # asks for those (a gap, or a stream first heard above seq 0: service/core/gate.py).
+        hist = zext.HistoryConfig(detect_late_publishers=True, max_samples=st.history_frames if kind == "imu"
                                   else None) if history else None
         return zext.declare_advanced_subscriber(self.session, key, zenoh.handlers.FifoChannel(size), history=hist,
                                                 recovery=zext.RecoveryConfig(periodic_queries=datetime.timedelta(seconds=1)) if routed else zext.RecoveryConfig(heartbeat=True),
