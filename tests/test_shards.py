@@ -11,6 +11,7 @@ wildcard, as before the routes, they are every frame of theirs: the catch-all sh
 from __future__ import annotations
 
 import dataclasses
+import re
 import signal
 import subprocess
 import sys
@@ -50,7 +51,9 @@ def _run(workers: int, catch_all: bool = False) -> tuple[dict, list[dict], dict]
     """The same walkers through ``workers`` workers: (tracks by responder, each worker's
     ``heard``, each worker's responders)."""
     cfg = default_incident()
-    settings = ServiceSettings(warm_up=False, catch_all=catch_all)
+    # warmed up: a worker process compiles its kernels before it is ready, not on the first frames
+    # (with a cold numba cache, on a loaded machine, that took longer than the flush waits)
+    settings = ServiceSettings(warm_up=True, catch_all=catch_all)
     rs, endpoint = router()
     svc_session = client(endpoint)
     svc = IncidentService(svc_session, cfg, settings, shard=(0, workers)).start()
@@ -58,7 +61,7 @@ def _run(workers: int, catch_all: bool = False) -> tuple[dict, list[dict], dict]
     cl = client(endpoint)
     wearables = []
     try:
-        assert pool is None or pool.wait_ready(120), "the worker process did not start"
+        assert pool is None or pool.wait_ready(300), "the worker process did not start"
         frames = _frames()
         wearables = [Wearable(cl, cfg.id, r) for r in IDS]
         for k in range(len(frames[IDS[0]])):  # interleaved, as live
@@ -76,7 +79,8 @@ def _run(workers: int, catch_all: bool = False) -> tuple[dict, list[dict], dict]
             s.close()
     heard = [dict(svc.heard)] + [s["heard"] for s in stats]
     owned = [len(svc.responders)] + [s["responders"] for s in stats]
-    return tracks, heard, {"owned": owned, "delivery": [w.delivery() for w in wearables]}
+    processed = [svc.frames_processed] + [s["frames_processed"] for s in stats]
+    return tracks, heard, {"owned": owned, "processed": processed, "delivery": [w.delivery() for w in wearables]}
 
 
 def test_two_workers_hear_only_their_own_responders_and_track_them_as_one_process_does():
@@ -85,16 +89,17 @@ def test_two_workers_hear_only_their_own_responders_and_track_them_as_one_proces
     assert all(mine), f"both workers must own some of {IDS}: {mine}"
     tracks2, heard2, info2 = _run(2)
     # each worker's subscribers delivered its own responders' frames and none of the others'
+    # (a late publisher's keep may be fetched twice: the gate turns the copies away as duplicates)
     assert [h["others"] for h in heard2] == [0, 0], heard2
-    assert [h["own"] for h in heard2] == mine, (heard2, mine)
+    assert all(h["own"] >= n for h, n in zip(heard2, mine)) and info2["processed"] == mine, (heard2, info2, mine)
     assert info2["owned"] == [sum(in_shard(r, k, 2) for r in IDS) for k in range(2)], info2
     assert all(d["service_lost"] == 0 for d in info2["delivery"]), info2
     # every responder tracked exactly once (one worker answers for it) ...
     assert sorted(tracks2) == sorted(IDS) and all(len(v) == 1 for v in tracks2.values()), \
         {r: len(v) for r, v in tracks2.items()}
     # ... and its track is the one a single worker makes of the same frames, bit for bit
-    tracks1, heard1, _ = _run(1)
-    assert heard1 == [{"own": sum(sent.values()), "others": 0}], heard1
+    tracks1, heard1, info1 = _run(1)
+    assert heard1[0]["others"] == 0 and info1["processed"] == [sum(sent.values())], (heard1, info1)
     for r in IDS:
         (a,), (b,) = tracks2[r], tracks1[r]
         assert a["t"].size > 10, (r, a["t"].size)  # walked: a track to compare
@@ -108,41 +113,47 @@ def test_the_catch_all_brings_every_frame_to_every_worker_as_the_wildcard_did():
     sent = {r: len(f) for r, f in _frames().items()}
     theirs = [sum(n for r, n in sent.items() if not in_shard(r, k, 2)) for k in range(2)]
     tracks, heard, info = _run(2, catch_all=True)
-    assert [h["others"] for h in heard] == theirs, (heard, theirs)
+    assert all(h["others"] >= n > 0 for h, n in zip(heard, theirs)), (heard, theirs)
     assert sorted(tracks) == sorted(IDS) and all(len(v) == 1 for v in tracks.values())
 
 
-def test_a_route_declared_after_the_wearable_began_fetches_what_it_sent_before():
-    """zenoh's history works for a subscriber declared late: frames sent before any worker
-    listened (the wearable started first) come from the wearable's keep, in order, none lost."""
+def _route_after_the_wearable_began(prefix: str, early: int, zenoh_keep: bool) -> dict:
+    """A wearable of worker 1 sends ``early`` frames before the worker subscribes (the worker
+    starts then), the rest once its route matches; what each side counted."""
     cfg = default_incident()
-    rid = next(r for r in (f"late{i}" for i in range(50)) if in_shard(r, 1, 2))
-    settings = ServiceSettings(warm_up=False)
+    rid = next(r for r in (f"{prefix}{i}" for i in range(50)) if in_shard(r, 1, 2))
     rs, endpoint = router()
-    cl = client(endpoint)
-    w = Wearable(cl, cfg.id, rid)
+    cl, svc_session = client(endpoint), client(endpoint)
+    w = Wearable(cl, cfg.id, rid, zenoh_keep=zenoh_keep)
     frames = walking_frames(rid, SECONDS)
-    early = len(frames) // 2
-    svc_session = client(endpoint)
     svc = None
     try:
-        for b in frames[:early]:  # nobody subscribes yet: into the keep only
+        for b in frames[:early]:  # nobody subscribes yet: into the keeps only
             w.send("imu", b)
-        assert w.unheard["imu"] == early
-        svc = IncidentService(svc_session, cfg, settings, shard=(1, 2)).start()
-        assert wait_until(lambda: rid in svc._routes, 30), "no route declared for the announced responder"
+        unheard = w.unheard["imu"]
+        svc = IncidentService(svc_session, cfg, ServiceSettings(warm_up=False), shard=(1, 2)).start()
+        assert wait_until(lambda: rid in svc.routes.routes, 30), "no route declared for the announced responder"
+        assert wait_until(lambda: w.heard, 10), "the route does not match the wearable's frames"
         for b in frames[early:]:
             w.send("imu", b)
         assert w.flush(60), w.delivery()
-        assert svc.heard == {"own": len(frames), "others": 0}, svc.heard
-        assert svc.frames_processed == len(frames)
-        assert svc.core.frame_accounting().get("lost", 0) == 0, svc.core.frame_accounting()
+        return {"sent": len(frames), "unheard": unheard, "resent": w.resent, "heard": dict(svc.heard),
+                "processed": svc.frames_processed, "accounting": svc.core.frame_accounting(),
+                "first_seq": svc.core.responders[rid].gate.first_of_stream.seq}
     finally:
         w.close()
         if svc is not None:
             svc.close()
         for s in (cl, svc_session, rs):
             s.close()
+
+
+def test_a_route_declared_after_the_wearable_began_fetches_what_it_sent_before():
+    """zenoh's history works for a subscriber declared late: frames sent before any worker
+    listened (the wearable started first) come from the wearable's keep, none lost."""
+    got = _route_after_the_wearable_began("late", 60, zenoh_keep=True)
+    assert got["unheard"] == 60 and got["processed"] == got["sent"] and got["first_seq"] == 0, got
+    assert got["heard"]["others"] == 0 and got["accounting"].get("lost", 0) == 0, got
 
 
 def test_the_first_frames_no_route_heard_are_asked_for_and_resent_by_the_wearable():
@@ -150,32 +161,9 @@ def test_the_first_frames_no_route_heard_are_asked_for_and_resent_by_the_wearabl
     route's history to fetch) sends its first frames before any worker subscribes. The route's
     first frame is then seq 12; the gate holds it, the Status asks for [0, 11], the wearable
     resends them from its own keep, and every frame is tracked (none lost, counted or not)."""
-    cfg = default_incident()
-    rid = next(r for r in (f"first{i}" for i in range(50)) if in_shard(r, 1, 2))
-    rs, endpoint = router()
-    cl, svc_session = client(endpoint), client(endpoint)
-    w = Wearable(cl, cfg.id, rid, zenoh_keep=False)
-    frames = walking_frames(rid, SECONDS)
-    svc = None
-    try:
-        for b in frames[:12]:
-            w.send("imu", b)
-        svc = IncidentService(svc_session, cfg, ServiceSettings(warm_up=False), shard=(1, 2)).start()
-        assert wait_until(lambda: rid in svc._routes, 30), "no route declared for the announced responder"
-        assert wait_until(lambda: w.heard, 10), "the route does not match the wearable's frames"
-        for b in frames[12:]:
-            w.send("imu", b)
-        assert w.flush(60), w.delivery()
-        assert w.resent >= 12, w.resent
-        assert svc.frames_processed == len(frames) and svc.core.frame_accounting().get("lost", 0) == 0, \
-            (svc.frames_processed, svc.core.frame_accounting())
-        assert svc.core.responders[rid].gate.first_of_stream.seq == 0
-    finally:
-        w.close()
-        if svc is not None:
-            svc.close()
-        for s in (cl, svc_session, rs):
-            s.close()
+    got = _route_after_the_wearable_began("first", 12, zenoh_keep=False)
+    assert got["resent"] >= 12 and got["first_seq"] == 0, got
+    assert got["processed"] == got["sent"] and got["accounting"].get("lost", 0) == 0, got
 
 
 def test_a_route_stays_while_its_responder_is_away_and_goes_when_the_core_lets_it_go():
@@ -188,13 +176,13 @@ def test_a_route_stays_while_its_responder_is_away_and_goes_when_the_core_lets_i
     cl = client(endpoint)
     try:
         w = Wearable(cl, cfg.id, rid)
-        assert wait_until(lambda: rid in svc._routes, 30), "no route declared for the announced responder"
+        assert wait_until(lambda: rid in svc.routes.routes, 30), "no route declared for the announced responder"
         for b in walking_frames(rid, 1.0):
             w.send("imu", b)
         assert w.flush(30), w.delivery()
         w.close()
-        assert wait_until(lambda: rid not in svc._present, 10), "the token's end did not reach the worker"
-        assert rid in svc.responders and rid in svc._routes  # away is not gone: its recovery waits for it
+        assert wait_until(lambda: rid not in svc.routes.present, 10), "the token's end did not reach the worker"
+        assert rid in svc.responders and rid in svc.routes.routes  # away is not gone: its recovery waits for it
         # the core looks at expiry as input comes: another responder walks on meanwhile
         w2, frames = Wearable(cl, cfg.id, other), iter(walking_frames(other, 60.0))
 
@@ -204,8 +192,8 @@ def test_a_route_stays_while_its_responder_is_away_and_goes_when_the_core_lets_i
 
         assert wait_until(gone, 30, step=0.1), "the core did not let the silent responder go"
         w2.close()
-        assert wait_until(lambda: rid not in svc._routes, 5), "the route outlived its responder"
-        assert svc._routed_keys == {wire.key(cfg.id, other, k) for k in ("imu", "fix")}  # the walker still tracked
+        assert wait_until(lambda: rid not in svc.routes.routes, 5), "the route outlived its responder"
+        assert svc.routes.routed_keys == {wire.key(cfg.id, other, k) for k in ("imu", "fix")}  # the walker still tracked
     finally:
         svc.close()
         for s in (cl, svc_session, rs):
@@ -281,8 +269,10 @@ def test_two_shard_processes_on_a_mesh_of_two_routers_track_everyone_once_as_one
     for k, line in enumerate(stops):  # each process took its own responders' frames, and heard nobody else's
         own = [r for r in IDS if in_shard(r, k, 2)]
         n = sum(len(frames[r]) for r in own)
-        assert f"{len(own)} responder(s), {n} frames processed; frames heard: {n} of this shard's, 0 of others'" \
-            in line, (k, line)
+        got = re.search(r"(\d+) responder\(s\), (\d+) frames processed; frames heard: (\d+) of this shard's, "
+                        r"(\d+) of others'", line)
+        assert got and [int(x) for x in got.groups()[:2]] == [len(own), n], (k, line)
+        assert int(got[3]) >= n and int(got[4]) == 0, (k, line)
     ref, _, _ = _run(1)
     for r in IDS:
         (a,), (b,) = tracks[r], ref[r]

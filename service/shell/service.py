@@ -81,8 +81,10 @@ class ServiceSettings:
     mmap_threshold_bytes: int | None = 128 * 1024  # bytes: larger blocks mapped alone, returned when freed (None: glibc's)
 
 
-class IncidentService(RoundIntake, ShardRoutes, SnapshotWriter):
-    """The service of one incident on an open zenoh session: ``start()``, ``close()``."""
+class IncidentService(SnapshotWriter):
+    """The service of one incident on an open zenoh session: ``start()``, ``close()``. It holds
+    its frames' subscribers (``routes``: :class:`ShardRoutes`) and what its worker takes into a
+    round (``rounds``: :class:`RoundIntake`)."""
 
     def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
                  recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1), core: IncidentCore | None = None,
@@ -119,18 +121,19 @@ class IncidentService(RoundIntake, ShardRoutes, SnapshotWriter):
         self._threads: list[threading.Thread] = []
         self._decl: list = []
         self._publishers: dict[str, object] = {}
-        self._imu = None  # the frames' subscriber (a zenoh FIFO channel), once started
-        self._fix = None  # the fixes' subscriber
-        self._routes: dict[str, tuple] = {}  # --workers > 1: responder id -> its (imu, fix, miss listeners) (shard_routes.py)
-        self._routed_keys: set[str] = set()  # the keys those subscribers are on
-        self._present: set[str] = set()  # own responders whose presence token is up
-        self.heard = {"own": 0, "others": 0}  # samples taken from the frames' subscribers, by owner (this worker or not)
+        self.routes = ShardRoutes(session, self.id, self.settings, shard, self._on_miss)  # the frames' subscribers
+        self.rounds = RoundIntake(self.core, clock, shard, self.routes, self._queue, self.settings.max_round)
         self.access = access  # the policy fed to the core before any input (None: the open demo)
         self.fence = None  # service.shell.standby.Fence: this service's epoch; fenced, it publishes no more
         self.snapshot_feed = None  # service.shell.standby.SnapshotFeed: snapshots to a standby that follows
         self.fenced_dropped = 0  # messages not published because a service of a higher epoch took over
         self._looks = 0  # times the worker looked for input ...
         self._last_busy_look = 0  # ... and the last time it found some (wait_idle)
+
+    @property
+    def heard(self) -> dict[str, int]:
+        """Samples taken from the frames' subscribers, by owner (``own``: this worker's responders)."""
+        return self.rounds.heard
 
     # ------------------------------------------------------------------ what the core counts
     @property
@@ -169,7 +172,7 @@ class IncidentService(RoundIntake, ShardRoutes, SnapshotWriter):
         if self.access is not None:  # the policy is the core's (and the recording's) first input
             self._run_round([Inbound("access", self._access_key(), wire.encode(self.access), self.clock())], 0)
         s = self.session
-        self._declare_frame_subscribers()  # the wildcard, or routes per announced responder (shard_routes.py)
+        self.routes.declare()  # the wildcard, or routes per announced responder (shard_routes.py)
         self._decl += [
             s.declare_subscriber(wire.key_all(self.id, "command"), self._enqueue),
             s.declare_subscriber(wire.key_all(self.id, "ack"), self._enqueue),
@@ -204,14 +207,7 @@ class IncidentService(RoundIntake, ShardRoutes, SnapshotWriter):
         self._threads.clear()
         if self._snapshot_writer is not None:
             self._snapshot_writer.join(timeout)
-        for sub in (self._imu, self._fix):
-            if sub is not None:
-                try:
-                    sub.undeclare()
-                except Exception:
-                    pass
-        self._imu = self._fix = None
-        self._close_routes()
+        self.routes.close()
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
         """Block until everything received so far is processed (tests, benchmarks): the worker
@@ -304,9 +300,9 @@ class IncidentService(RoundIntake, ShardRoutes, SnapshotWriter):
         quick, slow = self.settings.idle_poll_s
         last_frame = -math.inf
         while True:
-            items = self._take_frames(self.settings.max_round)
+            items = self.rounds.take_frames(self.settings.max_round)
             wait = 0.0 if items else quick if time.monotonic() - last_frame < 1.0 else slow
-            taken, ticks, stop = self._take_queued(items, wait)
+            taken, ticks, stop = self.rounds.take_queued(items, wait)
             self._looks += 1
             try:
                 if items or ticks:
@@ -334,7 +330,7 @@ class IncidentService(RoundIntake, ShardRoutes, SnapshotWriter):
             self._publish(out)
             if ticks:
                 self._forget_publishers()
-                self._forget_routes()
+                self.routes.forget(self.core.responders)
                 gone = self.core.counters.expired + self.core.counters.newcomers_forgotten
                 if gone != self._expired_seen:  # responders or newcomers left: their memory goes back
                     self._expired_seen = gone

@@ -32,7 +32,7 @@ it has a route for to the route): lossless for such sources, at today's cost of 
 reaching every worker. Operator fixes need no catch-all: they come as ``op`` actions, which
 the worker of the responder they name takes (:meth:`IncidentService._enqueue_op`).
 
-A mixin of :class:`service.shell.service.IncidentService`.
+Held by :class:`service.shell.service.IncidentService` (``svc.routes``).
 """
 from __future__ import annotations
 
@@ -51,19 +51,29 @@ class ShardRoutes:
     """The frames' subscribers of a worker: the incident's wildcard (one worker, or the
     catch-all), and one route (imu + fix subscribers) per announced responder of its shard."""
 
-    def _sharded(self) -> bool:
+    def __init__(self, session: zenoh.Session, incident_id: str, settings, shard: tuple[int, int], on_miss):
+        self.session, self.id, self.settings, self.shard, self._on_miss = session, incident_id, settings, shard, on_miss
+        self.imu = None  # the incident's frames' subscriber (a zenoh FIFO channel): one worker, or the catch-all
+        self.fix = None  # the incident's fixes' subscriber
+        self.routes: dict[str, tuple] = {}  # responder id -> its (imu, fix, miss listeners)
+        self.routed_keys: set[str] = set()  # the keys those subscribers are on
+        self.present: set[str] = set()  # own responders whose presence token is up
+        self._misses: list = []  # the wildcard subscribers' miss listeners
+
+    @property
+    def sharded(self) -> bool:
         return self.shard[1] > 1
 
-    def _declare_frame_subscribers(self) -> None:
+    def declare(self) -> None:
         """One worker: the incident's wildcard subscribers (every frame is its own). Several:
         none until a token announces one of its responders (and the wildcard only as a catch-all)."""
-        if self._sharded() and not self.settings.catch_all:
+        if self.sharded and not self.settings.catch_all:
             return
-        self._imu = self._advanced(wire.key_all(self.id, "imu"), "imu", history=True)
+        self.imu = self._advanced(wire.key_all(self.id, "imu"), "imu", history=True)
         # fixes: recovered after a miss, but never fetched again on detection (a fix applied
         # before a restart must not be applied twice; frames have seq numbers, fixes do not)
-        self._fix = self._advanced(wire.key_all(self.id, "fix"), "fix", history=False)
-        self._decl += [self._imu.sample_miss_listener(self._on_miss), self._fix.sample_miss_listener(self._on_miss)]
+        self.fix = self._advanced(wire.key_all(self.id, "fix"), "fix", history=False)
+        self._misses = [self.imu.sample_miss_listener(self._on_miss), self.fix.sample_miss_listener(self._on_miss)]
 
     def _advanced(self, key: str, kind: str, history: bool):
         st = self.settings
@@ -78,50 +88,53 @@ class ShardRoutes:
         # asks for those (a gap, or a stream first heard above seq 0: service/core/gate.py).
         hist = zext.HistoryConfig(detect_late_publishers=True, max_samples=st.history_frames if kind == "imu"
                                   else None) if history else None
+        recovery = (zext.RecoveryConfig(periodic_queries=datetime.timedelta(seconds=1)) if routed
+                    else zext.RecoveryConfig(heartbeat=True))
         return zext.declare_advanced_subscriber(self.session, key, zenoh.handlers.FifoChannel(size), history=hist,
-                                                recovery=zext.RecoveryConfig(periodic_queries=datetime.timedelta(seconds=1)) if routed else zext.RecoveryConfig(heartbeat=True),
-                                                subscriber_detection=True)
+                                                recovery=recovery, subscriber_detection=True)
 
-    def _frame_subscribers(self):
+    def subscribers(self):
         """``(kind, subscriber, routed)`` for every subscriber frames wait in (the worker's thread)."""
-        for kind, sub in (("imu", self._imu), ("fix", self._fix)):
+        for kind, sub in (("imu", self.imu), ("fix", self.fix)):
             if sub is not None:
                 yield kind, sub, False
-        for imu, fix, _ in list(self._routes.values()):
+        for imu, fix, _ in list(self.routes.values()):
             yield "imu", imu, True
             yield "fix", fix, True
 
-    def _route_presence(self, key: str, present: bool) -> None:
+    def presence(self, key: str, present: bool, tracked) -> None:
         """A token of one of this worker's responders came or went (the worker's thread): its
-        route is declared when it comes; when it goes, :meth:`_forget_routes` decides later."""
+        route is declared when it comes; when it goes, :meth:`forget` decides later.
+        ``tracked``: the responders the core holds (their fixes are not fetched again)."""
         try:
             _, rid, _ = wire.parse_key(key)
         except ValueError:  # not a responder's token: the core says so when it takes it
             return
         if present:
-            self._present.add(rid)
-            if rid not in self._routes:
-                self._declare_route(rid)
+            self.present.add(rid)
+            if rid not in self.routes:
+                self._declare_route(rid, rid in tracked)
         else:
-            self._present.discard(rid)
+            self.present.discard(rid)
 
-    def _declare_route(self, rid: str) -> None:
+    def _declare_route(self, rid: str, tracked: bool) -> None:
         try:
             imu = self._advanced(wire.key(self.id, rid, "imu"), "imu", history=True)
-            fix = self._advanced(wire.key(self.id, rid, "fix"), "fix", history=rid not in self.core.responders)
+            fix = self._advanced(wire.key(self.id, rid, "fix"), "fix", history=not tracked)
             misses = [imu.sample_miss_listener(self._on_miss), fix.sample_miss_listener(self._on_miss)]
         except Exception:  # a closing session: no route, and the service carries on
             log.exception("declaring the subscribers of responder %s", rid)
             return
-        self._routes[rid] = (imu, fix, misses)
-        self._routed_keys.update((wire.key(self.id, rid, "imu"), wire.key(self.id, rid, "fix")))
+        self.routes[rid] = (imu, fix, misses)
+        self.routed_keys.update((wire.key(self.id, rid, "imu"), wire.key(self.id, rid, "fix")))
 
-    def _forget_routes(self) -> None:
-        """Routes of responders whose token is gone and whom the core let go are undeclared."""
-        gone = [r for r in self._routes if r not in self._present and r not in self.core.responders]
+    def forget(self, tracked) -> None:
+        """Routes of responders whose token is gone and whom the core let go (not in ``tracked``)
+        are undeclared."""
+        gone = [r for r in self.routes if r not in self.present and r not in tracked]
         for rid in gone:
-            self._undeclare_route(self._routes.pop(rid))
-            self._routed_keys.difference_update((wire.key(self.id, rid, "imu"), wire.key(self.id, rid, "fix")))
+            self._undeclare_route(self.routes.pop(rid))
+            self.routed_keys.difference_update((wire.key(self.id, rid, "imu"), wire.key(self.id, rid, "fix")))
 
     @staticmethod
     def _undeclare_route(route) -> None:
@@ -132,8 +145,13 @@ class ShardRoutes:
             except Exception:  # already gone with a closed session
                 pass
 
-    def _close_routes(self) -> None:
-        for route in self._routes.values():
+    def close(self) -> None:
+        """Undeclare every frames' subscriber (after the worker took what waited in them)."""
+        if self.imu is not None:
+            self._undeclare_route((self.imu, self.fix, self._misses))
+        self.imu = self.fix = None
+        self._misses = []
+        for route in self.routes.values():
             self._undeclare_route(route)
-        self._routes.clear()
-        self._routed_keys.clear()
+        self.routes.clear()
+        self.routed_keys.clear()

@@ -145,12 +145,7 @@ class Fence:
         return self.claim_id[0]
 
     def close(self) -> None:
-        for d in (self._sub, self._token):
-            if d is not None:
-                try:
-                    d.undeclare()
-                except Exception:  # closed with its session
-                    pass
+        _undeclare(self._sub, self._token)
 
 
 class SnapshotFeed:
@@ -171,10 +166,7 @@ class SnapshotFeed:
         self.published += 1
 
     def close(self) -> None:
-        try:
-            self._pub.undeclare()
-        except Exception:
-            pass
+        _undeclare(self._pub)
 
 
 class SnapshotFollower:
@@ -193,7 +185,13 @@ class SnapshotFollower:
         self.received += 1
 
     def close(self) -> None:
-        try:
-            self._sub.undeclare()
-        except Exception:
-            pass
+        _undeclare(self._sub)
+
+
+def _undeclare(*entities) -> None:
+    for d in entities:
+        if d is not None:
+            try:
+                d.undeclare()
+            except Exception:  # closed with its session
+                pass
