@@ -106,7 +106,7 @@ WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers 
 # profile sums, for the columnar rounds (pdr/fleet*) and for one-responder-at-a-time
 # pipelines (pdr/pipeline.py and its stage classes) alike, so one table compares both.
 STAGES: dict[str, tuple[tuple[str, str], ...]] = {
-    "zenoh take": (("service/shell/round_intake.py", "_take_frames"), ("service/shell/round_intake.py", "_take_queued")),
+    "zenoh take": (("service/shell/round_intake.py", "take_frames"), ("service/shell/round_intake.py", "take_queued")),
     "decode": (("service/protocol/codec.py", "decode"),),
     "frame gate": (("service/core/gate.py", "offer"), ("service/core/gate.py", "expire")),
     "heading (AHRS, bias, compass, per step)": (
@@ -125,8 +125,8 @@ STAGES: dict[str, tuple[tuple[str, str], ...]] = {
     "pose message": (("service/core/pose_output.py", "_emit_poses"), ("service/core/pose_output.py", "pose_message")),
     "status": (("service/core/incident_core.py", "status_of"),),
     "publish (encode, put)": (("service/shell/service.py", "_publish"),),
-    "worker total": (("service/shell/service.py", "_run_round"), ("service/shell/round_intake.py", "_take_frames"),
-                     ("service/shell/round_intake.py", "_take_queued")),
+    "worker total": (("service/shell/service.py", "_run_round"), ("service/shell/round_intake.py", "take_frames"),
+                     ("service/shell/round_intake.py", "take_queued")),
 }
 
 
@@ -147,7 +147,7 @@ def stage_table(stats: pstats.Stats, frames: int, steps: int) -> dict[str, dict[
                 totals[stage] += cum
         if path.endswith("queue.py") and func == "get":
             idle += sum(c[3] for (cpath, _, cfunc), c in callers.items()
-                        if cpath.replace("\\", "/").endswith("service/shell/round_intake.py") and cfunc == "_take_queued")
+                        if cpath.replace("\\", "/").endswith("service/shell/round_intake.py") and cfunc == "take_queued")
     for k in IDLE_STAGES:
         totals[k] -= idle
     totals["idle (waiting for input)"] = idle

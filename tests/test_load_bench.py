@@ -9,12 +9,12 @@ def _entry(cum: float, callers: dict | None = None):
 
 
 def test_stage_table_sums_stages_per_frame_and_step_and_takes_the_idle_wait_out():
-    take_queued = ("/x/service/shell/round_intake.py", 240, "_take_queued")
+    take_queued = ("/x/service/shell/round_intake.py", 240, "take_queued")
     stats = SimpleNamespace(stats={
         ("/x/service/shell/service.py", 260, "_run_round"): _entry(2.0),
         take_queued: _entry(0.7),
-        ("/x/service/shell/round_intake.py", 217, "_take_frames"): _entry(0.1),
-        # blocked in queue.get for 0.5 s when called from _take_queued; 0.25 s from elsewhere is not the worker's wait
+        ("/x/service/shell/round_intake.py", 217, "take_frames"): _entry(0.1),
+        # blocked in queue.get for 0.5 s when called from take_queued; 0.25 s from elsewhere is not the worker's wait
         ("/usr/lib/python3.11/queue.py", 154, "get"): _entry(0.75, {take_queued: (1, 1, 0.0, 0.5),
                                                                     ("/x/other.py", 1, "f"): (1, 1, 0.0, 0.25)}),
         ("/x/service/protocol/codec.py", 68, "decode"): _entry(0.3),

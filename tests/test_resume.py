@@ -210,6 +210,7 @@ def test_a_crowd_of_new_responders_is_pickled_a_batch_per_round_before_the_snaps
     shell = types.SimpleNamespace(
         state_file=types.SimpleNamespace(write=lambda blob, pos, now: written.append(blob)), recorder_error=None,
         recorder=types.SimpleNamespace(flush=lambda: None, message_count=7), snapshot_error=None, core=core,
+        snapshot_feed=None,
         settings=settings, _last_snapshot=100.0, _snapshot_writer=None, snapshots=0, snapshots_skipped=0,
         snapshots_deferred=0, _rec_lock=threading.Lock(), _core_lock=threading.Lock(), clock=lambda: 200.0)
     for name in ("_snapshot_if_due", "_write_snapshot", "_snapshot_failed"):

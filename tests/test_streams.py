@@ -134,6 +134,32 @@ def test_an_asked_gap_that_is_not_resent_is_lost_after_resend_wait_s_or_max_held
     assert out == list(range(10, 30)) and gate.lost == 8  # one more: the run is lost, and the rest flows
 
 
+def test_a_stream_first_heard_above_seq_0_asks_for_its_beginning_and_counts_what_never_comes():
+    """A subscriber declared after the wearable began may be handed seq 12 first (zenoh's
+    history reply lost the race): [0, 11] is asked for, and released in order when resent."""
+    gate = FrameGate(ask_from_start=100)
+    released = [b.seq for s in range(12, 16) for b in gate.offer(frame(s), 0.01 * s)]
+    assert released == [] and gate.ask() == (0, 11) and gate.held == 4
+    released += [b.seq for s in range(12) for b in gate.offer(frame(s), 0.3)]  # the wearable's resend
+    assert released == list(range(16)) and gate.lost == 0 and gate.missing is None
+    assert gate.first_of_stream.seq == 0  # the core starts the track at the stream's real first frame
+    # not resent within resend_wait_s: the beginning is lost, counted, and the stream flows on
+    late = FrameGate(ask_from_start=100)
+    late.offer(frame(30, boot="b"), 0.0)
+    assert late.ask() == (0, 29) and late.expire(2.1)[0].seq == 30
+    assert late.lost == 30 and late.first_of_stream.seq == 30 and late.offer(frame(3, boot="b"), 2.2) == []
+    assert late.counts == {"late": 1}
+    # the worker stalled past resend_wait_s with the resend waiting in its channel: taken, it fills the gap
+    stalled = FrameGate(ask_from_start=100)
+    stalled.offer(frame(5), 0.0)
+    assert stalled.ask() == (0, 4)
+    out = [b.seq for s in range(5) for b in stalled.offer(frame(s), 3.0)]
+    assert out == list(range(6)) and stalled.lost == 0
+    # beyond ask_from_start (a counter that does not start at 0), or off: released at once
+    assert [b.seq for b in FrameGate(ask_from_start=100).offer(frame(500), 0.0)] == [500]
+    assert [b.seq for b in FrameGate().offer(frame(12), 0.0)] == [12]
+
+
 # --------------------------------------------------------------------------------------
 # The core: one track across streams and gaps
 # --------------------------------------------------------------------------------------

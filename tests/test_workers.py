@@ -32,11 +32,13 @@ def test_a_worker_process_admits_new_ids_within_the_budget_the_service_was_given
     cl = client(endpoint)
     try:
         assert pool.wait_ready(120), "the worker process did not start"
-        for rid in ids:
+        for rid in ids:  # announced as a wearable does: worker 1 subscribes to its frames (shard_routes.py)
+            token = cl.liveliness().declare_token(wire.key(cfg.id, rid, "presence"))
             pub = matched_publisher(cl, wire.key(cfg.id, rid, "imu"), timeout=30)
             for b in walking_frames(rid, 0.5):
                 pub.put(wire.encode(b))
             pub.undeclare()
+            token.undeclare()
     finally:
         stats = pool.close()
         cl.close()

@@ -9,10 +9,14 @@ from service.protocol.session import client_config, router_config
 from service.protocol.session import free_local_port as free_port
 
 
-def router(port: int | None = None) -> tuple[zenoh.Session, str]:
-    """An in-process router on a free loopback port, and its endpoint."""
+def router(port: int | None = None, connect: str | None = None) -> tuple[zenoh.Session, str]:
+    """An in-process router on a free loopback port, and its endpoint; with ``connect``, linked
+    to the router there (a mesh of two)."""
     endpoint = f"tcp/127.0.0.1:{port or free_port()}"
-    return zenoh.open(router_config([endpoint])), endpoint
+    conf = router_config([endpoint])
+    if connect is not None:
+        conf.insert_json5("connect/endpoints", f'["{connect}"]')
+    return zenoh.open(conf), endpoint
 
 
 def client(endpoint: str) -> zenoh.Session:

@@ -53,6 +53,15 @@ def serve_command(
     port: int = typer.Option(8080, "--port", help="web console port"),
     seconds: float = typer.Option(math.inf, "--seconds", help="stop after this long (default: until Ctrl-C)"),
     workers: int = typer.Option(1, "--workers", help="worker processes sharing the responders (one per core)"),
+    shard: str = typer.Option(None, "--shard", help="i/N: serve only the responders whose id hashes to shard i of N "
+                                                    "(N serve processes, one per shard, on one machine or several "
+                                                    "joined by a router mesh; see deploy/README.md)"),
+    standby: bool = typer.Option(False, "--standby", help="stand by for the service of this incident (or --shard part): "
+                                                          "follow its snapshots, take over when it is gone; needs "
+                                                          "--connect (a router of its own)"),
+    catch_all: bool = typer.Option(False, "--catch-all", help="with --workers > 1: also hear sources that declare no "
+                                                              "presence token (a replay, a third-party device); every "
+                                                              "frame then reaches every worker"),
     max_responders: int = typer.Option(1024, "--max-responders", help="responders kept at once; new ids beyond are refused"),
     admit_burst: float = typer.Option(256, "--admit-burst", help="new responder ids admitted at once ..."),
     admit_per_s: float = typer.Option(2.0, "--admit-per-s", help="... and per second after that"),
@@ -73,11 +82,16 @@ def serve_command(
     """Run the service for one incident: one pipeline per responder, poses and status out."""
     setup_logging(verbose)
     _workers_or_exit(workers)
+    part = shard_or_exit(shard, workers)
     identity = tls_or_exit(tls, "service", what="serve")
     security = security_or_exit(identity, roster, incident_id, router=not connect)
     cfg = incident_or_exit(config, incident_id or (security.roster.incident if security and security.roster else None))
     warn_plan_problems(cfg)
     settings = _service_settings(cfg, security, max_responders, admit_burst, admit_per_s, roster_only, expire_after)
+    settings.catch_all = catch_all
+    if standby and (not connect or workers > 1 or record is not None):
+        fail("--standby needs --connect (the router must outlive the primary), one worker and no --record")
+        raise typer.Exit(2)
     if workers > 1 and record is not None:
         fail("--record records one process's inputs; with --workers > 1 run `firetrack record` beside the service")
         raise typer.Exit(2)
@@ -89,16 +103,52 @@ def serve_command(
         raise typer.Exit(2)
     _exit_if_stuck(stop)
     with running_service(cfg, listen, connect, record, console, port, settings=settings, workers=workers,
-                         security=security, stop=stop,
+                         security=security, stop=stop, shard=part, standby=standby,
                          foxglove=(foxglove_host, foxglove) if foxglove is not None else None) as (svc, where):
         out.print(f"[bold]firetrack[/] serving incident [bold]{cfg.id}[/] ({cfg.name}) on {where}"
-                  + (f" as {identity.name}, mutual TLS" if identity else ""))
+                  + (f" as {identity.name}, mutual TLS" if identity else "")
+                  + (f", shard {part[0]}/{part[1]}" if part else ""))
         if console:
             out.print(f"console: {svc.console_url or f'http://127.0.0.1:{port}/'}")
         if svc.foxglove_url:
             out.print(f"foxglove: {svc.foxglove_url} (Foxglove: Open connection, Foxglove WebSocket)")
-        stop.wait(None if math.isinf(seconds) else seconds)
-    out.print(f"stopped; {len(svc.responders)} responder(s), {svc.frames_processed} frames processed")
+        fenced = _serve_until(stop, seconds, svc.fence)
+    if fenced:
+        e, nonce = svc.fence.fenced_by
+        out.print(f"stood down: the service of epoch {e} ({nonce}) serves this part of the incident now; "
+                  f"{svc.fenced_dropped} message(s) not published")
+        raise typer.Exit(3)
+    out.print(f"stopped; {len(svc.responders)} responder(s), {svc.frames_processed} frames processed"
+              + (f"; frames heard: {svc.heard['own']} of this shard's, {svc.heard['others']} of others'" if part else ""))
+
+
+def _serve_until(stop, seconds: float, fence) -> bool:
+    """Until a stop signal or ``seconds`` (False), or until a service of a higher epoch took
+    this one's part over (True: the service has stopped publishing)."""
+    deadline = time.monotonic() + seconds
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0 or stop.wait(min(0.2, left)):
+            return False
+        if fence is not None and fence.fenced.is_set():
+            return True
+
+
+def shard_or_exit(shard: str | None, workers: int) -> tuple[int, int] | None:
+    """``--shard i/N`` as ``(i, N)`` with 0 <= i < N, or one line and exit code 2."""
+    if shard is None:
+        return None
+    try:
+        i, n = (int(x) for x in shard.split("/"))
+    except ValueError:
+        i = n = -1
+    if not 0 <= i < n:
+        fail(f"--shard must be i/N with 0 <= i < N (e.g. 0/2), got {shard!r}")
+        raise typer.Exit(2)
+    if workers > 1:
+        fail("--shard is one process's part; it does not combine with --workers (run one process per shard)")
+        raise typer.Exit(2)
+    return i, n
 
 
 STOP_GRACE_S = 15.0  # s after SIGTERM/SIGINT within which serve has ended, whatever it was doing
@@ -216,8 +266,10 @@ class running_service:
 
     def __init__(self, cfg, listen=None, connect=None, record: Path | None = None, console: bool = False,
                  port: int = 8080, settings=None, workers: int = 1, security: Security | None = None, stop=None,
-                 foxglove: tuple[str, int] | None = None):
+                 foxglove: tuple[str, int] | None = None, shard: tuple[int, int] | None = None, standby: bool = False):
         self.cfg, self.listen, self.connect, self.workers = cfg, listen, connect, workers
+        self.shard = shard or (0, workers)  # --shard i/N: this process is shard i; else worker 0 of --workers
+        self.standby, self.fence = standby, None
         self.stop = stop  # a signal's stop: the worker start-up ends early
         self.foxglove = foxglove  # (host, port) of the live Foxglove server, or None
         self.record, self.console, self.port, self.settings = record, console, port, settings
@@ -238,14 +290,22 @@ class running_service:
             fail(str(e))
             raise typer.Exit(1)
         self._closers.append(session.close)
+        taken_over = self._claim(session) if self.workers == 1 else None  # may stand by first (standby.py)
         recorder = core = state_file = None
         self.resumed = None
         if self.record is not None:
             recorder, core, state_file = self._recording()
             self._closers.append(lambda: recorder.__exit__(None, None, None))
-        svc = IncidentService(session, self.cfg, self.settings, recorder=recorder, shard=(0, self.workers), core=core,
+        svc = IncidentService(session, self.cfg, self.settings, recorder=recorder, shard=self.shard, core=core or taken_over,
                               state_file=state_file, access=sec.access() if sec is not None else None,
-                              actor=tls.name if tls is not None else "service").start()
+                              actor=tls.name if tls is not None else "service")
+        if self.fence is not None:
+            from service.shell.standby import SnapshotFeed
+
+            svc.fence = self.fence
+            svc.snapshot_feed = SnapshotFeed(session, self.cfg.id, self.shard, self.fence.tag)
+            self._closers.append(svc.snapshot_feed.close)
+        svc.start()
         self._closers.append(svc.close)
         svc.console_url = None
         if sec is not None and sec.roster is not None:
@@ -277,6 +337,59 @@ class running_service:
         where = ", ".join(self.connect) if self.connect else ", ".join(self.listen or [default_endpoint(tls)])
         self.service = svc
         return svc, where
+
+    def _claim(self, session):
+        """Claim this part's next epoch; first, with ``--standby`` or while another service's
+        claim is live, stand by until it is gone. Returns the core restored from the newest
+        snapshot the primary published (None: start afresh, or resume from ``--record``)."""
+        from service.shell.standby import Fence, SnapshotFollower
+
+        fence = self.fence = Fence(session, self.cfg.id, self.shard)
+        self._closers.append(fence.close)
+        core = None
+        live = fence.others()
+        if self.standby or live:
+            follower = None if self.record is not None else SnapshotFollower(session, self.cfg.id, self.shard)
+            part = f" part {self.shard[0]}/{self.shard[1]}" if self.shard[1] > 1 else ""
+            self._warm_up_now()  # not after the primary is gone: seconds of compiling before the first pose
+            out.print(f"standing by for incident {self.cfg.id}{part}"
+                      + (f" (served at epoch {max(live)[0]})" if live else "") + "; taking over when it is gone")
+            if not fence.wait_vacant(self.stop):
+                self.__exit__(None, None, None)
+                out.print("stopped while standing by")
+                raise typer.Exit(0)
+            if follower is not None:
+                follower.close()
+                core = self._restore(follower)
+        fence.claim()
+        return core
+
+    def _warm_up_now(self) -> None:
+        import dataclasses
+
+        from service.core.warmup import warm_up
+        from service.shell.service import ServiceSettings
+
+        settings = self.settings or ServiceSettings()
+        if settings.warm_up:
+            warm_up(self.cfg, settings.core)
+            self.settings = dataclasses.replace(settings, warm_up=False)
+
+    def _restore(self, follower):
+        from service.core.incident_core import IncidentCore
+        from service.shell.service import ServiceSettings
+
+        if follower.newest is None:
+            warn("taking over with no snapshot of the primary: the incident starts afresh")
+            return None
+        try:
+            core = IncidentCore.restore(follower.newest, self.cfg, (self.settings or ServiceSettings()).core)
+        except Exception as e:  # a snapshot of another version, or damaged: start afresh, loudly
+            warn(f"the primary's snapshot cannot be restored ({type(e).__name__}: {e}): the incident starts afresh")
+            return None
+        err.print(f"taking over from the snapshot of epoch {follower.newest_from} ({len(core.responders)} responder(s), "
+                  f"{follower.received} snapshot(s) followed)", highlight=False)
+        return core
 
     def _foxglove(self, session) -> str:
         """The live Foxglove server on the service's session; its ws:// address."""

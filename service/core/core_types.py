@@ -37,6 +37,8 @@ class CoreSettings:
     rejected_window_s: float = 10.0  # s
     rejected_burst: int = 5  # rejects within the window -> alarm
     reorder_window: int = 4  # frames a late frame may be overtaken by
+    ask_from_start: int = 3000  # frames: a stream first heard at seq s in 1..this has [0, s-1] asked for (the
+    # wearable's keep; a subscriber declared after the wearable began may lose its first frames: gate.py)
     entry_sigma_m: float | None = 50.0  # m: responders not yet placed by a checkpoint start at the origin
     # with this σ at their first step (None: no pose until a checkpoint places them)
     log_rejects_per_window: int = 3  # full log lines per source and window; all are counted

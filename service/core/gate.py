@@ -15,7 +15,13 @@ held frame. So a frame is released when no more than ``reorder_window`` frames w
 seq arrived before it, and lost otherwise. Held frames also leave, with the same rule, once the
 oldest has waited ``max_hold_s`` of receive time (:meth:`FrameGate.expire`, also run by every
 :meth:`FrameGate.offer`), so one lost frame never stalls a responder for long.
-The first frame a gate sees is released at once and sets ``next``.
+The first frame of a stream is released at once and sets ``next``, unless its seq is above 0
+and within ``ask_from_start``: a wearable counts from 0, so frames ``[0, seq - 1]`` were sent
+and not received. That frame is then held and the run asked for, as for any gap (below).
+This is what catches the first frames of a route that zenoh's advanced subscriber dropped:
+a subscriber declared just after the wearable began (a shard's route, a standby taking over)
+delivers a live frame that beats its history reply and then drops the older history frames
+(seen under load: 212 of 240 frames taken, all acknowledged, the rest never counted).
 
 Resend. A gap in front of held frames is also *asked for*: :meth:`FrameGate.ask` names the
 missing run ``[next, lowest held - 1]`` once per gap, the core puts it in the responder's
@@ -23,7 +29,9 @@ missing run ``[next, lowest held - 1]`` once per gap, the core puts it in the re
 (:mod:`client.wearable`). While an asked gap waits, the gate holds up to ``max_held`` frames
 (and ``max_held_samples`` samples) for at most ``resend_wait_s`` instead of ``reorder_window``
 frames and ``max_hold_s``, so the resent frames can fill it; what does not come in that time is
-declared lost as before. This is what fills a gap that zenoh's own recovery cannot: after a
+declared lost as before. A stream's asked-for beginning is bounded by ``max_held_samples``
+only: a worker behind its input takes many frames of one responder in one round, before its
+ask has left. This is what fills a gap that zenoh's own recovery cannot: after a
 service restart the advanced subscriber delivers a wearable's first live frame at once when it
 beats the history reply, and then drops the older history frames (zenoh-ext
 ``advanced_subscriber.rs``, ``handle_sample`` checks only the initial query, not the query
@@ -103,6 +111,7 @@ class FrameGate:
     _stream_heard: float | None = None  # receive time of the newest frame naming the current stream
     _candidate: tuple[str, str | None] | None = None  # the stream that waits to take over ...
     _candidate_held: dict | None = None  # ... its frames: seq -> (frame, receive time)
+    ask_from_start = 0  # a stream's first seq up to which its frames [0, seq - 1] are asked for (0: never)
     contested = 0  # frames of other streams turned away (or of a candidate that did not take over)
     last_contested = -math.inf  # receive time of the newest one
 
@@ -110,7 +119,7 @@ class FrameGate:
                  restart_after_s: float = 30.0, max_events: int = 256, max_seq_jump: int = 100_000,
                  max_retired: int = 16, takeover_after_s: float = TAKEOVER_AFTER_S, resend_wait_s: float = RESEND_WAIT_S,
                  max_held: int = MAX_HELD, max_held_samples: int = MAX_HELD_SAMPLES,
-                 restart_quiet_s: float = RESTART_QUIET_S):
+                 restart_quiet_s: float = RESTART_QUIET_S, ask_from_start: int = 0):
         if reorder_window < 0:
             raise ValueError(f"reorder_window must be >= 0, got {reorder_window}")
         if not max_gap_s > 0 or not max_hold_s > 0 or not restart_after_s > 0:
@@ -129,6 +138,9 @@ class FrameGate:
         self.max_seq_jump = int(max_seq_jump)
         self.takeover_after_s = float(takeover_after_s)
         self.restart_quiet_s = float(restart_quiet_s)
+        if ask_from_start < 0:
+            raise ValueError(f"ask_from_start must be >= 0 frames, got {ask_from_start}")
+        self.ask_from_start = int(ask_from_start)
         self.events: deque[tuple[float, str, str]] = deque(maxlen=max_events)
         self._counts: Counter[str] = Counter()
         self.offered = 0  # frames passed to offer()
@@ -213,8 +225,12 @@ class FrameGate:
     def offer(self, batch: ImuBatch, receive_time: float) -> list[ImuBatch]:
         """Take one frame; return the frames released by it, in order (possibly none)."""
         self.offered += 1
-        out = self.expire(receive_time)
         stream = (batch.device, batch.boot)
+        # the frame a gap waits for is taken before the wait is judged: after a stall of the
+        # worker (the frames and the resend waited in the channel meanwhile) it fills the gap
+        # instead of arriving just after the gap was declared lost
+        fills = bool(self._held) and stream == self._stream and batch.seq == self._next
+        out = [] if fills else self.expire(receive_time)
         if self._stream is not None and stream != self._stream:
             if batch.boot is not None and stream in self._retired:
                 self._reject(receive_time, "old_stream", f"seq {batch.seq} of device {batch.device!r} boot "
@@ -299,6 +315,8 @@ class FrameGate:
         if verdict is not None:
             self._reject(receive_time, *verdict)
             return out
+        if self._next is None and 0 < batch.seq <= self.ask_from_start:
+            self._next = 0  # the stream began at 0: what came before this frame is asked for
         if self._next is None or batch.seq == self._next:
             self._release(batch, receive_time, out)
             self._drain(receive_time, out)
@@ -333,8 +351,10 @@ class FrameGate:
     def _over_hold(self) -> bool:
         if not self._waiting():
             return len(self._held) > self.reorder_window
-        return (len(self._held) > self.max_held
-                or sum(len(b.t) for b, _ in self._held.values()) > self.max_held_samples)
+        samples = sum(len(b.t) for b, _ in self._held.values())
+        if self._first is None:  # a stream's beginning is awaited (a backlog may bring many frames): samples bound it
+            return samples > self.max_held_samples
+        return len(self._held) > self.max_held or samples > self.max_held_samples
 
     def expire(self, now: float) -> list[ImuBatch]:
         """Release held frames whose wait exceeded ``max_hold_s`` (``resend_wait_s`` for an asked-for
@@ -407,7 +427,7 @@ class FrameGate:
 
     def _release(self, batch: ImuBatch, now: float, out: list[ImuBatch], gap_counted: bool = False) -> None:
         """Release ``batch`` (seq == next, or the first of a stream) unless its time goes back."""
-        if self._next is None:
+        if self._first is None:
             self._first = batch.seq
             self.first_of_stream = batch  # the core continues the track from here as a new stream
         self._next = batch.seq + 1

@@ -361,7 +361,8 @@ class IncidentCore:
     def _new_responder(self, rid: str, now: float) -> Responder:
         s = self.settings
         n = self.roster.newcomers.pop(rid, None)
-        r = Responder(id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=self._tracker(rid),
+        r = Responder(id=rid, gate=FrameGate(reorder_window=s.reorder_window, ask_from_start=s.ask_from_start),
+                      tracker=self._tracker(rid),
                       first_heard=now if n is None else n.first_heard, present=self.roster.presence.pop(rid, None),
                       last_input=now)
         if n is not None:  # what it sent before this is counted as the responder's

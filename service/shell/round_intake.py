@@ -1,7 +1,8 @@
 """What a worker takes into a round: frames from the subscribers' channels (its shard only),
 and the queued fixes, orders and actions, waiting at most a bound.
 
-A mixin of :class:`service.shell.service.IncidentService`.
+Held by :class:`service.shell.service.IncidentService` (``svc.rounds``); the worker thread is
+its only caller.
 """
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import queue
 import zenoh
 
 from service.core.incident_core import Inbound
+from service.shell.sharding import in_shard
 
 log = logging.getLogger("firetrack.service")
 
@@ -18,18 +20,26 @@ log = logging.getLogger("firetrack.service")
 class RoundIntake:
     """What a worker takes into a round (frames of its shard, then the queued messages)."""
 
-    def _take_frames(self, limit: int | None) -> list[Inbound]:
+    def __init__(self, core, clock, shard: tuple[int, int], routes, inbox: queue.Queue, max_round: int):
+        self.core, self.clock, self.shard, self.routes = core, clock, shard, routes
+        self.inbox, self.max_round = inbox, max_round
+        self.heard = {"own": 0, "others": 0}  # samples taken from the frames' subscribers, by owner (this worker or not)
+
+    def take_frames(self, limit: int | None) -> list[Inbound]:
         """Frames, then fixes, waiting in zenoh's channels for this worker's responders, each
         through the intake (by key and size, before its payload is copied) and stamped as taken."""
         out: list[Inbound] = []
-        for kind, sub in (("imu", self._imu), ("fix", self._fix)):
-            if sub is None:
-                continue
-            self._take_from(kind, sub, out, limit)
+        for kind, sub, routed in self.routes.subscribers():
+            if limit is not None and len(out) >= limit:
+                break
+            self._take_from(kind, sub, out, limit, routed)
         return out
 
-    def _take_from(self, kind: str, sub, out: list[Inbound], limit: int | None) -> None:
-        admit, clock, mine = self.core.admit, self.clock, self._mine
+    def _take_from(self, kind: str, sub, out: list[Inbound], limit: int | None, routed: bool = False) -> None:
+        """From one subscriber: a route's samples are this worker's; the incident's wildcard
+        (one worker, or the catch-all) gives the ids of its shard that have no route."""
+        admit, clock, heard, k, n = self.core.admit, self.clock, self.heard, *self.shard
+        routed_keys = self.routes.routed_keys
         while limit is None or len(out) < limit:
             try:
                 sample = sub.try_recv()
@@ -38,24 +48,26 @@ class RoundIntake:
             if sample is None:
                 break
             key = str(sample.key_expr)
-            if not mine(key):
+            own = n == 1 or in_shard(key, k, n)  # the key is split once, and remembered (in_shard's cache)
+            heard["own" if own else "others"] += 1
+            if not own or (not routed and key in routed_keys):  # another's, or its route brings it
                 continue
             payload = sample.payload
             now = clock()
             if admit(kind, key, len(payload), now) is None:
                 out.append(Inbound(kind, key, payload.to_bytes(), now))
 
-    def _take_queued(self, items: list[Inbound], wait: float) -> tuple[int, int, bool]:
+    def take_queued(self, items: list[Inbound], wait: float) -> tuple[int, int, bool]:
         """Append what the callbacks queued to ``items``, waiting up to ``wait`` s for the
         first. Returns how many queue entries were taken, how many were ticks, and whether one
         asked the worker to stop (the frames still in the channel are then taken too)."""
         try:
-            pending = [self._queue.get(timeout=wait) if wait > 0 else self._queue.get_nowait()]
+            pending = [self.inbox.get(timeout=wait) if wait > 0 else self.inbox.get_nowait()]
         except queue.Empty:
             return 0, 0, False
-        while len(items) + len(pending) < self.settings.max_round:
+        while len(items) + len(pending) < self.max_round:
             try:
-                pending.append(self._queue.get_nowait())
+                pending.append(self.inbox.get_nowait())
             except queue.Empty:
                 break
         stop = None in pending
@@ -70,7 +82,9 @@ class RoundIntake:
                 if self.core.admit(p[0], p[1], len(p[2]), now) is None:
                     items.append(Inbound(*p, now))
             else:  # presence (liveliness), access (this process's own policy)
+                if p[0] == "presence" and self.routes.sharded:  # one of this worker's own: its route
+                    self.routes.presence(p[1], p[2] == b"1", self.core.responders)
                 items.append(Inbound(*p, self.clock()))
         if stop:
-            items += self._take_frames(None)
+            items += self.take_frames(None)
         return len(pending), ticks, stop

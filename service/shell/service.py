@@ -29,9 +29,16 @@ whenever the publisher's heartbeat shows samples it missed (an outage, a router 
 order. What could not be fetched any more is a gap in the seq numbers, counted by the frame
 gate (``Status.lost``); zenoh's own miss reports are counted in ``missed``.
 
+Shards. With ``--workers K > 1`` a worker subscribes to its own responders' keys only, each
+declared when that responder's presence token appears (:mod:`service.shell.shard_routes`);
+the diagram's wildcards are then the presence and the few callback kinds.
+
 Snapshots. With a recorder and a state file (:class:`service.review.resume.StateFile`), the
 worker writes the core's snapshot beside the recording every ``snapshot_every_s`` after a
 round, once what the core has seen is safely in the recording; ``serve`` resumes from it.
+With a ``snapshot_feed`` it also puts them on zenoh while a standby follows, and its
+``fence`` (its epoch) stops every publication once a service of a higher epoch took over
+(:mod:`service.shell.standby`).
 """
 from __future__ import annotations
 
@@ -45,12 +52,12 @@ from dataclasses import dataclass, field
 
 import msgpack
 import zenoh
-import zenoh.ext as zext
 
 from service.core.incident_core import CoreSettings, Inbound, IncidentCore, Outbound
 from service.protocol import wire
 from service.protocol.incident import IncidentConfig
 from service.shell.round_intake import RoundIntake
+from service.shell.shard_routes import ShardRoutes
 from service.shell.sharding import in_shard
 from service.shell.snapshots import SnapshotWriter, fix_mmap_threshold, return_memory
 
@@ -70,11 +77,14 @@ class ServiceSettings:
     snapshot_batch: int = 32  # responders pickled afresh per round while a snapshot waits (service/shell/snapshots.py)
     idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
     warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
+    catch_all: bool = False  # --workers > 1: also the incident's wildcard, for sources without a presence token
     mmap_threshold_bytes: int | None = 128 * 1024  # bytes: larger blocks mapped alone, returned when freed (None: glibc's)
 
 
-class IncidentService(RoundIntake, SnapshotWriter):
-    """The service of one incident on an open zenoh session: ``start()``, ``close()``."""
+class IncidentService(SnapshotWriter):
+    """The service of one incident on an open zenoh session: ``start()``, ``close()``. It holds
+    its frames' subscribers (``routes``: :class:`ShardRoutes`) and what its worker takes into a
+    round (``rounds``: :class:`RoundIntake`)."""
 
     def __init__(self, session: zenoh.Session, incident: IncidentConfig, settings: ServiceSettings | None = None,
                  recorder=None, clock=time.time, shard: tuple[int, int] = (0, 1), core: IncidentCore | None = None,
@@ -111,11 +121,19 @@ class IncidentService(RoundIntake, SnapshotWriter):
         self._threads: list[threading.Thread] = []
         self._decl: list = []
         self._publishers: dict[str, object] = {}
-        self._imu = None  # the frames' subscriber (a zenoh FIFO channel), once started
-        self._fix = None  # the fixes' subscriber
+        self.routes = ShardRoutes(session, self.id, self.settings, shard, self._on_miss)  # the frames' subscribers
+        self.rounds = RoundIntake(self.core, clock, shard, self.routes, self._queue, self.settings.max_round)
         self.access = access  # the policy fed to the core before any input (None: the open demo)
+        self.fence = None  # service.shell.standby.Fence: this service's epoch; fenced, it publishes no more
+        self.snapshot_feed = None  # service.shell.standby.SnapshotFeed: snapshots to a standby that follows
+        self.fenced_dropped = 0  # messages not published because a service of a higher epoch took over
         self._looks = 0  # times the worker looked for input ...
         self._last_busy_look = 0  # ... and the last time it found some (wait_idle)
+
+    @property
+    def heard(self) -> dict[str, int]:
+        """Samples taken from the frames' subscribers, by owner (``own``: this worker's responders)."""
+        return self.rounds.heard
 
     # ------------------------------------------------------------------ what the core counts
     @property
@@ -154,19 +172,8 @@ class IncidentService(RoundIntake, SnapshotWriter):
         if self.access is not None:  # the policy is the core's (and the recording's) first input
             self._run_round([Inbound("access", self._access_key(), wire.encode(self.access), self.clock())], 0)
         s = self.session
-        st = self.settings
-        self._imu = zext.declare_advanced_subscriber(
-            s, wire.key_all(self.id, "imu"), zenoh.handlers.FifoChannel(st.imu_channel),
-            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=st.history_frames),
-            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
-        # fixes: recovered after a miss, but never fetched again on detection (a fix applied
-        # before a restart must not be applied twice; frames have seq numbers, fixes do not)
-        self._fix = zext.declare_advanced_subscriber(
-            s, wire.key_all(self.id, "fix"), zenoh.handlers.FifoChannel(st.fix_channel),
-            recovery=zext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
+        self.routes.declare()  # the wildcard, or routes per announced responder (shard_routes.py)
         self._decl += [
-            self._imu.sample_miss_listener(self._on_miss),
-            self._fix.sample_miss_listener(self._on_miss),
             s.declare_subscriber(wire.key_all(self.id, "command"), self._enqueue),
             s.declare_subscriber(wire.key_all(self.id, "ack"), self._enqueue),
             s.declare_subscriber(wire.anchor_fix_all(self.id), self._enqueue),  # anchors' fixes: fix-{anchor}
@@ -201,13 +208,7 @@ class IncidentService(RoundIntake, SnapshotWriter):
         self._threads.clear()
         if self._snapshot_writer is not None:
             self._snapshot_writer.join(timeout)
-        for sub in (self._imu, self._fix):
-            if sub is not None:
-                try:
-                    sub.undeclare()
-                except Exception:
-                    pass
-        self._imu = self._fix = None
+        self.routes.close()
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
         """Block until everything received so far is processed (tests, benchmarks): the worker
@@ -301,9 +302,9 @@ class IncidentService(RoundIntake, SnapshotWriter):
         quick, slow = self.settings.idle_poll_s
         last_frame = -math.inf
         while True:
-            items = self._take_frames(self.settings.max_round)
+            items = self.rounds.take_frames(self.settings.max_round)
             wait = 0.0 if items else quick if time.monotonic() - last_frame < 1.0 else slow
-            taken, ticks, stop = self._take_queued(items, wait)
+            taken, ticks, stop = self.rounds.take_queued(items, wait)
             self._looks += 1
             try:
                 if items or ticks:
@@ -331,6 +332,7 @@ class IncidentService(RoundIntake, SnapshotWriter):
             self._publish(out)
             if ticks:
                 self._forget_publishers()
+                self.routes.forget(self.core.responders)
                 gone = self.core.counters.expired + self.core.counters.newcomers_forgotten
                 if gone != self._expired_seen:  # responders or newcomers left: their memory goes back
                     self._expired_seen = gone
@@ -351,6 +353,11 @@ class IncidentService(RoundIntake, SnapshotWriter):
 
     # ------------------------------------------------------------------ output
     def _publish(self, out: list[Outbound]) -> None:
+        fence = self.fence
+        if fence is not None and fence.fenced.is_set():  # another service publishes for these responders now
+            self.fenced_dropped += len(out)
+            return
+        tag = fence.tag if fence is not None else None  # who published: the attachment names the epoch
         for o in out:
             msg = o.message
             if isinstance(msg, wire.Pose):  # stamped when it leaves, not when the round began
@@ -360,7 +367,7 @@ class IncidentService(RoundIntake, SnapshotWriter):
             if pub is None:
                 pub = self._publishers[o.key] = self.session.declare_publisher(o.key)
             try:
-                pub.put(payload)
+                pub.put(payload, attachment=tag)
             except Exception:
                 log.exception("publishing on %s", o.key)
             if isinstance(msg, wire.Pose) and self.pose_hook is not None:

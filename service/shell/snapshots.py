@@ -17,13 +17,18 @@ class SnapshotWriter:
     """The core's snapshots: taken by the worker, written by a thread of their own."""
 
     def _snapshot_if_due(self) -> None:
-        """The core's snapshot into the state file beside the recording, every ``snapshot_every_s``,
-        once the recording holds everything the core has seen (a failure is logged once and
-        the service goes on: the recording alone still lets ``serve`` resume)."""
-        sf = self.state_file
+        """The core's snapshot every ``snapshot_every_s``: into the state file beside the recording,
+        once the recording holds everything the core has seen, and to a standby that follows
+        (``snapshot_feed``, :mod:`service.shell.standby`) while one does (a failure is logged
+        once and the service goes on: the recording alone still lets ``serve`` resume)."""
         now = time.monotonic()
-        if sf is None or self.recorder is None or self.recorder_error is not None or self.snapshot_error is not None \
-                or now - self._last_snapshot < self.settings.snapshot_every_s:
+        if now - self._last_snapshot < self.settings.snapshot_every_s:
+            return
+        sf = self.state_file
+        if self.recorder is None or self.recorder_error is not None or self.snapshot_error is not None:
+            sf = None
+        feed = self.snapshot_feed if self.snapshot_feed is not None and self.snapshot_feed.wanted() else None
+        if sf is None and feed is None:
             return
         if self._snapshot_writer is not None and self._snapshot_writer.is_alive():
             self.snapshots_skipped += 1  # the disk is slower than the snapshots: the next one will do
@@ -36,10 +41,12 @@ class SnapshotWriter:
             self.snapshots_deferred += 1
             return
         self._last_snapshot = now
+        position = 0
         try:
-            with self._rec_lock:
-                self.recorder.flush()  # everything fed so far is in the file before the snapshot says so
-                position = self.recorder.message_count
+            if sf is not None:
+                with self._rec_lock:
+                    self.recorder.flush()  # everything fed so far is in the file before the snapshot says so
+                    position = self.recorder.message_count
             with self._core_lock:
                 blob = self.core.snapshot()
         except Exception as e:
@@ -47,11 +54,19 @@ class SnapshotWriter:
             return
         # writing and fsyncing megabytes is the disk's time, not the worker's: a thread of its own
         # (the state file is replaced whole, so a crash meanwhile leaves the previous snapshot)
-        self._snapshot_writer = threading.Thread(target=self._write_snapshot, args=(sf, blob, position, self.clock()),
+        self._snapshot_writer = threading.Thread(target=self._write_snapshot, args=(sf, feed, blob, position,
+                                                                                    self.clock()),
                                                  daemon=True, name="snapshot-writer")
         self._snapshot_writer.start()
 
-    def _write_snapshot(self, sf, blob: bytes, position: int, now: float) -> None:
+    def _write_snapshot(self, sf, feed, blob: bytes, position: int, now: float) -> None:
+        if feed is not None:
+            try:
+                feed.put(blob)
+            except Exception:  # a closing session; the standby keeps the previous one
+                log.exception("publishing the snapshot to the standby")
+        if sf is None:
+            return
         try:
             sf.write(blob, position, now)
             self.snapshots += 1

@@ -3,9 +3,11 @@
 The per-responder work (numpy and gtsam under Python's GIL) runs on one core per process,
 so ``firetrack serve --workers K`` runs K :class:`service.shell.service.IncidentService` workers:
 the first in the main process beside the router, the others in their own processes, each
-a zenoh client of that router. Every worker subscribes to the whole incident and keeps the
-responders whose id hashes to it (:func:`service.shell.service.in_shard`) — it looks at the key
-only, so the others' frames cost it a callback, not a decode. Each worker publishes the
+a zenoh client of that router. A worker owns the responders whose id hashes to it
+(:func:`service.shell.sharding.in_shard`) and subscribes to their keys only, each when the
+responder's presence token appears (:mod:`service.shell.shard_routes`): the others' frames
+never reach it (``ServiceSettings.catch_all`` adds the incident's wildcard back, for sources
+that announce nothing). Each worker publishes the
 poses and status of its own responders and answers ``track`` queries for them; to the
 console and the wearables the K workers look like one service.
 """
@@ -81,7 +83,8 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
     _drain(svc, quiet_s=0.5, timeout=20.0)
     stats = {"shard": k, "frames_processed": svc.frames_processed, "busy_s": svc.busy_s,
              "tracker_batches": svc.tracker_batches, "frames_not_processed": svc.frame_accounting(),
-             "responders": len(svc.responders), "errors": svc.errors, "poses": poses}
+             "responders": len(svc.responders), "errors": svc.errors, "poses": poses,
+             "heard": dict(svc.heard), "routes": len(svc.routes.routes)}
     if watcher is not None:
         watcher.close()
     svc.close()
