@@ -134,7 +134,7 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         pipeline = settings.tracker.pipeline
         # the handheld pipelines of all responders, run a stage at a time over the round (pdr.fleet)
         self.fleet = (PdrFleet(pipeline, FloorElevations(incident.elevations()))
-                      if settings.columnar and PdrFleet.supports(pipeline) and settings.tracker.motion is None else None)
+                      if settings.tracker.motion is None else None)
         self.access = wire.Access(enforce=False)  # until an access message says otherwise: the open demo
         self._revoked: frozenset[str] = frozenset()
         self._refused_logged: set[str] = set()
