@@ -110,8 +110,9 @@ import numpy as np
 from pdr.ahrs import make_filter
 from pdr.angles import wrap  # noqa: F401  (re-exported)
 from pdr.grip import GripSettings, GripTracker
-from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass, still_bias
+from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass
 from pdr.walking_direction import walking_angle
+from pdr.window_kernels import still_bias
 from pdr.windows import norm3, unwrap_turns
 
 TWO_PI = 2.0 * math.pi
@@ -258,11 +259,9 @@ class HeadingEstimator:
         self._raw_last = float(raw[-1])
         psi = raw + TWO_PI * turns
         self.samples = {"t": t, "psi_gyro": psi, "delta_mag": d, "norm": norm, "inclination": inc, "bias": bias, "q": q}
-        self._run_epochs(t, psi, d, norm, inc, norm3(gyr - bias))
-        # older samples leave before the new ones come in, so every sample of this batch
-        # stays until the next one: steps found in it later (update with step_times only)
-        # still find their samples, however large the batch; and what a step the detector
-        # still holds back (up to a few steps before this batch) needs stays too
+        self.take_epochs(close_epochs(t, psi, d, norm, inc, norm3(gyr - bias), self._t0, s.epoch, self._epoch_state))
+        # older samples leave before the new ones come in: steps found in this batch later (or
+        # held back by the detector, a few steps before it) still find their samples
         keep = self._buf[:, 0] > (t[0] - 4 * s.max_step_duration)
         self._buf = np.concatenate([self._buf[keep], np.column_stack((t, psi, d, norm, inc, af, al, az))])
         return self.answer_steps(self._buf)
@@ -275,19 +274,16 @@ class HeadingEstimator:
 
     @property
     def forward_axes(self) -> np.ndarray:
-        """The forward axis, the upright axis and sin² of ``upright_from``, as the compiled
-        levelling (:func:`pdr.heading_kernels.level_and_compass`) takes them."""
+        """Forward axis, upright axis, sin²(upright_from): :func:`pdr.heading_kernels.level_and_compass`'s ``fwd``."""
         return self._fwd
 
     def start(self, t0: float) -> None:
-        """The stream's first sample is at ``t0`` (s): the compass epochs' grid and the
-        field reference's window count from it. Later calls change nothing."""
+        """The stream's first sample is at ``t0`` (s): epochs and the field reference count from it."""
         if self._t0 is None:
             self._t0 = float(t0)
 
     def prune_history(self, t_first: float) -> None:
-        """Filter history old enough that no step can still ask for it, when the next
-        samples start at ``t_first``, leaves (one entry before the limit stays)."""
+        """Filter history no step can ask for once samples start at ``t_first`` leaves (one before stays)."""
         s = self.settings
         limit = t_first - 4 * s.max_step_duration - s.epoch
         while len(self._hist) > 1 and self._hist[1][0] < limit:
@@ -308,10 +304,6 @@ class HeadingEstimator:
         return bias
 
     # ---------------------------------------------------------------- compass epochs + filter
-    def _run_epochs(self, t, psi, d, norm, inc, w) -> None:
-        s = self.settings
-        self.take_epochs(close_epochs(t, psi, d, norm, inc, w, self._t0, s.epoch, self._epoch_state))
-
     def take_epochs(self, rows: np.ndarray) -> None:
         """Closed compass epochs (rows of :func:`pdr.heading_kernels.close_epochs`) into the
         reference, the measurement sigma and the filter (also the columnar engine's path,
@@ -442,10 +434,9 @@ class HeadingEstimator:
         self._pending_off += [float(x) for x in offs.reshape(-1)]
 
     def answer_steps(self, buf: np.ndarray, step_times=(), walking_offset=None) -> StepHeadings:
-        """Headings of the steps queued so far and at ``step_times`` whose samples have arrived.
-        ``buf`` holds the samples kept for the steps: rows of :data:`BUF_COLUMNS` in time order
-        (this estimator's own, or a columnar engine's, which runs the per-sample part itself).
-        The samples of a step are the index range ``(t_{k-1}, t_k]`` of the buffer."""
+        """Headings of the steps queued so far and at ``step_times`` whose samples have arrived in
+        ``buf``: rows of :data:`BUF_COLUMNS` in time order (this estimator's, or a columnar
+        engine's, which runs the per-sample part itself)."""
         self._queue_steps(step_times, walking_offset)
         s = self.settings
         if not len(buf) or not self._pending:
@@ -465,7 +456,7 @@ class HeadingEstimator:
             lo = max(t_prev, tk - s.max_step_duration)
             i0 = int(np.searchsorted(bt, lo, side="right"))
             i1 = int(np.searchsorted(bt, tk, side="right"))
-            if i1 <= i0:  # no sample in the step: the last one at or before it (after a gap: the oldest kept)
+            if i1 <= i0:  # no sample in the step: the last one at or before it (after a gap: the oldest)
                 i0, i1 = (i1 - 1, i1) if i1 > 0 else (0, 1)
             psi_g = float(np.mean(buf[i0:i1, 1]))  # unwrapped: the arithmetic mean is circular
             w0 = int(np.searchsorted(bt, tk - s.grip.window, side="right"))  # samples in (tk − window, tk]

@@ -1,4 +1,22 @@
-"""Trailing-window stillness tests of the columnar PDR engine (:mod:`pdr.fleet_kernels`)."""
+"""Trailing-window stillness tests, compiled: the gyro bias at standstill
+(:func:`still_bias`, for :class:`pdr.heading.HeadingEstimator` and the engine's heading stage)
+and the motionless windows of the motion state (:func:`motionless`).
+
+For each sample ``i`` the window holds the samples ``j <= i`` with ``T[j] > T[i] - window``.
+A window that is tested is summed on its own, oldest sample first, with the two-pass variance
+
+    μ = (1/n) Σ x_j,      σ² = (1/n) Σ (x_j − μ)²,
+
+so a sample's decision depends only on the samples in its window, never on where a batch
+began: a stream cut into frames of any size gives bit-identical results (running sums over
+a cumulative array would not, and lose precision besides).
+
+A window's standard deviation is needed only where it could pass: a window whose range is at
+least √(2n)·σ_max cannot have σ < σ_max (σ ≥ range/√(2n) for any n samples), and a window
+whose maximum passes a limit fails whatever its σ. Those are decided from exact sliding minima
+and maxima (monotone deques, O(1) per sample), so the sums are paid only while the device is
+nearly still.
+"""
 from __future__ import annotations
 
 import math
@@ -6,13 +24,6 @@ import math
 import numpy as np
 from numba import njit
 
-
-# The stillness tests need a window's standard deviation only where it could pass: a window whose
-# range is at least √(2n)·σ_max cannot have σ < σ_max (σ ≥ range/√(2n) for any n samples), and a
-# window whose maximum passes a limit fails whatever its σ. Those are decided from exact sliding
-# minima and maxima (monotone deques, O(1) per sample); the few windows left are summed exactly
-# as pdr.windows.trailing_moments sums them (oldest first, two passes), so every decision and
-# every bias is the reference's, bit for bit, at a fraction of the cost while the responder moves.
 _RANGE_MARGIN = 1.01  # the bound's safety factor against rounding (relative errors of ~1e-13)
 
 
@@ -60,8 +71,15 @@ def _all_moving(T, X, start, window, gyr_std, acc_std):  # pragma: no cover - co
 
 
 @njit(cache=True)
-def still_bias_fast(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma: no cover - compiled
-    """:func:`pdr.heading_kernels.still_bias`, the same outputs (module note above)."""
+def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma: no cover - compiled
+    """Gyro bias for each sample ``start..n-1`` (:class:`pdr.heading.HeadingEstimator`, 1).
+
+    ``X`` (n, 4) holds the gyro axes and the specific-force norm. A sample is *still* when its
+    trailing ``window`` (s) is at least 90 % full and, over it, every gyro axis varies less
+    than ``gyr_std``, the gyro mean is shorter than ``gyr_max`` and the force norm varies less
+    than ``acc_std``. Each sample uses the gyro mean of the latest still sample before it,
+    else ``bias0``. Returns the biases (n − start, 3), the still flags, the bias after the
+    last sample."""
     n = T.shape[0]
     m = n - start
     out = np.empty((m, 3))
@@ -126,10 +144,10 @@ def still_bias_fast(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # p
 
 
 @njit(cache=True)
-def motionless_fast(T, X, start, window, full_s, acc_std, gyr_max):  # pragma: no cover - compiled
+def motionless(T, X, start, window, full_s, acc_std, gyr_max):  # pragma: no cover - compiled
     """Per sample ``start..n-1``: the trailing ``window`` is full (``full_s``), σ of column 0 is
     below ``acc_std`` and the maximum of column 1 below ``gyr_max`` (the motionless windows of
-    :mod:`pdr.pipeline`, 7; the decisions :func:`pdr.windows.trailing_moments` gives)."""
+    :mod:`pdr.pipeline`, 7)."""
     n = T.shape[0]
     still = np.zeros(n - start, np.bool_)
     if n > start:  # the samples every window holds: a gyro peak there rules them all out
