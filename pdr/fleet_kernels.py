@@ -6,7 +6,7 @@ round's concatenated arrays and the responder's state row ``slots[j]`` of arrays
 responder axis. Per responder, each kernel does what the single-responder classes do to one frame, in the
 same order of floating-point operations: their per-sample kernels (:func:`pdr.ahrs._decoupled_kernel.decoupled_run`,
 :func:`pdr.window_kernels.still_bias`, :func:`pdr.heading_kernels.level_and_compass`,
-:func:`pdr.heading_kernels.close_epochs`, :func:`pdr.window_kernels.motionless`,
+:func:`pdr.heading_kernels.close_epochs`, :func:`pdr.window_kernels.motionless_windows`,
 :func:`pdr.height.altimeter_run`, :func:`pdr.floor_kernels.track_run`) are called on views of the
 state rows. A responder's events are the same, bit for bit, alone or among a thousand, in any
 round size (``tests/test_fleet.py``): every kernel loops over the responders and touches only
@@ -30,7 +30,7 @@ from pdr.fleet_buffers import keep_after
 from pdr.floor_kernels import track_run
 from pdr.heading_kernels import close_epochs, level_and_compass
 from pdr.height import altimeter_run
-from pdr.window_kernels import motionless, still_bias
+from pdr.window_kernels import motionless_windows, still_bias
 
 TWO_PI = 2.0 * np.pi  # pdr.windows.unwrap_turns' constant
 # motion state columns
@@ -158,7 +158,7 @@ def motion_windows(slots, off, T, GYR, AN, mot, tails, lms, window, full_frac, a
             TT[m + i] = T[a0 + i]
             X[m + i, 0] = AN[a0 + i]
             X[m + i, 1] = _norm3(GYR[a0 + i, 0], GYR[a0 + i, 1], GYR[a0 + i, 2])
-        motionless = motionless(TT, X, m, window, full_frac, acc_std, gyr_max)
+        motionless = motionless_windows(TT, X, m, window, full_frac, acc_std, gyr_max)
         lim = TT[m + n - 1] - window - 1e-9
         k = 0
         for i in range(m + n):

@@ -1,6 +1,6 @@
 """Trailing-window stillness tests, compiled: the gyro bias at standstill
 (:func:`still_bias`, for :class:`pdr.heading.HeadingEstimator` and the engine's heading stage)
-and the motionless windows of the motion state (:func:`motionless`).
+and the motionless windows of the motion state (:func:`motionless_windows`).
 
 For each sample ``i`` the window holds the samples ``j <= i`` with ``T[j] > T[i] - window``.
 A window that is tested is summed on its own, oldest sample first, with the two-pass variance
@@ -144,7 +144,7 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
 
 
 @njit(cache=True)
-def motionless(T, X, start, window, full_s, acc_std, gyr_max):  # pragma: no cover - compiled
+def motionless_windows(T, X, start, window, full_s, acc_std, gyr_max):  # pragma: no cover - compiled
     """Per sample ``start..n-1``: the trailing ``window`` is full (``full_s``), σ of column 0 is
     below ``acc_std`` and the maximum of column 1 below ``gyr_max`` (the motionless windows of
     :mod:`pdr.pipeline`, 7)."""

@@ -33,7 +33,7 @@ import pickle
 
 import numpy as np
 
-MAGIC = b"firetrack-core-snapshot/3\n"
+MAGIC = b"firetrack-core-snapshot/4\n"  # 4: one PDR engine (pdr.fleet_rows)
 
 # what a snapshot may name: classes (never functions) of this project's pure layers, and a few
 # named reconstructors of numpy and the standard library
