@@ -25,7 +25,6 @@ import numpy as np
 from numba import njit
 
 from pdr.ahrs._decoupled_kernel import decoupled_run
-from pdr.detector_kernels import D_STATE, MAX_SWINGS  # noqa: F401  (the rows' layout, pdr.fleet_rows)
 from pdr.fleet_buffers import keep_after
 from pdr.floor_kernels import track_run
 from pdr.heading_kernels import close_epochs, level_and_compass

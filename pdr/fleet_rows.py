@@ -26,6 +26,7 @@ import numpy as np
 from numba import types
 from numba.typed import List
 
+from pdr import detector_kernels as DK
 from pdr import fleet_buffers as B
 from pdr import fleet_kernels as K
 from pdr.ahrs._decoupled_kernel import N_STATE as AHRS_STATE
@@ -47,17 +48,17 @@ class FleetRows:
     """Rows for ``capacity`` responders, grown and shrunk as they come and go."""
 
     def __init__(self, n_sections: int, bout_steps: int, n_floors: int, capacity: int = 64):
-        # name -> (shape of one row, dtype, what a fresh row holds)
+        # name -> (shape of one row, dtype, what a fresh row holds); plain values: pickled in a snapshot
         self.layout = {
-            "ahrs": ((AHRS_STATE,), float, 0.0), "bias": ((3,), float, 0.0), "raw_last": ((), float, np.nan),
-            "turns": ((), np.int64, 0), "t0h": ((), float, np.nan), "ep": ((EPOCH_STATE,), float, 0.0),
-            "det": ((K.D_STATE,), float, np.nan), "sos": ((n_sections, 6), float, 0.0),
-            "zi": ((n_sections, 2), float, 0.0), "zi_unit": ((n_sections, 2), float, 0.0),
-            "swings": ((K.MAX_SWINGS, 2), float, 0.0), "bouts": ((bout_steps, 6), float, 0.0),
-            "mot": ((K.M_STATE_N,), float, np.nan), "alt": ((6,), float, np.nan), "h0": ((), float, 0.0),
-            "height": ((), float, np.nan), "fs": ((F_STATE,), float, np.nan), "ring_t": ((F_RING,), float, 0.0),
-            "ring_z": ((F_RING,), float, 0.0), "rr": ((n_floors,), float, 0.0), "known": ((n_floors,), np.int64, 0),
-            "learned": ((n_floors,), float, 0.0), "pred": ((n_floors,), float, 0.0), "t_first": ((), float, np.nan),
+            "ahrs": ((AHRS_STATE,), "f8", 0.0), "bias": ((3,), "f8", 0.0), "raw_last": ((), "f8", np.nan),
+            "turns": ((), "i8", 0), "t0h": ((), "f8", np.nan), "ep": ((EPOCH_STATE,), "f8", 0.0),
+            "det": ((DK.D_STATE,), "f8", np.nan), "sos": ((n_sections, 6), "f8", 0.0),
+            "zi": ((n_sections, 2), "f8", 0.0), "zi_unit": ((n_sections, 2), "f8", 0.0),
+            "swings": ((DK.MAX_SWINGS, 2), "f8", 0.0), "bouts": ((bout_steps, 6), "f8", 0.0),
+            "mot": ((K.M_STATE_N,), "f8", np.nan), "alt": ((6,), "f8", np.nan), "h0": ((), "f8", 0.0),
+            "height": ((), "f8", np.nan), "fs": ((F_STATE,), "f8", np.nan), "ring_t": ((F_RING,), "f8", 0.0),
+            "ring_z": ((F_RING,), "f8", 0.0), "rr": ((n_floors,), "f8", 0.0), "known": ((n_floors,), "i8", 0),
+            "learned": ((n_floors,), "f8", 0.0), "pred": ((n_floors,), "f8", 0.0), "t_first": ((), "f8", np.nan),
         }
         self.n = 0  # slots in use or free below the top
         self.cap = 0
