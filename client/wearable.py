@@ -133,6 +133,11 @@ class Wearable:
     def acknowledge(self, cmd: wire.Command) -> None:
         self._ack.put(wire.encode(wire.Ack(responder=self.responder, id=cmd.id, action=cmd.action, at=time.time())))
 
+    def answer_prompt(self, t: float, prompt: str = "man-down") -> None:
+        """The wearer answered the man-down prompt ("I'm OK") at device time ``t`` (the frames'
+        clock): the service starts its no-motion clock again from ``t``."""
+        self._ack.put(wire.encode(wire.Ack(responder=self.responder, id=prompt, action="ok", at=time.time(), t=t)))
+
     @property
     def heard(self) -> bool:
         """True while a subscriber (the service) matches this wearable's frames."""

@@ -127,3 +127,15 @@ class PoseEstimate:
     steps: int
     source: str = "pdr"
     heading_sigma: float = math.nan  # rad, 1-sigma of the heading, when the estimator knows it
+    index: int = 0  # StepEvent.index of the step that made this pose (0: a start or a fix)
+    length_scale: float = math.nan  # the estimated factor on the PDR's step length (NaN: not estimated)
+
+    @property
+    def bearing_deg(self) -> float:
+        """Compass bearing of ``heading``, degrees clockwise from North."""
+        return bearing_deg(self.heading)
+
+    @property
+    def position_sigma(self) -> float:
+        """m, square root of the larger eigenvalue of ``cov`` (the worst direction)."""
+        return float(math.sqrt(max(np.linalg.eigvalsh(self.cov)[-1], 0.0)))

@@ -118,6 +118,15 @@ class FleetMember:
     def state_since(self) -> float:
         return float(self.fleet.rows.mot[self.slot, K.M_SINCE])
 
+    @property
+    def motionless_since(self) -> float:
+        """s, device time of the newest sample that was not motionless (the stillness, if any,
+        began after it; the first sample's time when none moved, NaN before any). Unlike the
+        motion state it is not held back by ``state_delay_s``: motionlessness needs no steps."""
+        mot = self.fleet.rows.mot[self.slot]
+        last, first = float(mot[K.M_LAST_MOVING]), float(mot[K.M_FIRST])
+        return last if math.isfinite(last) else first
+
 
 class PdrFleet:
     """The pipeline of many responders, run a round at a time (module docstring)."""

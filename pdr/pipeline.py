@@ -107,6 +107,11 @@ class PdrPipeline:
         return self.member.state
 
     @property
+    def motionless_since(self) -> float:
+        """:attr:`pdr.fleet.FleetMember.motionless_since`."""
+        return self.member.motionless_since
+
+    @property
     def state_since(self) -> float:
         return self.member.state_since
 

@@ -77,6 +77,10 @@ INTEGRATION: dict[str, str] = {
 # ``pytest -m unit`` on the 2-core machine shared with other jobs (load 20-70); every unit test
 # of 0.5 s or more is here. Together they took 93 of the 120 CPU seconds of the unit tests;
 # without them ``pytest -m unit`` ran 670 tests in 37 s of CPU (user + sys, collection included).
+# The entries from the regression guard on (issue 30) were measured with ``FIRETRACK_TEST_CPU=file``,
+# which writes each test's own CPU seconds (``time.process_time`` over setup, call and teardown)
+# to ``file``: the 16 of them run together (their numba compilations paid by the first); without
+# them ``pytest -m unit`` ran 738 tests in 45.5 s user + 2.2 s sys (``/usr/bin/time -v``, load 6-8).
 SLOW: dict[str, str] = {
     "tests/test_ipin_eval.py::test_eval_ipin_cv_on_real_walks_with_a_folder_glob":
         "15.8 s: eval ipin --cv over a folder of real walks",
@@ -176,6 +180,46 @@ SLOW: dict[str, str] = {
         "0.5 s: hypothesis",
     "tests/test_quaternion.py::test_matrix_round_trip_and_angle":
         "0.5 s: hypothesis",
+    "tests/test_ipin_regression_guard.py::test_no_development_walk_got_worse_than_its_baseline":
+        "72.6 s (first of its run: with the numba compilations): eval ipin --check-baseline over the development walks",
+    "tests/test_breadcrumbs.py::test_a_dropped_beacon_takes_the_responders_estimate_and_its_scans_become_fixes":
+        "2.2 s: a walk with BLE scans through the core, every scan a fix",
+    "tests/test_ipin_submission.py::test_the_submission_files_reproduce_eval_ipins_p75_to_a_centimetre":
+        "2.5 s: eval ipin and the submission files",
+    "tests/test_ipin_eval.py::test_replayed_dead_reckoning_gives_the_same_tracks_bit_for_bit":
+        "1.4 s (all cases): real walks replayed through the core",
+    "tests/test_ahrs.py::test_streaming_in_batches_equals_one_batch":
+        "0.5 s (10 cases): a recording in several batchings",
+    "tests/test_streams.py::test_a_fix_after_a_gap_re_anchors_the_track":
+        "1.2 s (2 cases): minutes of frames through the core",
+    "tests/test_ipin_robustness.py::test_eval_ipin_perturb_and_baseline_on_a_real_walk":
+        "6.5 s: the perturbation suite on a real walk",
+    "tests/test_ipin_robustness.py::test_the_suite_scores_each_perturbation_as_eval_ipin_would":
+        "1.1 s: every perturbation scored twice",
+    "tests/test_incident.py::test_sizes_and_values_are_bounded_and_errors_are_one_short_line":
+        "1.1 s (all cases): configs of 200,000 entries",
+    "tests/test_fix_attacks.py::test_a_forged_or_absurd_fix_moves_no_track_far_and_stops_none":
+        "4.7 s (all cases): a walk per forged fix",
+    "tests/test_fix_attacks.py::test_a_drag_of_consistent_checkpoints_is_bounded_and_counted":
+        "1.2 s: a walk dragged by checkpoints",
+    "tests/test_fix_attacks.py::test_a_fix_the_graph_cannot_take_restarts_the_track_with_an_alarm_within_2_s":
+        "1.1 s: a walk and a graph restart",
+    "tests/test_grip.py::test_batching_does_not_change_the_headings":
+        "1.0 s: a walk in several batchings",
+    "tests/test_grip.py::test_a_walk_without_a_change_keeps_the_texting_grip":
+        "0.5 s: a simulated walk",
+    "tests/test_grip.py::test_without_detection_the_walk_goes_sideways":
+        "0.6 s: a simulated walk, twice",
+    "tests/test_grip.py::test_a_turn_of_the_phone_in_the_hand_is_not_a_turn_of_the_walker":
+        "0.6 s: a simulated walk",
+    "tests/test_phone_walk_choice.py::test_the_browser_tests_stretch_is_tracked_alike_at_a_browsers_sampling":
+        "10 s: a real walk tracked five times",
+    "tests/test_man_down_prompt.py::test_a_still_responder_is_asked_before_man_down_is_raised_at_the_time_it_said":
+        "4.0 s: 90 s of frames through the core",
+    "tests/test_man_down_prompt.py::test_an_answer_starts_the_no_motion_clock_again_and_no_answer_then_raises_man_down":
+        "1.1 s: 90 s of frames through the core",
+    "tests/test_man_down_prompt.py::test_an_answer_from_before_the_stillness_changes_nothing":
+        "1.2 s: 90 s of frames through the core",
 }
 
 
@@ -293,3 +337,16 @@ def _unit_stays_in_process(request, monkeypatch):
     monkeypatch.setattr(subprocess, "Popen", checked_popen)
     monkeypatch.setattr(multiprocessing.process.BaseProcess, "start", lambda self: refuse("starts a process"))
     yield
+
+
+_CPU_LOG = os.environ.get("FIRETRACK_TEST_CPU")
+if _CPU_LOG:
+    import time as _time  # noqa: E402
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        """Each test's CPU seconds in this process (not its children), appended to the file."""
+        t0 = _time.process_time()
+        yield
+        with open(_CPU_LOG, "a") as f:
+            f.write(f"{_time.process_time() - t0:.3f}\t{item.nodeid}\n")

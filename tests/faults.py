@@ -10,7 +10,7 @@ import math
 import subprocess
 import sys
 
-from client.fault_bench import TcpProxy, WalkerWearable, hostile_messages, walker_frames  # noqa: F401
+from client.faults_loopback import TcpProxy, WalkerWearable, hostile_messages, walker_frames  # noqa: F401
 from service.core.incident_core import Inbound, IncidentCore
 from service.protocol import wire
 from tests.walkers import restamped

@@ -2,6 +2,7 @@
 its motion sensors and position driven by the DevTools protocol's overrides."""
 from __future__ import annotations
 
+import contextlib
 import json
 import urllib.error
 import urllib.request
@@ -133,3 +134,64 @@ class Feed:
                     "accuracy": float(gnss.accuracy_m[g_next])})
                 g_next += 1
                 self.fixes_set += 1
+
+
+def collect(session, key) -> tuple[list, object]:
+    """Every message on ``key`` decoded, as it comes (and the subscriber, to undeclare)."""
+    import threading
+
+    from service.protocol import wire
+    items, lock = [], threading.Lock()
+
+    def on(sample):
+        with lock:
+            items.append(wire.decode(sample.payload.to_bytes()))
+    return items, session.declare_subscriber(key, on)
+
+
+class Served:
+    """``firetrack serve`` in a process of its own: ``url`` (its console), ``client`` (a zenoh
+    session on its router), ``cfg``; :meth:`stop` ends it as an operator does (SIGINT)."""
+
+    def __init__(self, proc, url, client, cfg, log):
+        self.proc, self.url, self.client, self.cfg, self.log = proc, url, client, cfg, log
+
+    def stop(self) -> int:
+        import signal
+        import subprocess
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        return self.proc.returncode
+
+
+@contextlib.contextmanager
+def serving(tmp_path, *args: str):
+    """``firetrack serve`` (router, service, console; ``args`` beyond the ports, e.g.
+    ``--record x.mcap``) in a process of its own, so that the test's process (the sensor
+    feed) shares its interpreter with nothing but zenoh's callbacks."""
+    import subprocess
+    import sys
+
+    from service.protocol.incident import default_incident
+    from tests.zenoh_util import client, free_port, wait_until
+    port, web = free_port(), free_port()
+    log = tmp_path / "serve.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "client.cli", "serve", "--listen", f"tcp/127.0.0.1:{port}",
+                                 "--port", str(web), *args], stdout=out, stderr=subprocess.STDOUT, text=True)
+    srv = Served(proc, f"http://127.0.0.1:{web}/", None, default_incident(), log)
+    try:
+        assert wait_until(lambda: "serving incident" in log.read_text() or proc.poll() is not None, 60), log.read_text()
+        assert proc.poll() is None, log.read_text()
+        srv.client = client(f"tcp/127.0.0.1:{port}")
+        try:
+            yield srv
+        finally:
+            srv.client.close()
+    finally:
+        srv.stop()

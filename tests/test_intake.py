@@ -210,7 +210,7 @@ def test_memory_is_bounded_under_a_stream_of_hostile_input():
         tracemalloc.stop()
     finally:
         logging.getLogger("firetrack.service").setLevel(logging.NOTSET)
-    assert len(core.responders) <= 50 and len(core._presence) <= core.MAX_PRESENCE
+    assert len(core.responders) <= 50 and len(core.roster.presence) <= core.roster.MAX_PRESENCE
     assert end - mid < 2_000_000  # twice the messages, no more than noise in what is kept
     assert core.counters.errors == 0
 
@@ -400,14 +400,14 @@ def test_fixes_for_unknown_responders_make_no_responder():
         if core.admit("fix", key(rid, "fix"), len(fix), now) is None:
             core.feed(Inbound("fix", key(rid, "fix"), fix, now))
     out = core.tick(1010.0)
-    assert core.responders == {} and core._newcomers == {} and not [o for o in out if "/ghost" in o.key]
-    assert core.intake.responders == 0 and sum(len(v) for v in core._held_fixes.values()) <= core.MAX_HELD_FIXES
+    assert core.responders == {} and core.roster.newcomers == {} and not [o for o in out if "/ghost" in o.key]
+    assert core.intake.responders == 0 and sum(len(v) for v in core.fixes.held.values()) <= core.fixes.MAX_HELD_FIXES
     door = wire.encode(wire.Fix.checkpoint("ff7", 10.0, x=10.0, y=-5.0, floor=0, sigma=0.2))
     assert core.admit("fix", key("ff7", "fix"), len(door), 1010.5) is None
     core.feed(Inbound("fix", key("ff7", "fix"), door, 1010.5))
     core.feed(Inbound("presence", key("x", "presence"), b"1", 1025.0))  # time passes: the ghosts' fixes go
-    assert core._held_fixes == {} or set(core._held_fixes) == {"ff7"}
-    assert core.frame_accounting()["fix_unknown_responder"] >= 1000 - core.MAX_HELD_FIXES
+    assert core.fixes.held == {} or set(core.fixes.held) == {"ff7"}
+    assert core.frame_accounting()["fix_unknown_responder"] >= 1000 - core.fixes.MAX_HELD_FIXES
     # a wearable whose door fix came just before its first frame is placed by it
     core2 = IncidentCore(CFG)
     core2.feed(Inbound("fix", key("ff7", "fix"), door, 1010.5))

@@ -165,3 +165,28 @@ def test_operator_action_messages_say_what_is_missing():
     with pytest.raises(wire.WireError) as e:
         wire.decode(wire.encode(wire.Access(enforce=True)) .replace(b"enforce", b"enforcX"), expect=wire.Access)
     assert e.value.reason == "schema"
+
+
+def test_the_core_parses_each_messages_key_once(monkeypatch):
+    """Frames, fixes, presence, orders, acknowledgements and actions: one parse of the key per
+    message in the core, whichever part takes it (the access policy's key names no one: none)."""
+    import service.core.incident_core as incident_core
+
+    calls = []
+    real = wire.parse_key
+    monkeypatch.setattr(incident_core.wire, "parse_key", lambda k: calls.append(k) or real(k))
+    core = IncidentCore(default_incident())
+    frames = walking_frames("ff1", 4.0)
+    fix = wire.Fix.checkpoint("ff1", float(frames[5].t[-1]), x=0.0, y=0.0, floor=0, sigma=0.5)
+    order = wire.Command(responder="ff1", id="par-1", action="par", issued_at=1.0, issued_by="alice")
+    ack = wire.Ack(responder="ff1", id="par-1", action="par", at=2.0)
+    items = [*_imu(frames[:6]), Inbound("fix", wire.key(INC, "ff1", "fix"), wire.encode(fix), 0.0),
+             Inbound("presence", wire.key(INC, "ff1", "presence"), b"1", 0.0),
+             Inbound("command", wire.key(INC, "ff1", "command"), wire.encode(order), 0.0),
+             Inbound("ack", wire.key(INC, "ff1", "ack"), wire.encode(ack), 0.0),
+             _op("console", action="ack", responder="ff1", alarm="man_down"), _access(enforce=False),
+             *_imu(frames[6:])]
+    for item in items:
+        core.feed(item)
+    assert len(calls) == len(items) - 1 and calls == [i.key for i in items if i.kind != "access"]
+    assert core.responders["ff1"].commands["par"]["acked_at"] == 2.0

@@ -5,10 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import signal
-import subprocess
-import sys
-import threading
 import time
 
 import numpy as np
@@ -17,12 +13,11 @@ import pytest
 from pdr.io import load
 from pdr.recording import Landmarks, Series
 from service.protocol import wire
-from service.protocol.incident import default_incident
 from service.review.ipin_run import run_ipin
 from tests.browser_util import console_stack, launch_chromium
 from tests.conftest import shared_data_path
-from tests.phone_util import SENSOR_FLAGS, Feed, Phone, enrol, post
-from tests.zenoh_util import client, free_port, wait_until
+from tests.phone_util import SENSOR_FLAGS, Feed, Phone, collect, enrol, serving
+from tests.zenoh_util import wait_until
 
 
 @pytest.fixture(scope="module")
@@ -163,50 +158,17 @@ def test_ten_seconds_offline_lose_no_frame(stack, browser):
     assert status["lost"] == 0 and status["rejected"] == {} and status["frames"] == sent
 
 
-@pytest.mark.parametrize("action", ["evacuate", "par"])
-def test_an_order_is_on_the_phone_within_2_s_and_its_ack_reaches_the_console(stack, browser, action):
-    svc, console, cl, cfg = stack
-    rid = {"evacuate": "ff7", "par": "ff8"}[action]
-    phone = Phone(browser, console.url, enrol(console.url, rid)["code"])
-    base = console.url.rstrip("/")
-    try:
-        phone.still()
-        phone.start("chest")
-        _walking(phone, 1.5)
-        assert wait_until(lambda: rid in console.board.responders(), 5)
-        shots = os.environ.get("FIRETRACK_SCREENSHOTS")  # e.g. docs/screenshots: the README's pictures
-        if shots and action == "evacuate":
-            _walking(phone, 3.0)
-            phone.page.screenshot(path=f"{shots}/phone-tracking.png")
-        issued = time.time()
-        status, order = post(base + "/api/command", {"action": action, "responders": [rid]}, base)
-        assert status == 200, order
-        phone.wait("!document.getElementById('order').hidden", timeout_ms=5_000)
-        shown = phone.js("__wear.orders[0]")
-        assert shown["id"] == order["id"] and shown["shown_at"] - issued < 2.0
-        if shots and action == "evacuate":
-            phone.page.screenshot(path=f"{shots}/phone-{action}.png")
-        phone.page.click("#order-ack")
-        assert wait_until(lambda: ((console.board.latest(rid)[1] or {}).get("commands", {}).get(action) or {})
-                          .get("acked_at") is not None, 5)
-        assert phone.js("document.getElementById('order').hidden")
-        print(f"\n{action}: on the phone {shown['shown_at'] - issued:.2f} s after the order; acknowledged")
-    finally:
-        phone.close()
-
-
-IPIN_TRIAL01 = "ipin2023/IPIN2023_T3_TrainingTrial01_repetition01.txt.gz"
-STRETCH_S = (50.0, 130.0)  # s after the walk's first sample: landmarks 0 (the start fix) to 6, 88 steps
+IPIN_WALK = "ipin2023/IPIN2023_T3_TrainingTrial04_repetition01.txt.gz"
+STRETCH_S = (50.0, 162.0)  # s after the walk's first sample: landmarks 0 (the start fix) to 13, 106 steps
 LEAD_IN_S = 15.0  # s of the walk played before the stretch (not scored): the live pipeline warms up
-# How far the tracked walk may be from the file's. The issue asks for 2 % and 0.5 m, and this
-# machine's runs (the signal interpolated and set every 5 ms, sampled by Chromium at 55-59 Hz,
-# its median error 0.03 m/s² and 0.1-0.2 deg/s) gave 86-88 steps for the file's 88 and landmark
-# p75 1.45, 2.74 and 4.12 m for its 2.81 m: resampling the same walk at a browser's jittered
-# times moves the p75 over these 6 landmarks by more than 0.5 m either way (the offline
-# pipeline on the file itself resampled at 46-60 Hz with that jitter gives 2.2-3.9 m), so the
-# bound here is what the pipeline holds, not the issue's.
-STEP_TOLERANCE = 0.035
-P75_TOLERANCE_M = 1.5
+# How far the tracked walk may be from the file's: the issue's 2 % and 0.5 m. The walk is one
+# whose tracking a browser's way of sampling does not move by itself (tests/test_phone_walk_choice.py:
+# the file resampled at 58 Hz with the browser's jitter, rounding, held gyroscope and 10 Hz
+# magnetometer gives this stretch's p75 within 0.25 m of the file's). On TrainingTrial01_repetition01,
+# the walk this test played before, the same resampling loses 2 of 88 steps in a third of the draws
+# and the p75 over its 6 landmarks jumps by 1 m: the PDR's step detector, not the page.
+STEP_TOLERANCE = 0.02
+P75_TOLERANCE_M = 0.5
 
 
 def _cut(s, a, b):
@@ -234,62 +196,33 @@ def _signal_error(t, values, series, lags=np.arange(0.0, 0.0334, 0.002)) -> floa
     return round(min(err(lag) for lag in lags), 3)
 
 
-def _collect(session, key) -> list:
-    items, lock = [], threading.Lock()
-
-    def on(sample):
-        with lock:
-            items.append(wire.decode(sample.payload.to_bytes()))
-    return items, session.declare_subscriber(key, on)
-
-
 def _summary(run) -> tuple[int, float]:
     return len(run.diagnostics["steps"]["t"]), float(np.percentile(run.errors("live").error_m, 75))
 
 
 @pytest.fixture
 def served(tmp_path):
-    """``firetrack serve`` in a process of its own (router, service, console): the feed in this
-    process then shares its interpreter with nothing but zenoh's callbacks."""
-    port, web = free_port(), free_port()
-    log = tmp_path / "serve.log"
-    with open(log, "w") as out:
-        proc = subprocess.Popen([sys.executable, "-m", "client.cli", "serve", "--listen", f"tcp/127.0.0.1:{port}",
-                                 "--port", str(web)], stdout=out, stderr=subprocess.STDOUT, text=True)
-    try:
-        assert wait_until(lambda: "serving incident" in log.read_text() or proc.poll() is not None, 60), log.read_text()
-        assert proc.poll() is None, log.read_text()
-        cl = client(f"tcp/127.0.0.1:{port}")
-        try:
-            yield f"http://127.0.0.1:{web}/", cl, default_incident()
-        finally:
-            cl.close()
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
+    with serving(tmp_path) as srv:
+        yield srv.url, srv.client, srv.cfg
 
 
 @pytest.mark.recording
 def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recording(served, browser):
-    """80 s of a development IPIN walk (after a 15 s lead-in) played into Chromium's sensor
+    """112 s of a development IPIN walk (after a 15 s lead-in) played into Chromium's sensor
     overrides at the recording's pace; the page's frames, as the service received them, tracked by the offline
     pipeline (landmark 0 as the start fix, no GNSS, no barometer) give the steps of the same
-    stretch of the file within 3.5 %, and landmark errors (p75) within 1.5 m; every frame is
+    stretch of the file within 2 %, and landmark errors (p75) within 0.5 m; every frame is
     acknowledged, none rejected or lost; the console's roster shows the responder; the position
     reaches the service as GNSS fixes with their stated accuracy."""
     url, cl, cfg = served
-    rec = load(shared_data_path(IPIN_TRIAL01))
+    rec = load(shared_data_path(IPIN_WALK))
     a, b = rec.acc.t[0] + STRETCH_S[0], rec.acc.t[0] + STRETCH_S[1]
     # the file's own figures first: this also compiles the pipeline's kernels, which would
     # otherwise hold this process (and the feed) up for seconds while the phone walks
     ref_steps, ref_p75 = _summary(run_ipin(_stretch(rec, a, b), cfg, fix_every=0, use_gnss=False))
-    frames, sub = _collect(cl, wire.key(cfg.id, "ff3", "imu"))
-    fixes, fsub = _collect(cl, wire.key(cfg.id, "ff3", "fix"))
-    statuses, ssub = _collect(cl, wire.key(cfg.id, "ff3", "status"))
+    frames, sub = collect(cl, wire.key(cfg.id, "ff3", "imu"))
+    fixes, fsub = collect(cl, wire.key(cfg.id, "ff3", "fix"))
+    statuses, ssub = collect(cl, wire.key(cfg.id, "ff3", "status"))
     phone = Phone(browser, url, enrol(url, "ff3")["code"])
     try:
         phone.still()
@@ -298,6 +231,9 @@ def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recordi
         feed.run()
         phone.page.click("#start")  # stop: the frame in progress goes out
         sent = phone.js("__wear.link.seq")
+        # what the page itself set aside: samples out of order, bunched events, gaps over 0.5 s
+        page_counts = phone.js("({dropped: __wear.cutter.dropped, bunched: __wear.cutter.bunched, gaps: __wear.gaps.length,"
+                               " samples: __wear.samples})")
         assert phone.wait(f"__wear.link.acked === {sent - 1}", timeout_ms=20_000), "not every frame was acknowledged"
         assert wait_until(lambda: len(frames) >= sent and statuses and statuses[-1].frames == sent, 5)
         status = statuses[-1]
@@ -339,7 +275,8 @@ def test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recordi
     print(f"\nphone: {sent} frames, {inside.sum()} samples in the stretch at {rate:.1f} Hz, {feed.calls} sensor "
           f"overrides, {stalled:.1f} s of pauses over 0.1 s, {len(fixes)} GNSS fixes ({judged} refused by the service's gates); the file's signal "
           f"reproduced within {fidelity}; steps {steps} (live {live_steps}, with the lead-in) vs {ref_steps} in the "
-          f"file; landmark p75 {p75:.2f} m vs {ref_p75:.2f} m")
+          f"file; landmark p75 {p75:.2f} m vs {ref_p75:.2f} m; the page set aside {page_counts}")
+    assert page_counts["dropped"] == 0  # (a gap is this machine stalling the feed: the pause check above judges it)
     # the page's samples are the file's, in the same units and axes, on the file's clock: the
     # median error is within the browser's quantisation (0.1 m/s², 0.1 deg/s) plus a poll's lag
     # (the gyroscope's 100 Hz samples change more between polls; deg/s taken as rad/s would be ~57x)

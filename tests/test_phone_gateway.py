@@ -1,7 +1,8 @@
 """The phone gateway without a browser: a WebSocket client speaking the page's messages to a
 real console on a live service and zenoh router on loopback. Browser-like 60 Hz timing passes
 the frame gate; a phone enrolled as one responder cannot publish as another; a revoked token
-is refused at once; wrong enrolment codes are throttled like failed logins."""
+is refused at once; the wearer's answer to the man-down prompt reaches the service; wrong
+enrolment codes are throttled like failed logins."""
 from __future__ import annotations
 
 import asyncio
@@ -123,6 +124,25 @@ def test_a_phone_enrolled_as_ff1_cannot_publish_as_ff2_and_a_revoked_token_is_re
     again = asyncio.run(_session(console, token, "by", []))
     assert again[0]["type"] == "refused" and again[0]["reason"] == "token"
     assert console.server.phones.enrolments.refused_total("ff1x")["revoked_or_unknown"] == 1
+
+
+def test_an_answer_to_the_man_down_prompt_reaches_the_service_and_a_malformed_one_is_refused(stack):
+    svc, console = stack
+    token = claim(console, "phok")
+    frames = frames_of(5.0 + np.arange(60) / 60.0)
+
+    async def then(ws, got):
+        while not (got[-1]["type"] == "acked" and got[-1]["seq"] == len(frames) - 1):
+            got.append(await ws.receive_json(timeout=10))
+        await ws.send_json({"type": "ok", "t": "soon"})
+        while got[-1]["type"] != "refused":
+            got.append(await ws.receive_json(timeout=5))
+        await ws.send_json({"type": "ok", "t": 5.75})
+
+    got = asyncio.run(_session(console, token, "bok", frames, then))
+    assert got[-1]["reason"] == "ok" and "device time" in got[-1]["detail"]
+    assert wait_until(lambda: (console.board.latest("phok")[1] or {}).get("ok_at") == 5.75, 5)
+    assert console.server.phones.stats()["oks"] == 1
 
 
 def test_wrong_enrolment_codes_are_throttled_like_failed_logins():

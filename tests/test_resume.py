@@ -145,12 +145,12 @@ def test_a_responders_kept_pickle_is_its_pickle_now_whenever_a_snapshot_reuses_i
         while rt < items[min(i + 25, len(items) - 1)].received:
             rt += 1.0
             core.tick(rt)
-        for rid, blob in core._blobs.items():
+        for rid, blob in core.roster.blobs.items():
             assert blob == core.responder_blob(core.responders[rid]), f"{rid}'s kept pickle is stale at item {i}"
             checked += 1
-        before = dict(core._blobs)
+        before = dict(core.roster.blobs)
         core.snapshot()
-        reused += sum(1 for rid, b in before.items() if core._blobs.get(rid) is b)
+        reused += sum(1 for rid, b in before.items() if core.roster.blobs.get(rid) is b)
     assert checked > 500 and reused > 500  # the idle ids' pickles were reused, and still right
     st = {rid: core.status_of(core.responders[rid], rt) for rid in ("ff2", "idle05", "idle07", "idle09", "idle11")}
     assert st["ff2"].lost >= 1 and st["idle07"].commands["par"]["acked_at"] == 117.0  # the events above happened
@@ -169,10 +169,10 @@ def test_an_incremental_snapshot_restores_the_core_a_whole_snapshot_restores():
         core.feed_round(items[i:min(i + 40, cut)])
         core.tick(items[min(i + 40, cut) - 1].received)
         core.snapshot()
-    kept = dict(core._blobs)
+    kept = dict(core.roster.blobs)
     incremental = core.snapshot()
-    assert sum(1 for rid, b in kept.items() if core._blobs[rid] is b) >= 30  # the idle crowd was reused
-    core._blobs.clear()
+    assert sum(1 for rid, b in kept.items() if core.roster.blobs[rid] is b) >= 30  # the idle crowd was reused
+    core.roster.blobs.clear()
     whole = core.snapshot()
     twins = [IncidentCore.restore(incremental, CFG), IncidentCore.restore(whole, CFG)]
     out = [[], [], []]
@@ -215,8 +215,8 @@ def test_a_crowd_of_new_responders_is_pickled_a_batch_per_round_before_the_snaps
     for name in ("_snapshot_if_due", "_write_snapshot", "_snapshot_failed"):
         setattr(shell, name, types.MethodType(getattr(SnapshotWriter, name), shell))
     made = []
-    real = core.responder_blob
-    core.responder_blob = lambda r, refs=None: made.append(r.id) or real(r, refs)
+    real = core.roster.blob_of
+    core.roster.blob_of = lambda r, refs: made.append(r.id) or real(r, refs)
     import service.shell.snapshots as snapshots_module
     clock = snapshots_module.time.monotonic
     try:
@@ -230,8 +230,8 @@ def test_a_crowd_of_new_responders_is_pickled_a_batch_per_round_before_the_snaps
     finally:
         snapshots_module.time.monotonic = clock
     assert written and shell.snapshots_deferred == 3 and len(made) == 200  # 64, 64, 64, then the last 8 in the snapshot
-    del core.responder_blob
-    core._blobs.clear()
+    del core.roster.blob_of
+    core.roster.blobs.clear()
     assert written[0] == core.snapshot()
 
 
@@ -378,3 +378,28 @@ def test_bench_resume_resumes_from_the_snapshot_to_the_same_core_as_a_whole_repl
     assert all(a == b == c for a, b, c in r["steps_equal"].values())
     assert all(a > 0 for a, _, _ in r["steps_equal"].values())
     assert r["resumed_cores_apart_m"] < 0.01 and r["snapshot_bytes"]["last"] > 0
+
+
+def test_a_snapshot_of_an_older_version_restores_with_every_declared_field():
+    """A snapshot written before ``Responder.beacons_heard``, the tracker's restart counts and
+    the held fixes existed (the fields dropped from its pickles here) restores: the fields read
+    as their defaults, Status reads them, and the core goes on."""
+    core = IncidentCore(CFG)
+    items = inputs_of(walk(seconds=8.0, seed=3))
+    core.feed_round(items[:40])
+    state = snapshots.loads(core.snapshot())
+    fleet = state["fleet"]
+    refs = snapshots.SharedRefs(fleet, [state["tracker_settings"]] + ([fleet.settings, fleet.floors] if fleet else []))
+    for rid, blob in state["responders"].items():
+        fields = snapshots.load_responder(blob, refs)
+        del fields["beacons_heard"]
+        for old in ("_degraded_before", "_degraded_at_before"):
+            del vars(fields["tracker"])[old]
+        state["responders"][rid] = snapshots.dump_responder(fields, refs)
+    del state["held_fixes"]
+    twin = IncidentCore.restore(snapshots.dumps(state), CFG)
+    r = twin.responders["ff1"]
+    assert r.beacons_heard == {} and r.tracker.degraded == 0 and twin.fixes.held == {}
+    st = twin.status_of(r, items[39].received)
+    assert st.beacons_heard == {} and "degraded" not in st.fixes
+    assert poses(twin.feed_round(items[40:])) == poses(core.feed_round(items[40:]))

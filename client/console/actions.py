@@ -1,7 +1,9 @@
 """The console's operator actions: a checkpoint fix, an acknowledged alarm, a roll call or an
 evacuation order, a new checkpoint.
 
-A mixin of :class:`client.console.server.ConsoleServer`. Each action is checked field by field
+A collaborator of :class:`client.console.server.ConsoleServer`, given what it uses: the zenoh
+session, the incident's config, this console's actor name, its :class:`client.console.live.LiveBoard`
+(a responder's latest device time and floor) and ``broadcast`` (a message to every page). Each action is checked field by field
 (:mod:`client.console.requests`: a 4xx naming what is wrong), taken only from an operator's
 session (viewers get 403), and published to the service as a
 :class:`service.protocol.wire.OperatorAction` on this console's own ``op`` key, naming the
@@ -14,12 +16,15 @@ import logging
 import math
 import time
 
+from collections.abc import Callable
+
 import zenoh
 from aiohttp import web
 
+from client.console.live import LiveBoard
 from client.console.requests import (
-    SESSION_KEY,
     HttpError,
+    actor_session,
     error_response,
     finite_number,
     integer,
@@ -27,7 +32,7 @@ from client.console.requests import (
     responder_id,
 )
 from service.protocol import wire
-from service.protocol.incident import UnknownCheckpointError
+from service.protocol.incident import IncidentConfig, UnknownCheckpointError
 
 log = logging.getLogger("firetrack.console")
 
@@ -35,12 +40,18 @@ log = logging.getLogger("firetrack.console")
 class OperatorActions:
     """``POST /api/fix``, ``/api/ack``, ``/api/command``, ``/api/checkpoint``."""
 
-    def _actor_session(self, request: web.Request):
-        """The session of an operator who may act, or :class:`HttpError` 403 for a viewer."""
-        s = request[SESSION_KEY]
-        if not s.may_act:
-            raise HttpError(403, f"{s.user} is a {s.role}: viewers cannot act (fix, checkpoint, acknowledge, PAR)")
-        return s
+    def __init__(self, session: zenoh.Session, cfg: IncidentConfig, actor: str, board: LiveBoard,
+                 broadcast: Callable[[dict], None]):
+        self.session, self.cfg, self.actor, self.board, self.broadcast = session, cfg, actor, board, broadcast
+        self.fixes_sent = 0
+        self.commands_sent = 0
+        self.added_checkpoints: set[str] = set()  # added here: a service in another process may not know them
+
+    def add_routes(self, router: web.UrlDispatcher) -> None:
+        router.add_post("/api/fix", self._fix)
+        router.add_post("/api/checkpoint", self._checkpoint)
+        router.add_post("/api/command", self._command)
+        router.add_post("/api/ack", self._ack)
 
     def build_fix(self, body: dict, operator: str = "console") -> wire.Fix:
         """A checkpoint Fix from a request body, or :class:`HttpError` saying what is wrong."""
@@ -92,7 +103,7 @@ class OperatorActions:
 
     async def _fix(self, request: web.Request) -> web.Response:
         try:
-            who = self._actor_session(request)
+            who = actor_session(request)
             fix = self.build_fix(await read_json(request), operator=who.user)
         except HttpError as e:
             return error_response(e.status, e.args[0])
@@ -102,12 +113,12 @@ class OperatorActions:
             action="fix", operator=who.user, utc=time.time(), responder=fix.responder, fix=wire.encode(fix)))
         self.fixes_sent += 1
         sent = {k: v for k, v in fix.model_dump().items() if v is not None}
-        self._send_all({"type": "fix", "now": time.time(), "fix": sent})
+        self.broadcast({"type": "fix", "now": time.time(), "fix": sent})
         return web.json_response({"sent": sent, "key": key, "operator": who.user})
 
     async def _ack(self, request: web.Request) -> web.Response:
         try:
-            who = self._actor_session(request)
+            who = actor_session(request)
             body = await read_json(request)
             rid = responder_id(body)
             alarm = body.get("alarm")
@@ -126,7 +137,7 @@ class OperatorActions:
         orders name the operator (``issued_by``), and the console publishes the action on its own
         ``op`` key, the record of who issued it (the orders' keys name the responders only)."""
         try:
-            who = self._actor_session(request)
+            who = actor_session(request)
             body = await read_json(request)
             action = body.get("action")
             if action not in ("par", "evacuate"):
@@ -154,14 +165,14 @@ class OperatorActions:
         await self._publish_action(wire.OperatorAction(action=action, operator=who.user, utc=now, order=order_id,
                                                        responders=wanted))
         log.info("console: %s %s by %s sent to %d responder(s)", action, order_id, who.user, len(wanted))
-        self._send_all({"type": "command", "now": now, "command": {"id": order_id, "action": action,
+        self.broadcast({"type": "command", "now": now, "command": {"id": order_id, "action": action,
                                                                     "responders": wanted, "issued_at": now}})
         return web.json_response({"id": order_id, "action": action, "responders": wanted, "issued_at": now,
                                   "operator": who.user})
 
     async def _checkpoint(self, request: web.Request) -> web.Response:
         try:
-            who = self._actor_session(request)
+            who = actor_session(request)
             body = await read_json(request)
             name = body.get("name")
             if not isinstance(name, str) or not name.strip():
@@ -188,6 +199,12 @@ class OperatorActions:
         log.info("console: checkpoint %r added at (%.2f, %.2f) floor %d", cp.name, cp.x, cp.y, cp.floor)
         await self._publish_action(wire.OperatorAction(action="checkpoint", operator=who.user, utc=time.time(),
                                                        name=cp.name, x=cp.x, y=cp.y, floor=cp.floor, note=cp.note))
-        self._send_all({"type": "checkpoints", "now": time.time(), "checkpoints": self._checkpoints_json()})
-        return web.json_response({"checkpoint": next(c for c in self._checkpoints_json() if c["name"] == cp.name)},
+        self.broadcast({"type": "checkpoints", "now": time.time(), "checkpoints": checkpoints_json(self.cfg)})
+        return web.json_response({"checkpoint": next(c for c in checkpoints_json(self.cfg) if c["name"] == cp.name)},
                                  status=201)
+
+
+def checkpoints_json(cfg: IncidentConfig) -> list[dict]:
+    """The incident's checkpoints as the page reads them."""
+    return [{"name": c.name, "x": c.x, "y": c.y, "floor": c.floor, "sigma_m": c.sigma_m, "note": c.note}
+            for c in cfg.checkpoints]

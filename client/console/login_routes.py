@@ -1,22 +1,31 @@
 """The console's login routes: who is logged in, password and certificate logins, logout.
 
-A mixin of :class:`client.console.server.ConsoleServer` (it uses ``self.logins``, ``self.cfg``,
-``self.https``); the rules (rosters, throttling, sessions) are :mod:`client.console.auth`'s.
+A collaborator of :class:`client.console.server.ConsoleServer`, given what it needs: the
+console's :class:`client.console.auth.Logins`, its incident id and whether it serves HTTPS; the
+rules (rosters, throttling, sessions) are :mod:`client.console.auth`'s.
 """
 from __future__ import annotations
 
 from aiohttp import web
 
-from client.console.auth import SESSION_COOKIE
+from client.console.auth import SESSION_COOKIE, Logins
 from client.console.requests import SESSION_KEY, HttpError, error_response, read_json
 
 
 class LoginRoutes:
     """``GET /api/session``, ``POST /api/login``, ``POST /api/logout``."""
 
+    def __init__(self, logins: Logins, incident_id: str, https: bool):
+        self.logins, self.incident_id, self.https = logins, incident_id, https
+
+    def add_routes(self, router: web.UrlDispatcher) -> None:
+        router.add_get("/api/session", self._session_info)
+        router.add_post("/api/login", self._login)
+        router.add_post("/api/logout", self._logout)
+
     def _session_json(self, s) -> dict:
         info = {"auth": "open" if self.logins.open else "required", "user": None, "role": None,
-                "incident": self.cfg.id, "https": self.https}
+                "incident": self.incident_id, "https": self.https}
         if s is not None:
             info.update(user=s.user, role=s.role, via=s.via)
         return info
@@ -30,7 +39,8 @@ class LoginRoutes:
             info["certificate"] = certificate_common_name(cert)
         return web.json_response(info)
 
-    def _peer_certificate(self, request: web.Request) -> bytes | None:
+    @staticmethod
+    def _peer_certificate(request: web.Request) -> bytes | None:
         sslobj = request.transport.get_extra_info("ssl_object") if request.transport is not None else None
         return sslobj.getpeercert(binary_form=True) if sslobj is not None else None
 

@@ -20,10 +20,14 @@ phone -> gateway
                           :class:`service.protocol.wire.ImuBatch` (device clock s, m/s², rad/s, µT)
 ``fix``                   ``{t, lat, lon, accuracy}``: a GNSS fix on the device clock
 ``ack``                   ``{id}``: the wearer acknowledged the order ``id``
+``ok``                    ``{t}``: the wearer answered the man-down prompt "I'm OK" at device time
+                          ``t`` (an :class:`service.protocol.wire.Ack` with action ``ok``)
 gateway -> phone
 ``acked``                 ``{seq, lost}``: the service's acknowledgement of this stream
 ``state``                 once a second: ``heard`` (a service subscribes), ``sigma_m`` (the
-                          position's 1-sigma radius the service publishes), ``alarms``, ``steps``
+                          position's 1-sigma radius the service publishes), ``alarms``, ``steps``,
+                          ``t`` (the newest device time the service took), ``man_down_at`` (set:
+                          the page asks "Are you OK?", counting down to it) and ``ok_at``
 ``command``               an order (``par``, ``evacuate``) for the wearer to acknowledge
 ``refused``               ``{reason, detail}``: a message not taken (counted against the token)
 ========================  ======================================================================
@@ -148,7 +152,8 @@ class PhoneGateway:
         self.enrolments = enrolments or PhoneEnrolments(incident)
         self.enrolments.on_revoked = self._revoked
         self.streams: dict[tuple[str, str], PhoneStream] = {}
-        self.counts = {"frames": 0, "fixes": 0, "acks": 0, "resent_by_phone": 0, "duplicates": 0, "refused": 0}
+        self.counts = {"frames": 0, "fixes": 0, "acks": 0, "oks": 0, "resent_by_phone": 0, "duplicates": 0,
+                       "refused": 0}
         self._loop: asyncio.AbstractEventLoop | None = None
 
     def publish_through(self, session) -> None:
@@ -318,8 +323,14 @@ class PhoneGateway:
             stream.wearable.acknowledge(cmd)
             stream.acks += 1
             self.counts["acks"] += 1
+        elif kind == "ok":
+            t = body.get("t")
+            if not isinstance(t, (int, float)) or isinstance(t, bool) or not math.isfinite(t):
+                raise Refused("ok", f"t: the device time of the answer, a number (got {str(t)[:32]!r})")
+            stream.wearable.answer_prompt(float(t))
+            self.counts["oks"] += 1
         else:
-            raise Refused("kind", f"unknown message type {str(kind)[:32]!r} (frame, fix, ack)")
+            raise Refused("kind", f"unknown message type {str(kind)[:32]!r} (frame, fix, ack, ok)")
 
     async def _watch(self, ws, stream: PhoneStream) -> None:
         """Tell the phone what the service acknowledged, as it changes, and its state each second."""
@@ -334,10 +345,11 @@ class PhoneGateway:
                 if now - last_state >= STATE_EVERY_S:
                     last_state = now
                     pose, status = self.board.latest(stream.responder)
+                    status = status or {}
                     await ws.send_json({"type": "state", "heard": w.heard, "sigma_m": sigma_m(pose),
-                                        "alarms": status["alarms"] if status else [],
-                                        "steps": pose["steps"] if pose else 0,
-                                        "floor": pose["floor"] if pose else None})
+                                        "alarms": status.get("alarms", []), "steps": pose["steps"] if pose else 0,
+                                        "floor": pose["floor"] if pose else None, "t": status.get("t"),
+                                        "man_down_at": status.get("man_down_at"), "ok_at": status.get("ok_at")})
                 await asyncio.sleep(ACK_POLL_S)
         except (ConnectionError, RuntimeError):
             pass

@@ -88,3 +88,11 @@ async def read_json(request: web.Request) -> dict:
     if not isinstance(body, dict):
         raise HttpError(400, f"the body must be a JSON object, got {type(body).__name__}")
     return body
+
+
+def actor_session(request: web.Request):
+    """The session of an operator who may act, or :class:`HttpError` 403 for a viewer."""
+    s = request[SESSION_KEY]
+    if not s.may_act:
+        raise HttpError(403, f"{s.user} is a {s.role}: viewers cannot act (fix, checkpoint, acknowledge, PAR)")
+    return s

@@ -56,7 +56,7 @@ from pathlib import Path
 import zenoh
 from aiohttp import WSMsgType, web
 
-from client.console.actions import OperatorActions
+from client.console.actions import OperatorActions, checkpoints_json
 from client.console.auth import (
     SESSION_COOKIE,
     Logins,
@@ -69,7 +69,7 @@ from client.console.live import LiveBoard
 from client.console.login_routes import LoginRoutes
 from client.console.phone_gateway import PhoneGateway
 from client.console.plans import grid_matrix, plan_png, plan_problem, served_plan
-from client.console.requests import POST_MAX_BYTES, SESSION_KEY, error_response
+from client.console.requests import POST_MAX_BYTES, SESSION_KEY, actor_session, error_response
 from client.console.track_routes import TrackRoutes
 from service.protocol import wire
 from service.protocol.incident import IncidentConfig
@@ -124,8 +124,10 @@ class _Page:
             log.info("console: a page stopped listening: %s", e)
 
 
-class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
-    """The aiohttp application and its loop thread; use :func:`start_console`."""
+class ConsoleServer:
+    """The aiohttp application and its loop thread; use :func:`start_console`. The routes of
+    logins, operator actions and tracks are collaborators it holds (``login_routes``,
+    ``actions``, ``tracks``), each given what it uses."""
 
     def __init__(self, session: zenoh.Session, cfg: IncidentConfig, host: str, port: int,
                  batch_period_s: float = BATCH_PERIOD_S, lost_contact_s: float = LOST_CONTACT_S,
@@ -143,9 +145,9 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
         self.static_dir = Path(static_dir)
         self.board = LiveBoard()
         self.pages: set[_Page] = set()
-        self.fixes_sent = 0
-        self.commands_sent = 0
-        self.added_checkpoints: set[str] = set()
+        self.login_routes = LoginRoutes(self.logins, cfg.id, https)
+        self.actions = OperatorActions(session, cfg, actor, self.board, self._send_all)
+        self.tracks = TrackRoutes(session, cfg.id)
         self.phones = PhoneGateway(session, cfg.id, self.board, logins=self.logins)  # /wear: phones as wearables
         self._subs: list = []
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -219,17 +221,10 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
         r.add_get("/ws", self._websocket)
         r.add_get("/api/incident", self._incident)
         r.add_get("/api/state", self._state)
-        r.add_get("/api/tracks", self._tracks)
-        r.add_get("/api/track/{responder}", self._track)
         r.add_get(r"/plan/{floor:-?\d+}.png", self._plan)
-        r.add_get("/api/session", self._session_info)
-        r.add_post("/api/login", self._login)
-        r.add_post("/api/logout", self._logout)
-        r.add_post("/api/fix", self._fix)
-        r.add_post("/api/checkpoint", self._checkpoint)
-        r.add_post("/api/command", self._command)
-        r.add_post("/api/ack", self._ack)
-        self.phones.add_routes(r, self.static_dir, self._actor_session, lambda: self.url)
+        for routes in (self.tracks, self.login_routes, self.actions):
+            routes.add_routes(r)
+        self.phones.add_routes(r, self.static_dir, actor_session, lambda: self.url)
         runner = web.AppRunner(app, access_log=None, shutdown_timeout=1.0)
         await runner.setup()
         ssl_ctx = server_ssl_context(self.tls, request_client_cert=not self.logins.open) if self.https else None
@@ -386,7 +381,7 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
         return {
             "id": cfg.id, "name": cfg.name, "origin": cfg.origin.model_dump(), "start_floor": cfg.start_floor,
             "floors": [{"number": f.number, "name": f.name, "elevation_m": f.elevation_m} for f in cfg.floors],
-            "checkpoints": self._checkpoints_json(), "plans": plans,
+            "checkpoints": checkpoints_json(cfg), "plans": plans,
             "beacons": [{"id": b.id, "name": b.name, "x": b.x, "y": b.y, "floor": b.floor, "sigma_m": b.sigma_m}
                         for b in cfg.beacons],
             "roster": [m.model_dump() for m in cfg.roster],
@@ -394,16 +389,12 @@ class ConsoleServer(LoginRoutes, OperatorActions, TrackRoutes):
                          "trail_points": self.board.trail_points},
         }
 
-    def _checkpoints_json(self) -> list[dict]:
-        return [{"name": c.name, "x": c.x, "y": c.y, "floor": c.floor, "sigma_m": c.sigma_m, "note": c.note}
-                for c in self.cfg.checkpoints]
-
     async def _incident(self, request: web.Request) -> web.Response:
         return web.json_response(self.incident_json())
 
     async def _state(self, request: web.Request) -> web.Response:
         snap = self.board.snapshot()
-        snap.update(pages=len(self.pages), fixes_sent=self.fixes_sent, received=dict(self.board.received),
+        snap.update(pages=len(self.pages), fixes_sent=self.actions.fixes_sent, received=dict(self.board.received),
                     flags=self.flags, audits=self.audits[-20:])
         return web.json_response(snap)
 

@@ -15,8 +15,8 @@ numpy pass (for the load benchmark and ``firetrack simulate``).
     arrays = fleet.next_arrays(10)         # (1000, 10, 3) ...; fleet.next_batches(10) -> [SimBatch]
 
 Modules: :mod:`~pdr.simulation.settings` (settings, routes), :mod:`~pdr.simulation.motion`
-(the maths), :mod:`~pdr.simulation.plan` (routes -> rows), :mod:`~pdr.simulation.fleet`
-(streaming).
+(the maths), :mod:`~pdr.simulation.plan` (routes -> rows), :mod:`~pdr.simulation.strides` (a
+walker's gait and step lengths), :mod:`~pdr.simulation.fleet` (streaming).
 """
 from pdr.simulation.fleet import (
     FleetBatch,
@@ -26,13 +26,13 @@ from pdr.simulation.fleet import (
     simulate_walk,
     walker_seed,
 )
-from pdr.simulation.plan import WalkerTraits
 from pdr.simulation.settings import (
     Route,
     WalkerSettings,
     random_route,
     random_waypoints,
 )
+from pdr.simulation.strides import WalkerTraits
 
 __all__ = [
     "WalkerSettings", "Route", "random_route", "random_waypoints", "SimulatedWalker", "WalkerFleet",

@@ -28,7 +28,8 @@ from pdr.simulation.motion import (
     SEG_T0,
     evaluate,
 )
-from pdr.simulation.plan import WalkerPlan, WalkerTraits
+from pdr.simulation.plan import WalkerPlan
+from pdr.simulation.strides import WalkerTraits
 from pdr.simulation.settings import Bounds, FloorRange, Route, WalkerSettings
 
 DEFAULT_BOUNDS: Bounds = (0.0, 40.0, 0.0, 20.0)

@@ -1,7 +1,8 @@
 """The alarms a responder's Status carries, decided from the core's state and the time given.
 
 ==================  ==========================================================================
-``man_down``        the motion model reports no motion (30 s motionless: the PASS rule)
+``man_down``        the motion model reports no motion (30 s motionless: the PASS rule), and the
+                    wearer has not answered "I'm OK" within that time
 ``lost_contact``    no frame of the wearable for ``lost_contact_s`` (the shell's time)
 ``rejected_frames`` ``rejected_burst`` rejects within ``rejected_window_s``
 ``disconnected``    the wearable's liveliness token is gone
@@ -15,6 +16,22 @@
                     reckoning (:class:`service.fusion.estimators.FusionEstimator`), within the last
                     ``TRACK_DEGRADED_S`` of the responder's walk
 ==================  ==========================================================================
+
+The pre-alarm is not an alarm of the console's: Status carries it as ``man_down_at`` (the
+device time man-down will be raised at), present from :data:`PROMPT_BEFORE_S` before, and a
+wearable with a screen (the phone page) asks its wearer "Are you OK?" with a countdown to it.
+A PASS device (NFPA 1982) sounds a pre-alert before its alarm, and the
+wearer silences it by moving or by pressing its button, which starts the no-motion clock
+again. Here the button is the phone page's "I'M OK": an :class:`service.protocol.schema.Ack`
+with ``action="ok"`` and ``t`` on the device clock (``Responder.ok_at``), recorded with every
+other input, so ``reprocess`` reaches the same verdict. The stillness is counted from
+
+    start = max(motionless since, the latest answer, the end of the latest gap)
+
+and man-down is raised once the newest sample reaches ``alarm_at = start + no_motion_after_s + state_delay_s`` (the motion
+model decides its state ``state_delay_s`` behind the newest sample: without an answer this is
+when it reports no motion); the prompt is on from ``alarm_at - PROMPT_BEFORE_S``. Both are
+judged in device time, so a replay of the same frames and answers raises them at the same samples.
 
 Man-down is judged on frames: a no-motion state whose stillness began before a gap in the
 frames (an outage, lost frames, a new stream) needs the motion model's own time of stillness
@@ -35,6 +52,8 @@ FLOODING = "flooding"
 CONTESTED = "stream_contested"
 TRACK_DEGRADED = "track_degraded"
 TRACK_DEGRADED_S = 30.0  # s of device time a restarted track stays flagged: long enough to be seen
+MAN_DOWN_PROMPT = "prompt"
+PROMPT_BEFORE_S = 10.0  # s: the wearer is asked this long before man-down is raised (the pre-alert)
 NO_MOTION_AFTER_S = 30.0  # s of stillness that make no motion, when the motion model does not say (the PASS rule)
 UNANSWERED = {"par": "par_unanswered", "evacuate": "evacuation_unacknowledged"}
 
@@ -42,8 +61,7 @@ UNANSWERED = {"par": "par_unanswered", "evacuate": "evacuation_unacknowledged"}
 def of_responder(r, now: float, settings, recording_failed: bool = False, flooding: bool = False) -> list[str]:
     """The alarms of responder ``r`` (:class:`service.core.responder.Responder`) at service time ``now``."""
     out = []
-    motion, since = r.tracker.motion
-    if motion is MotionState.NO_MOTION and _still_observed(r, since):
+    if man_down(r)[0] == MAN_DOWN:
         out.append(MAN_DOWN)
     heard = r.gate.last_heard if r.gate.last_heard is not None else r.first_heard
     if now - heard > settings.lost_contact_s:
@@ -64,6 +82,30 @@ def of_responder(r, now: float, settings, recording_failed: bool = False, floodi
         if order["acked_at"] is None and now - order["issued_at"] > settings.command_answer_s:
             out.append(UNANSWERED[action])
     return out
+
+
+def man_down(r) -> tuple[str | None, float | None]:
+    """(:data:`MAN_DOWN`, :data:`MAN_DOWN_PROMPT` (the pre-alarm) or None; ``alarm_at``, the track time at
+    which man-down is or will be raised, or None) for responder ``r`` as of its newest
+    sample (module docstring)."""
+    tr = r.tracker
+    motion, since = tr.motion
+    pipeline = getattr(tr.settings, "pipeline", None)
+    need = getattr(pipeline, "no_motion_after_s", NO_MOTION_AFTER_S) + getattr(pipeline, "state_delay_s", 0.0)
+    answered = getattr(r, "ok_at", -math.inf)
+    still = getattr(tr, "motionless_since", math.nan)
+    if not math.isfinite(still):  # a motion model that does not say when it last moved: no prompt, its no-motion state
+        if (motion is MotionState.NO_MOTION and _still_observed(r, since)
+                and (answered < since or tr.device_time >= answered + need)):
+            return MAN_DOWN, max(since, answered + need)
+        return None, None
+    alarm_at = max(still, answered, getattr(r, "gap_end", -math.inf)) + need
+    if (motion is MotionState.NO_MOTION and _still_observed(r, since)
+            and (answered < since or tr.device_time >= alarm_at)):
+        return MAN_DOWN, alarm_at
+    if not motion.moving and tr.device_time >= alarm_at - PROMPT_BEFORE_S:
+        return MAN_DOWN_PROMPT, alarm_at
+    return None, None
 
 
 def _still_observed(r, since: float) -> bool:

@@ -66,3 +66,11 @@ class CoreCounters:
     received: dict = field(default_factory=lambda: {"imu": 0, "fix": 0, "op": 0})  # payloads taken, good or bad
     expired: int = 0  # responders that left after their silence
     newcomers_forgotten: int = 0  # admitted ids that never sent a decodable message, forgotten after their silence
+
+
+@dataclass
+class CoreClock:
+    """The core's time, which its parts share: the ``received`` time of the message in hand, or
+    the time of the latest tick (the core has no clock of its own)."""
+
+    now: float = 0.0

@@ -1,7 +1,9 @@
 """Frames into tracks: streams, gaps and clock leaps, and the rounds that run the motion
 models (columnar for handhelds, one responder at a time otherwise).
 
-A mixin of :class:`service.core.incident_core.IncidentCore` (its state and settings).
+A collaborator of :class:`service.core.incident_core.IncidentCore`: the core hands it each
+responder's released frames (:meth:`FrameRounds.process`) and runs the round's end
+(:meth:`FrameRounds.run_dirty`); poses go to the core's :class:`service.core.pose_output.Outbox`.
 """
 from __future__ import annotations
 
@@ -9,7 +11,10 @@ import logging
 import math
 
 from pdr.events import MotionEvent
-from pdr.fleet import FleetMember
+from pdr.fleet import FleetMember, PdrFleet
+from service.core.core_types import CoreClock, CoreCounters, CoreSettings
+from service.core.pose_output import Outbox
+from service.core.rejects import RejectBook
 from service.core.responder import Responder, continues, frame_of
 from service.core.tracker import (
     PoseEstimate,
@@ -22,52 +27,54 @@ log = logging.getLogger("firetrack.service")
 class FrameRounds:
     """Frames into tracks: streams, gaps, clock leaps, and the rounds that run the motion models (columnar or one responder at a time)."""
 
-    def _on_imu(self, key: str, payload: bytes, now: float) -> None:
-        rid, r = self._source_of(key, now, "bad_key")
-        if rid is None:
-            return
-        batch, r = self._decode_for(rid, r, payload, wire.ImuBatch, now)
-        if batch is None:
-            return
+    def __init__(self, settings: CoreSettings, fleet: PdrFleet | None, clock: CoreClock, counters: CoreCounters,
+                 rejects: RejectBook, outbox: Outbox):
+        self.settings, self.fleet, self.clock, self.counters = settings, fleet, clock, counters
+        self.rejects, self.outbox = rejects, outbox
+        self.dirty: dict[str, Responder] = {}  # responders with frames waiting for the round's end
+
+    def offer(self, r: Responder, batch: wire.ImuBatch, now: float) -> bool:
+        """A decoded frame of ``r`` through its gate, the frames it releases on to the tracker
+        (at the round's end); True when a gap in front of held frames should be asked for now
+        (the wearable's Status names it)."""
         if batch.utc_offset is not None:
             r.utc_offset = batch.utc_offset
         rejected_before = r.gate.rejected
         released = r.gate.offer(batch, now)
         if r.gate.rejected > rejected_before:  # the gate records why in its newest event
             _, reason, detail = r.gate.events[-1]
-            self._note_reject(r, reason, f"frame {batch.seq}: {detail}", now)
+            self.rejects.noted(r, reason, f"frame {batch.seq}: {detail}", now)
         for b in released:
-            self._process(r, b)
-        if r.gate.ask() is not None:  # a gap in front of held frames: the wearable's Status asks for it now
-            self._send_status(r, now, self._alarms_now(r, now))
+            self.process(r, b)
+        return r.gate.ask() is not None
 
-    def _process(self, r: Responder, b: wire.ImuBatch) -> None:
-        self._touch(r)
+    def process(self, r: Responder, b: wire.ImuBatch) -> None:
+        """A frame the gate released, for the round's end (frame by frame while a fix waits)."""
         if b is r.gate.first_of_stream and b is not r.stream_start:
             self._new_stream(r, b)
         t0 = float(b.t[0]) + r.t_offset
         if math.isfinite(r.last_t) and t0 - r.last_t > self.settings.gap_reanchor_s:
-            self._run_backlog(r)  # the frames before the gap go first
+            self.run_backlog(r)  # the frames before the gap go first
             t0 = self._bound_leap(r, b, t0)
             self._gap(r, r.last_t, t0)
         if r.backlog and (not continues(r.backlog[-1], b) or len(r.backlog) >= self.settings.max_coalesce):
-            self._run_backlog(r)
+            self.run_backlog(r)
         r.backlog.append(b)
         r.last_t = float(b.t[-1]) + r.t_offset
-        r.last_rt = self._now
-        self._dirty[r.id] = r  # run at the round's end (frame by frame while a fix waits: see _run_backlog)
+        r.last_rt = self.clock.now
+        self.dirty[r.id] = r  # run at the round's end (frame by frame while a fix waits: see run_backlog)
 
     def _new_stream(self, r: Responder, b: wire.ImuBatch) -> None:
         """The gate opened a stream with ``b``: the first of the responder, or a new one (a
         restarted wearable, another device, a counter reset) that continues the same track.
         Its device clock is the track's if its first sample follows the last one within the
         receive-time gap; otherwise it is put on the track's clock after that gap."""
-        self._run_backlog(r)  # the old stream's last frames end at the old clock
+        self.run_backlog(r)  # the old stream's last frames end at the old clock
         r.stream_start = b
         if not math.isfinite(r.last_t):
             return
         s = self.settings
-        gap = max(self._now - r.last_rt, 0.0) if r.last_rt is not None else 0.0
+        gap = max(self.clock.now - r.last_rt, 0.0) if r.last_rt is not None else 0.0
         t0 = float(b.t[0])
         ahead = t0 - (r.last_t - r.t_offset)
         if not 0.0 < ahead <= gap + s.same_clock_tolerance_s:
@@ -81,13 +88,13 @@ class FrameRounds:
         a broken or hostile clock must not make the motion model walk through hours of
         nothing (its state grid would grow with them). Returns the frame's new track time."""
         s = self.settings
-        rgap = max(self._now - r.last_rt, 0.0) if r.last_rt is not None else 0.0
+        rgap = max(self.clock.now - r.last_rt, 0.0) if r.last_rt is not None else 0.0
         if t0 - r.last_t <= rgap + s.max_clock_lead_s:
             return t0
         leap = t0 - r.last_t
         r.t_offset -= leap - max(rgap, s.min_stream_gap_s)
-        self.reject_log.note(r.id, "clock_leap", f"frame {b.seq}: device time leapt {leap:.1f} s in {rgap:.1f} s; "
-                                                 "the track goes on after the receive-time gap", self._now)
+        self.rejects.log.note(r.id, "clock_leap", f"frame {b.seq}: device time leapt {leap:.1f} s in {rgap:.1f} s; "
+                                                 "the track goes on after the receive-time gap", self.clock.now)
         return float(b.t[0]) + r.t_offset
 
     def _gap(self, r: Responder, t_from: float, t_to: float) -> None:
@@ -96,19 +103,17 @@ class FrameRounds:
         r.gap_end = t_to
         r.tracker.note_gap(t_from, t_to, self.settings.gap_speed_mps * (t_to - t_from))
 
-    def _run_dirty(self) -> None:
+    def run_dirty(self) -> None:
         """The round's end: every responder's waiting frames through its tracker; those on the
         handheld pipeline together, a stage at a time (:meth:`_run_columnar`)."""
-        dirty, self._dirty = self._dirty, {}
-        for r in dirty.values():
-            self._touch(r)
+        dirty, self.dirty = self.dirty, {}
         columns: list[Responder] = []
         for r in dirty.values():
             if r.backlog and isinstance(r.tracker.choose_model(r.backlog[0].carry), FleetMember):
                 columns.append(r)
                 continue
             try:
-                self._run_backlog(r)
+                self.run_backlog(r)
             except Exception:
                 self.counters.errors += 1
                 log.exception("error while running the frames of %s", r.id)
@@ -133,7 +138,7 @@ class FrameRounds:
                 try:
                     if events is None or isinstance(events, Exception):
                         r.backlog = batches + r.backlog
-                        self._run_backlog(r)
+                        self.run_backlog(r)
                         continue
                     self._after_batches(r, batches, r.tracker.on_events(events))
                 except Exception:
@@ -151,7 +156,7 @@ class FrameRounds:
             batches, r.backlog = r.backlog, []
         return batches
 
-    def _run_backlog(self, r: Responder) -> None:
+    def run_backlog(self, r: Responder) -> None:
         """The responder's waiting frames through its tracker, as one batch (one at a time while
         a fix waits); poses out."""
         while r.backlog:
@@ -165,7 +170,7 @@ class FrameRounds:
                 for b in batches:
                     self._run_batches(r, [b])
                 return
-            self._reject(r, "pipeline", f"frame {batches[0].seq}: {e}", self._now)
+            self.rejects.frame(r, "pipeline", f"frame {batches[0].seq}: {e}", self.clock.now)
             return
         self._after_batches(r, batches, outputs)
 
@@ -175,6 +180,6 @@ class FrameRounds:
         self.counters.tracker_batches += 1
         for o in outputs:
             if isinstance(o, PoseEstimate):
-                self._answer_pose(r, o)
+                self.outbox.pose(r, o, self.clock.now)
             elif isinstance(o, MotionEvent):
                 log.info("%s is %s since device time %.1f", r.id, o.state.value, o.since)

@@ -165,6 +165,11 @@ class FrameGate:
         return len(self._held)
 
     @property
+    def waiting(self) -> bool:
+        """Anything held that a later :meth:`expire` may settle (frames, or a candidate stream's)."""
+        return bool(self._held or self._candidate_held)
+
+    @property
     def next_seq(self) -> int | None:
         return self._next
 

@@ -64,7 +64,14 @@ frames (``alarms.of_responder``).
 **Snapshots.** :meth:`IncidentCore.snapshot` is the core's whole state as bytes (the
 estimators restart their graphs from their newest pose, see
 :meth:`service.fusion.graph.TrackFusion.__getstate__`); :meth:`IncidentCore.restore` makes a
-core that goes on from it (:mod:`service.review.resume`).
+core that goes on from it (:mod:`service.review.resume`, :mod:`service.core.core_snapshot`).
+
+**Its parts.** The core holds collaborators, each given what it uses: the :class:`Roster`
+(responders, newcomers; a responder is changed only through ``roster.changing``, which drops its
+kept pickle), :class:`RejectBook`, :class:`Outbox` (answers in order, poses converted a round at a
+time), :class:`StatusReporter`, :class:`FrameRounds` (frames into tracks), :class:`FixDesk`
+(fixes, and fixes held for ids with no responder yet) and :class:`OperatorDesk` (presence,
+orders, access, operator actions). The core parses each message's key once and routes it.
 """
 from __future__ import annotations
 
@@ -72,30 +79,35 @@ import dataclasses
 import logging
 import math
 from collections.abc import Iterable
+from typing import Self
 
 import numpy as np
 
 from pdr.fleet import PdrFleet
 from pdr.floors import FloorElevations
-from service.core import alarms
+from service.core import core_snapshot
 from service.core.core_types import (
     INBOUND_KINDS,
+    CoreClock,
     CoreCounters,
     CoreSettings,
     Inbound,
     Outbound,
 )
-from service.core.fix_intake import FixIntake
+from service.core.fix_intake import FixDesk
 from service.core.frame_rounds import FrameRounds
 from service.core.gate import FrameGate
-from service.core.held_fixes import HeldFixes
 from service.core.intake import OPERATORS, Intake
 from service.core.operations import OperatorDesk
-from service.core.pose_output import PoseOutput
+from service.core.pose_output import Outbox, pose_message
 from service.core.rejectlog import RejectLog
-from service.core.responder import Newcomer, Responder
+from service.core.rejects import RejectBook
+from service.core.responder import Responder
+from service.core.roster import Roster
+from service.core.status_reporter import StatusReporter
 from service.core.tracker import (
     CheckpointFix,
+    PoseEstimate,
     ResponderTracker,
     tracker_settings_for,
 )
@@ -104,7 +116,8 @@ from service.protocol.incident import IncidentConfig
 
 log = logging.getLogger("firetrack.service")
 
-class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
+
+class IncidentCore:
     """Every responder of one incident: ``outputs = core.feed_round(inbound)``, ``core.tick(now)``."""
 
     def __init__(self, incident: IncidentConfig, settings: CoreSettings | None = None):
@@ -114,31 +127,47 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         self.incident = incident
         self.id = incident.id
         self.settings = settings
-        self.responders: dict[str, Responder] = {}
-        self.unattributed: dict[str, int] = {}  # rejects whose key names no valid responder
+        self.clock = CoreClock()
         self.counters = CoreCounters()
-        self.recording_failed = False  # set by the shell: every Status then carries the alarm
-        self._dirty: dict[str, Responder] = {}  # responders with frames waiting for the round's end
-        self._blobs: dict[str, bytes] = {}  # responders' pickles of the last snapshot, while they do not change
-        self._out: list[Outbound] = []
-        self._pose_queue: list[tuple] = []  # poses of this round waiting for their wire form
-        self._now = 0.0
-        self._presence: dict[str, bool] = {}  # liveliness seen before a responder's first frame (bounded)
         self.intake = Intake(settings.intake)
         self.reject_log = RejectLog(log, settings.rejected_window_s, settings.log_rejects_per_window,
                                     settings.log_lines_per_window)
-        self._expiry_checked = -math.inf
-        self._last_tick = -math.inf  # service time of the last tick (spreads idle Statuses)
-        self._newcomers: dict[str, Newcomer] = {}  # admitted ids none of whose messages decoded yet (bounded)
-        self._held_fixes: dict = {}  # fixes for ids with no responder yet (service.core.held_fixes)
+        self.expiry_checked = -math.inf
         pipeline = settings.tracker.pipeline
         # the handheld pipelines of all responders, run a stage at a time over the round (pdr.fleet)
         self.fleet = (PdrFleet(pipeline, FloorElevations(incident.elevations()))
                       if settings.tracker.motion is None else None)
-        self.access = wire.Access(enforce=False)  # until an access message says otherwise: the open demo
-        self._revoked: frozenset[str] = frozenset()
-        self._refused_logged: set[str] = set()
-        self.audits: int = 0
+        self.assemble()
+
+    def assemble(self, unattributed: dict | None = None, held_fixes: dict | None = None) -> None:
+        """The core's parts, given what each uses (again when :meth:`restore` has put its state in)."""
+        self.rejects = RejectBook(self.intake, self.reject_log, self.counters, unattributed)
+        self.roster = Roster(self.rejects.newcomer_gone)
+        self.outbox = Outbox(self.incident, self.counters)
+        self.status = StatusReporter(self.id, self.settings, self.intake, self.outbox)
+        self.frames = FrameRounds(self.settings, self.fleet, self.clock, self.counters, self.rejects, self.outbox)
+        self.fixes = FixDesk(self.incident, self.settings, self.clock, self.rejects, self.outbox, self.frames,
+                             held_fixes)
+        self.desk = OperatorDesk(self.incident, self.roster, self.fixes, self.rejects, self.intake, self.outbox,
+                                 self.counters)
+
+    # ------------------------------------------------------------------ what the shell reads
+    @property
+    def responders(self) -> dict[str, Responder]:
+        return self.roster.responders
+
+    @property
+    def unattributed(self) -> dict[str, int]:
+        """Rejects whose key names no valid responder (or an id with none), by reason."""
+        return self.rejects.unattributed
+
+    @property
+    def recording_failed(self) -> bool:
+        return self.status.recording_failed
+
+    @recording_failed.setter
+    def recording_failed(self, failed: bool) -> None:  # set by the shell: every Status then carries the alarm
+        self.status.recording_failed = failed
 
     # ------------------------------------------------------------------ inputs
     def feed_round(self, items: Iterable[Inbound]) -> list[Outbound]:
@@ -149,11 +178,9 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
             try:
                 self._take(item)
             except Exception:  # a bug must not stop the incident: log it, count it, go on
-                self._error(f"while processing {item.key[:200]}")
-        self._run_dirty()
-        self._emit_poses()
-        out, self._out = self._out, []
-        return out
+                self.rejects.error(f"while processing {item.key[:200]}", self.clock.now)
+        self.frames.run_dirty()
+        return self.outbox.take()
 
     def feed(self, item: Inbound) -> list[Outbound]:
         """One message: a round of one (what ``reprocess`` of a single message does)."""
@@ -163,53 +190,21 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         """Time passes: frames held for a missing one beyond the gate's wait are released, and
         every responder's Status is answered: at every tick while it is heard, every
         ``idle_status_every_s`` once it has been silent for ``idle_after_s`` (and at once when
-        its alarms change), so a crowd of silent ids costs little status traffic. The idle
-        ones are spread over ticks (:meth:`_idle_budget`): a crowd admitted together does not
-        stay in step and answer all at once every few seconds."""
-        self._now = now
-        for r in list(self.responders.values()):
+        its alarms change), so a crowd of silent ids costs little status traffic
+        (:meth:`StatusReporter.due`)."""
+        self.clock.now = now
+        for r in self.roster:
+            if not r.gate.waiting:  # nothing for the gate to settle: the responder does not change
+                continue
+            r = self.roster.changing(r.id)
             try:
                 for b in r.gate.expire(now):
-                    self._process(r, b)
+                    self.frames.process(r, b)
             except Exception:
-                self._error(f"while releasing the held frames of {r.id}")
-        self._run_dirty()
-        s = self.settings
-        idle_due: list[tuple[float, Responder, list[str]]] = []
-        idle = 0
-        for r in list(self.responders.values()):
-            try:
-                current = self._alarms_now(r, now)
-                if now - r.last_input < s.idle_after_s or current != r.last_alarms:
-                    self._send_status(r, now, current)
-                    continue
-                idle += 1
-                if now - r.last_status >= s.idle_status_every_s:
-                    idle_due.append((r.last_status, r, current))
-            except Exception:
-                self._error(f"status of {r.id}")
-        idle_due.sort(key=lambda e: e[0])  # the longest unanswered first
-        for _, r, current in idle_due[: self._idle_budget(idle, now)]:
-            try:
-                self._send_status(r, now, current)
-            except Exception:
-                self._error(f"status of {r.id}")
-        self._last_tick = now
-        self._emit_poses()
-        out, self._out = self._out, []
-        return out
-
-    def _idle_budget(self, idle: int, now: float) -> int:
-        """Idle Statuses one tick may send: the share of ``idle`` responders that falls in the
-        time since the last tick (``idle × Δt / idle_status_every_s``, rounded up, at least
-        one), so that each still gets one about every ``idle_status_every_s``."""
-        dt = min(max(now - self._last_tick, 0.0), self.settings.idle_status_every_s)
-        return max(1, math.ceil(idle * dt / self.settings.idle_status_every_s))
-
-    def _send_status(self, r: Responder, now: float, current: list[str]) -> None:
-        st = self.status_of(r, now, current)  # built only when sent: a crowd of silent ids is cheap
-        self._out.append(Outbound(wire.key(self.id, r.id, "status"), st))
-        r.last_status, r.last_alarms = now, st.alarms
+                self.rejects.error(f"while releasing the held frames of {r.id}", now)
+        self.frames.run_dirty()
+        self.status.due(self.roster, now, lambda what: self.rejects.error(what, now))
+        return self.outbox.take()
 
     def admit(self, kind: str, key: str, size: int, now: float) -> str | None:
         """May a message (of ``size`` bytes, on ``key``) enter? None, or the reason it may not
@@ -218,59 +213,26 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         if kind == "op":  # an operator's action: its actor is no responder; operators share one budget
             reason, source = self.intake.admit_shared(OPERATORS, size, now), OPERATORS
         else:
-            reason, source = self.intake.admit(key, size, now, self.responders)
+            reason, source = self.intake.admit(key, size, now, self.roster.responders)
         if reason is not None:
             self.reject_log.note(source, reason, f"{kind} of {size} bytes on {key[:120]!r}", now)
-            r = self.responders.get(source)
+            r = self.roster.changing(source) if reason == "oversize" else None
             if reason == "oversize" and (r is not None or source in self.intake.sources):
                 # a bad message like any other: the burst alarm hears of it (an id with no Responder
                 # yet, a newcomer, passes it on when one is made)
-                if r is not None:
-                    self._touch(r)
-                    r.rejects.append(now)
-                else:
-                    self._newcomer(source, now).rejects.append(now)
+                (r if r is not None else self.roster.newcomer(source, now)).rejects.append(now)
                 self.intake.note_reject(source, now, kind)
         return reason
 
     # ------------------------------------------------------------------ queries
-    def _alarms_now(self, r: Responder, now: float) -> list[str]:
-        """The responder's alarms at ``now``; each one's start is kept in ``r.alarm_since``."""
-        current = alarms.of_responder(r, now, self.settings, self.recording_failed,
-                                      flooding=self.intake.flooding(r.id, now))
-        for kind in [k for k in r.alarm_since if k not in current]:
-            del r.alarm_since[kind]
-        for kind in current:
-            r.alarm_since.setdefault(kind, now)
-        return current
-
     def status_of(self, r: Responder, now: float, current: list[str] | None = None) -> wire.Status:
         """The responder's Status at ``now`` (``current``: its alarms, when already judged at ``now``)."""
-        heard = r.gate.last_heard if r.gate.last_heard is not None else r.first_heard
-        motion, since = r.tracker.motion
-        rejected = dict(r.gate.counts)
-        tr = r.tracker
-        if current is None:
-            current = self._alarms_now(r, now)
-        for reasons in (r.fixes_rejected, tr.fix_rejects, {"unused": tr.fixes_unused}):
-            for reason, n in reasons.items():
-                if n:
-                    rejected[f"fix_{reason}"] = rejected.get(f"fix_{reason}", 0) + n
-        for reason, n in self.intake.dropped_of(r.id).items():
-            rejected[reason] = rejected.get(reason, 0) + n
-        g = r.gate
-        return wire.Status(
-            responder=r.id, t=tr.device_time - r.t_offset, motion=motion.value, motion_since=since - r.t_offset,
-            alarms=current, alarms_since={k: r.alarm_since[k] for k in current}, rejected=rejected,
-            frames=g.accepted, gaps=g.gaps, last_heard=heard, steps=tr.steps,
-            fixes={"applied": tr.fixes_applied, "queued": tr.fixes_queued,
-                   **({"flagged": r.fixes_flagged} if r.fixes_flagged else {}),
-                   **({"degraded": tr.degraded} if getattr(tr, "degraded", 0) else {})}, utc_offset=r.utc_offset,
-            beacons_heard={b: t - r.t_offset for b, t in getattr(r, "beacons_heard", {}).items()},
-            last_fix=tr.last_fix, first_heard=r.first_heard, commands={a: dict(o) for a, o in r.commands.items()},
-            lost=g.lost, gap_s=g.gap_s, streams=g.streams, device=g.device, boot=g.boot, seq=g.last_seq,
-            missing=None if g.missing is None else list(g.missing),
-        )
+        return self.status.status_of(r, now, current)
+
+    def pose_message(self, r: Responder, p: PoseEstimate) -> wire.Pose:
+        """The wire form of one pose (``published_at`` the core's time; the shell restamps it)."""
+        lat, lon = self.outbox.geodetic(np.array([p.x], float), np.array([p.y], float))
+        return pose_message(r, p, float(lat[0]), float(lon[0]), max(r.seq, 0), self.clock.now, r.utc_offset)
 
     def flooding_sources(self, now: float) -> list[str]:
         """Sources throttled within the flood alarm's time: responder ids, ``<bad key>``, ``<new ids>``."""
@@ -279,7 +241,7 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
     def track(self, rid: str) -> dict | None:
         """The responder's track so far as columns (``t, x, y, floor, heading``) and whether it
         is the smoothed one; None for an unknown responder."""
-        r = self.responders.get(rid)
+        r = self.roster.get(rid)
         if r is None:
             return None
         sm = r.tracker.smoothed_track()
@@ -295,10 +257,10 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         out: dict[str, int] = dict(self.unattributed)
         for reason, n in self.intake.counts.items():
             out[reason] = out.get(reason, 0) + n
-        for nc in self._newcomers.values():
+        for nc in self.roster.newcomers.values():
             for reason, n in [*nc.frames.items(), *((f"fix_{k}", v) for k, v in nc.fixes.items())]:
                 out[reason] = out.get(reason, 0) + n
-        for r in self.responders.values():
+        for r in self.roster:
             for reason, n in r.gate.counts.items():
                 out[reason] = out.get(reason, 0) + n
             out["lost"] = out.get("lost", 0) + r.gate.lost
@@ -307,66 +269,60 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
 
     # ------------------------------------------------------------------ per message
     def _take(self, item: Inbound) -> None:
+        """One message: its key parsed (once, here), then to the part that takes its kind."""
         kind, key, payload, now = item
-        self._now = now
+        self.clock.now = now
         self.intake.in_hand = kind  # a reject of this message is charged to its lane (service.core.intake)
-        if now - self._expiry_checked >= 1.0 or now < self._expiry_checked:
+        if now - self.expiry_checked >= 1.0 or now < self.expiry_checked:
             self._expire(now)
         if kind in self.counters.received:
             self.counters.received[kind] += 1
-        if kind == "imu":
-            self._on_imu(key, payload, now)
-        elif kind == "fix":
-            self._on_fix(key, payload, now)
-        elif kind == "presence":
-            self._on_presence(key, payload)
-        elif kind in ("command", "ack"):
-            self._on_command(kind, key, payload, now)
-        elif kind == "op":
-            self._on_op(key, payload, now)
-        elif kind == "access":
-            self._on_access(payload)
-        else:
+        if kind not in INBOUND_KINDS:
             raise ValueError(f"unknown inbound kind {kind!r}; expected one of {INBOUND_KINDS}")
-
-    def _source_of(self, key: str, now: float, reason_on_fail: str) -> tuple[str | None, Responder | None]:
-        """The id ``key`` names and its responder; the responder is None for a newcomer (an id
-        none of whose messages has decoded yet: the responder is made once one does),
-        the id None for a key the core refuses (unparsable, revoked)."""
+        if kind == "access":
+            self.desk.access_policy(payload)
+            return
         try:
             _, rid, _ = wire.parse_key(key)
         except ValueError as e:
-            self.unattributed[reason_on_fail] = self.unattributed.get(reason_on_fail, 0) + 1
-            self.reject_log.note("<bad key>", reason_on_fail, str(e), now)
-            return None, None
-        if rid in self._revoked:
-            self._refuse_revoked(rid, key)
-            return None, None
-        r = self.responders.get(rid)
-        if r is None:
-            if self.intake.in_hand != "fix":  # a fix for nobody keeps no state (see _decode_for)
-                self._newcomer(rid, now).last_input = now
-            return rid, None
-        self._touch(r)
-        r.last_input = now
-        return rid, r
+            self._bad_key(kind, key, e, now)
+            return
+        if kind in ("imu", "fix"):
+            self._from_wearable(kind, rid, key, payload, now)
+        elif kind == "presence":
+            self.desk.presence(rid, key, payload)
+        elif kind in ("command", "ack"):
+            self.desk.command(kind, rid, key, payload)
+        else:
+            self.desk.action(rid, payload, now)
 
-    def _newcomer(self, rid: str, now: float) -> Newcomer:
-        n = self._newcomers.get(rid)
-        if n is None:
-            if len(self._newcomers) >= self.MAX_NEWCOMERS:  # fed past an intake (reprocess): the oldest goes
-                self._forget_newcomer(next(iter(self._newcomers)))
-            n = self._newcomers[rid] = Newcomer(first_heard=now, last_input=now)
-        return n
+    def _bad_key(self, kind: str, key: str, e: ValueError, now: float) -> None:
+        if kind in ("imu", "fix"):
+            self.rejects.count("bad_key")
+            self.reject_log.note("<bad key>", "bad_key", str(e), now)
+        elif kind in ("command", "ack"):
+            self.desk.invalid(kind, key, e)
+        elif kind == "op":
+            self.rejects.count("bad_key")
+            log.warning("rejected an action on %r: %s", key, e)
 
-    def _forget_newcomer(self, rid: str) -> None:
-        n = self._newcomers.pop(rid)
-        self.intake.forget(rid)
-        self.counters.newcomers_forgotten += 1
-        for reason, k in n.frames.items():  # still in the incident's accounting
-            self.unattributed[f"newcomer_{reason}"] = self.unattributed.get(f"newcomer_{reason}", 0) + k
-        for reason, k in n.fixes.items():
-            self.unattributed[f"newcomer_fix_{reason}"] = self.unattributed.get(f"newcomer_fix_{reason}", 0) + k
+    def _from_wearable(self, kind: str, rid: str, key: str, payload: bytes, now: float) -> None:
+        """A frame or a fix for ``rid``: decoded; a frame through the gate, a fix to the fix desk."""
+        if self.desk.refuses(rid, key):
+            return
+        r = self.roster.changing(rid)
+        if r is not None:
+            r.last_input = now
+        elif kind != "fix":  # a fix for nobody keeps no state (see _decode_for)
+            self.roster.newcomer(rid, now).last_input = now
+        expect = wire.ImuBatch if kind == "imu" else wire.Fix
+        msg, r = self._decode_for(rid, r, payload, expect, now)
+        if msg is None:
+            return
+        if kind == "fix":
+            self.fixes.device_fix(r, msg, now)
+        elif self.frames.offer(r, msg, now):  # a gap in front of held frames: its Status asks for it now
+            self.status.send(r, now)
 
     def _decode_for(self, rid: str, r: Responder | None, payload: bytes, expect, now: float):
         """``payload`` decoded as ``expect`` (``wire.ImuBatch`` or ``wire.Fix``) for ``rid``, and its
@@ -381,70 +337,55 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
                 raise wire.WireError("schema", f"responder {msg.responder!r} in a {what} on the key of {rid!r}")
         except wire.WireError as e:
             if r is None and not frames:  # a bad fix for nobody: counted for the incident, no state made
-                self._unattributed(f"fix_{e.reason}", rid, e.detail, now)
-                return None, None
-            if r is None:  # a newcomer: no responder is made for a message that is none of its
-                self._newcomer_reject(rid, "frames" if frames else "fixes", e.reason, e.detail, now)
+                self.rejects.unknown(f"fix_{e.reason}", rid, e.detail, now)
+            elif r is None:  # a newcomer: no responder is made for a message that is none of its
+                self.rejects.newcomer(self.roster.newcomer(rid, now), rid, "frames", e.reason, e.detail, now)
             elif frames:
-                self._reject(r, e.reason, e.detail, now)
+                self.rejects.frame(r, e.reason, e.detail, now)
             else:
-                self._count_fix_reject(r, e.reason, e.detail)
+                self.rejects.fix(r, e.reason, e.detail, now)
             return None, None
         if r is None and not frames:  # fixes make no responder: only a wearable's frames do (issue 32)
-            self._hold_fix(rid, msg, now)
+            self.fixes.hold(rid, msg, now)
             return None, None
         return msg, (r if r is not None else self._new_responder(rid, now))
 
-    def _newcomer_reject(self, rid: str, counts: str, reason: str, detail: str, now: float) -> None:
-        """A newcomer's message that did not decode: counted by reason (``counts``: ``frames`` or
-        ``fixes``), heard by its budget and the burst alarm, logged like a responder's."""
-        n = self._newcomer(rid, now)
-        book = getattr(n, counts)
-        book[reason] = book.get(reason, 0) + 1
-        if reason != "duplicate":
-            n.rejects.append(now)
-            self.intake.note_reject(rid, now, "imu" if counts == "frames" else "fix")
-        self.reject_log.note(rid, reason if counts == "frames" else f"fix_{reason}", detail, now)
-
     def _new_responder(self, rid: str, now: float) -> Responder:
         s = self.settings
-        n = self._newcomers.pop(rid, None)
+        n = self.roster.newcomers.pop(rid, None)
         r = Responder(id=rid, gate=FrameGate(reorder_window=s.reorder_window), tracker=self._tracker(rid),
-                      first_heard=now if n is None else n.first_heard, present=self._presence.pop(rid, None),
+                      first_heard=now if n is None else n.first_heard, present=self.roster.presence.pop(rid, None),
                       last_input=now)
         if n is not None:  # what it sent before this is counted as the responder's
             r.rejects.extend(n.rejects)
             r.gate.add_counts(n.frames)
             r.fixes_rejected.update(n.fixes)
-        self.responders[rid] = r
-        self._touch(r)
+        self.roster.add(r)
         log.info("responder %s appeared", rid)
-        if self._held_fixes:
-            self._take_held_fixes(r, now)
+        if self.fixes.held:
+            self.fixes.take_held(r, now)
         return r
 
     def _expire(self, now: float) -> None:
         """Responders silent for ``expire_after_s`` (``expire_unplaced_s`` if no frame of theirs
         was ever released) leave: their memory goes, their track stays in the recording."""
-        self._expiry_checked = now
-        if self._held_fixes:
-            self._expire_held_fixes(now)
+        self.expiry_checked = now
+        if self.fixes.held:
+            self.fixes.expire_held(now)
         s = self.settings
-        for rid in [rid for rid, n in self._newcomers.items() if now - n.last_input > s.expire_unplaced_s]:
-            self._forget_newcomer(rid)
-        for rid, r in list(self.responders.items()):
+        self.roster.expire_newcomers(now, s.expire_unplaced_s)
+        for r in self.roster:
             limit = s.expire_after_s if r.gate.accepted else s.expire_unplaced_s
             if now - r.last_input > limit and now - r.first_heard > limit:
-                del self.responders[rid]
-                self._dirty.pop(rid, None)
-                self._blobs.pop(rid, None)
-                self.intake.forget(rid)
+                self.roster.remove(r.id)
+                self.frames.dirty.pop(r.id, None)
+                self.intake.forget(r.id)
                 r.tracker.release_model()  # e.g. its columnar slot goes to the next responder
                 self.counters.expired += 1
                 # a responder that walked is news; an id that never did is one of a crowd (a flood of ids)
                 (log.warning if r.tracker.steps else log.info)(
                     "%s left the incident after %.0f s of silence (%d steps, %d poses; its track is in the recording)",
-                    rid, now - max(r.last_input, r.first_heard), r.tracker.steps, r.poses)
+                    r.id, now - max(r.last_input, r.first_heard), r.tracker.steps, r.poses)
 
     def _tracker(self, rid: str) -> ResponderTracker:
         """A fresh tracker; not yet placed, it starts at the incident origin with a wide σ
@@ -455,37 +396,24 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         return ResponderTracker(rid, FloorElevations(cfg.elevations()), cfg.start_floor, s.tracker, entry=entry,
                                 fleet=self.fleet)
 
-    MAX_PRESENCE = 4096  # liveliness states kept for ids with no responder (beyond, the oldest go)
-    MAX_NEWCOMERS = 4096  # newcomers kept (the intake admits fewer; a core fed past an intake is bounded too)
-
-
-    def _reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
-        """A frame turned away before the gate saw it: counted there like the gate's own."""
-        r.gate.count(reason, detail, now)
-        self._note_reject(r, reason, detail, now)
-
-    def _note_reject(self, r: Responder, reason: str, detail: str, now: float) -> None:
-        """Every reject feeds the burst alarm and the source's budget (a duplicate, which
-        retransmission makes, does neither; frames of a contested stream feed the alarm only:
-        the budget of the key is the real stream's too); the log gets a few lines per window."""
-        if reason != "duplicate":
-            r.rejects.append(now)
-            if reason not in ("other_stream", "old_stream"):
-                self.intake.note_reject(r.id, now, "imu")
-        self.reject_log.note(r.id, reason, detail, now)
-
-    def _error(self, what: str) -> None:
-        """An exception while processing: counted; logged with its traceback a few times per window."""
-        self.counters.errors += 1
-        self.reject_log.note("<errors>", "exception", what, self._now, level=logging.ERROR, exc_info=True)
-
-
-    # ------------------------------------------------------------------ who may do what
-
-
-    # ------------------------------------------------------------------ outputs
-
-
     # ------------------------------------------------------------------ snapshots
+    def snapshot(self) -> bytes:
+        """The core's state as bytes (between rounds): every responder (gate, motion model,
+        estimator, counters), the intake's budgets and the counters. Not the incident config or
+        the settings: :meth:`restore` takes those from the caller. A responder that has not
+        changed since the last snapshot is not pickled again (:mod:`service.core.core_snapshot`)."""
+        return core_snapshot.dump(self)
 
+    def prepare_snapshot(self, limit: int) -> int:
+        """Pickle (and keep) up to ``limit`` of the responders the next snapshot would pickle
+        afresh; returns how many are left (the shell spreads a crowd's pickling over rounds)."""
+        return self.roster.prepare(limit, self.frames.dirty, lambda: core_snapshot.shared_refs(self))
 
+    def responder_blob(self, r: Responder) -> bytes:
+        """``r``'s own pickle as a snapshot would hold it now (its Status bookkeeping aside)."""
+        return self.roster.blob_of(r, core_snapshot.shared_refs(self))
+
+    @classmethod
+    def restore(cls, blob: bytes, incident: IncidentConfig, settings: CoreSettings | None = None) -> Self:
+        """A core that goes on from :meth:`snapshot`'s bytes (taken by a core of the same incident)."""
+        return core_snapshot.load(cls(incident, settings), blob)

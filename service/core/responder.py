@@ -41,6 +41,7 @@ class Responder:
     last_alarms: list = field(default_factory=list)  # the alarms it carried
     alarm_since: dict = field(default_factory=dict)  # alarm -> the service time it began (as ticks saw it)
     commands: dict = field(default_factory=dict)
+    ok_at: float = -math.inf  # s, track clock: the wearer's latest answer "I'm OK" to the man-down prompt
     early_acks: dict = field(default_factory=dict)  # (action, id) -> ack time, for an order not yet arrived  # action -> the newest order: id, issued_at, issued_by, acked_at
     logged: deque = field(default_factory=lambda: deque(maxlen=64))
     last_checkpoint: object | None = None  # service.core.plausibility.Reference of the last checkpoint fix taken

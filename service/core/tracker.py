@@ -71,6 +71,11 @@ def tracker_settings_for(incident, engine: str = "fusion") -> TrackerSettings:
 
 
 class ResponderTracker:
+    # restarts counted before the current estimator (class defaults: a tracker pickled before
+    # these were kept reads as none)
+    _degraded_before: int = 0
+    _degraded_at_before: float = math.nan
+
     def __init__(self, responder: str, floors: FloorElevations, start_floor: int = 0,
                  settings: TrackerSettings | None = None, entry: CheckpointFix | None = None,
                  carry: str = DEFAULT_CARRY, fleet=None):
@@ -139,6 +144,11 @@ class ResponderTracker:
         m = self.model
         since = m.state_since if math.isfinite(m.state_since) else self.device_time
         return m.state, since
+
+    @property
+    def motionless_since(self) -> float:
+        """s, device time the motion model last saw motion (NaN for a model that does not say)."""
+        return getattr(self.model, "motionless_since", math.nan)
 
     @property
     def device_time(self) -> float:

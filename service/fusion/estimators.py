@@ -289,9 +289,9 @@ class FusionEstimator:
             out[k] = np.concatenate([out[k], extra[:, i].astype(out[k].dtype)])
         return out
 
-    def _pose(self, fp) -> PoseEstimate:
-        return PoseEstimate(fp.t, fp.x, fp.y, fp.heading, np.asarray(fp.cov), fp.floor, self._steps, fp.source,
-                            getattr(fp, "heading_sigma", math.nan))
+    def _pose(self, fp: PoseEstimate) -> PoseEstimate:
+        """The graph's pose with the steps this estimator has taken (the graph counts its own)."""
+        return dataclasses.replace(fp, steps=self._steps)
 
 
 _NO_COV = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)

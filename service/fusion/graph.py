@@ -62,7 +62,7 @@ import gtsam
 import numpy as np
 
 from pdr.angles import wrap
-from pdr.events import StepEvent
+from pdr.events import PoseEstimate, StepEvent
 from service.fusion.fix_timing import slip, step_share
 from service.fusion.fixes import FixContext
 from service.fusion.heading_evidence import HeadingEvidence
@@ -318,7 +318,7 @@ class TrackFusion:
             self._scale = float(self._smoother.calculateEstimateDouble(S(self._scale_n)))
         if how == "step":
             self._heading.refresh(self._smoother)
-        self._live = FusedPose(
+        self._live = PoseEstimate(
             t=float(self._hist.col("t")[row]), index=int(self._hist.col("index")[row]),
             x=float(shown[0]), y=float(shown[1]),
             heading=wrap(pose.theta()), cov=enu_covariance(pose, marginal),

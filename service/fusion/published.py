@@ -1,4 +1,5 @@
-"""What the fusion publishes: the fused pose, the decisions it made, and the display filter.
+"""What the fusion publishes: the fused pose (a :class:`pdr.events.PoseEstimate`), the decisions it
+made, and the display filter.
 
 **Display filter.** The live pose moves by each step and closes a share ``display_gain`` of the
 gap to the graph's estimate per step (a complementary filter: the step's motion now, the
@@ -12,38 +13,17 @@ estimate itself. The smoothed track is the graph's own.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from pdr.events import bearing_deg
+from pdr.events import PoseEstimate
 
 
-@dataclass(frozen=True)
-class FusedPose:
-    """The fused estimate of one pose as published: immutable (``cov`` is read-only)."""
-
-    t: float  # s, device clock of the step (or of start())
-    index: int  # StepEvent.index of the step that made this pose (0: the start pose)
-    x: float  # m, ENU east
-    y: float  # m, ENU north
-    heading: float  # rad, ENU yaw of travel (CCW from East)
-    cov: np.ndarray  # (2, 2) m², marginal covariance of (x, y) in ENU
-    floor: int
-    steps: int  # steps fused so far
-    source: str  # "pdr" before any accepted fix, "fused" after
-    heading_sigma: float = math.nan  # rad, marginal 1-sigma of the heading
-    length_scale: float = math.nan  # estimated factor on the PDR's step length (NaN: not estimated)
-
-    @property
-    def bearing_deg(self) -> float:
-        return bearing_deg(self.heading)
-
-    @property
-    def position_sigma(self) -> float:
-        """m, square root of the larger eigenvalue of ``cov`` (the worst direction)."""
-        return float(math.sqrt(max(np.linalg.eigvalsh(self.cov)[-1], 0.0)))
+# The fused pose is the one pose type of the whole path (:class:`pdr.events.PoseEstimate`,
+# with its ``index`` and ``length_scale``); the old name stays for readers of it, and for
+# snapshots that name it.
+FusedPose = PoseEstimate
 
 
 @dataclass(frozen=True)

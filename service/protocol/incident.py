@@ -233,10 +233,10 @@ class IncidentConfig(_Config):
             problems.append(f"start_floor: floor {self.start_floor} is not configured; floors: {sorted(numbers)}")
         problems += _duplicates("checkpoints", "name", self.checkpoints)
         for i, cp in enumerate(self.checkpoints):
-            problems += [f"checkpoints[{i}].{p}" for p in self._resolve_checkpoint(cp)]
+            problems += [f"checkpoints[{i}].{p}" for p in self.resolve_point(cp)]
         problems += _duplicates("beacons", "id", self.beacons)
         for i, b in enumerate(self.beacons):
-            problems += [f"beacons[{i}].{p}" for p in self._resolve_checkpoint(b)]
+            problems += [f"beacons[{i}].{p}" for p in self.resolve_point(b)]
         problems += _duplicates("uwb_anchors", "id", self.uwb_anchors)
         for i, a in enumerate(self.uwb_anchors):
             if not self.within_extent(a.x, a.y):
@@ -272,7 +272,7 @@ class IncidentConfig(_Config):
                                 f"{fa.elevation_m} m of floor {fa.number} (elevations must rise with the number)")
         self.floors = [self.floors[i] for i in order]
 
-    def _resolve_checkpoint(self, cp: Checkpoint | Beacon) -> list[str]:
+    def resolve_point(self, cp: Checkpoint | Beacon) -> list[str]:
         """A point's floor checked, and its x, y and lat, lon both filled (checkpoints, beacons)."""
         problems = []
         if cp.floor not in {f.number for f in self.floors}:
@@ -335,7 +335,7 @@ class IncidentConfig(_Config):
                        note: str | None = None, replace: bool = False) -> Checkpoint:
         """Add (or with ``replace`` overwrite) a checkpoint; positions as in the config file."""
         cp = Checkpoint(name=name, floor=floor, x=x, y=y, lat=lat, lon=lon, sigma_m=sigma_m, note=note)
-        problems = self._resolve_checkpoint(cp)
+        problems = self.resolve_point(cp)
         if problems:
             raise ValueError(f"checkpoint {name!r}: " + "; ".join(problems))
         existing = [i for i, c in enumerate(self.checkpoints) if c.name == name]

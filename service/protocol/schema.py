@@ -344,6 +344,10 @@ class Status(WireMessage):
                                                          "responder (time in the building counts from here)")
     commands: dict[str, dict] = Field(default_factory=dict, description="per action (par, evacuate): the newest "
                                       "order's id, when it was issued (UTC s) and when it was acknowledged (or null)")
+    man_down_at: Finite | None = Field(None, description="s, device clock: when man-down is (or will be) raised, "
+                                       "present from the pre-alarm on (a phone asks its wearer then)")
+    ok_at: Finite | None = Field(None, description="s, device clock: the wearer's latest answer \"I'm OK\" to the "
+                                 "man-down prompt")
 
 
 class Command(WireMessage):
@@ -364,13 +368,26 @@ class Command(WireMessage):
 
 
 class Ack(WireMessage):
-    """A wearable's acknowledgement of a :class:`Command` (wearable -> service, ``.../ack``)."""
+    """A wearable's acknowledgement of a :class:`Command` (wearable -> service, ``.../ack``),
+    or with ``action="ok"`` the wearer's answer "I'm OK" to the man-down prompt
+    (``Status.man_down_at``): no order, ``t`` on the device clock, and the service's
+    no-motion clock starts again from it (:mod:`service.core.alarms`)."""
 
     KIND: ClassVar[str] = "ack"
     responder: Id
-    id: str = Field(min_length=1, max_length=64, description="the id of the order acknowledged")
-    action: Literal["par", "evacuate"] = Field(description="the kind of the command answered")
+    id: str = Field(min_length=1, max_length=64, description="the id of the order acknowledged (ok: the wearable's "
+                                                             "name for the prompt answered)")
+    action: Literal["par", "evacuate", "ok"] = Field(description="the kind of the command answered; ok: the man-down "
+                                                                 "prompt")
     at: Finite = Field(description="s, Unix time UTC when the wearer acknowledged")
+    t: Finite | None = Field(None, description="s, device clock (the frames' clock) when the wearer answered; "
+                                               "required with ok")
+
+    @model_validator(mode="after")
+    def _ok_has_t(self) -> Ack:
+        if self.action == "ok" and self.t is None:
+            raise PydanticCustomError("schema", "t: an answer to the man-down prompt (ok) says when, on the device clock")
+        return self
 
 
 MESSAGE_TYPES: dict[str, type[WireMessage]] = {m.KIND: m for m in (ImuBatch, Fix, Pose, Status, Command, Ack)}

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.core import alarms
 from service.core.incident_core import INBOUND_KINDS
 from service.protocol import wire
 from service.review.incident_events import review_events
@@ -89,9 +90,11 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         if p.utc is not None:
             r.utc_offset = p.utc - p.t  # the offset the service used for this pose
         r.steps = max(r.steps, p.steps)
+    answers = {}
     for rid, resp in core.responders.items():
         r = out.setdefault(rid, ResponderReview())
         r.steps = max(r.steps, resp.tracker.steps)
+        answers[rid] = _answers(resp)
     worst = None
     for rid, r in out.items():
         r.poses = len(r.xy)
@@ -114,7 +117,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         "responders": {rid: {"steps": r.steps, "distance_live_m": r.distance_m,
                              "distance_smoothed_m": _walked(tracks.get(rid)), "poses": r.poses,
                              "recorded_poses": r.recorded_poses, "max_deviation_m": r.max_deviation_m,
-                             "unmatched_live_poses": r.unmatched}
+                             "unmatched_live_poses": r.unmatched, **answers.get(rid, {})}
                        for rid, r in sorted(out.items())},
         "max_deviation_m": worst,
         "audits": [o.message.model_dump() for o in published if isinstance(o.message, wire.Audit)],  # who did what
@@ -129,6 +132,17 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         # where the recording is cut or corrupt (chunk CRCs are checked): what lay there was not reprocessed
         "damage": [{"file": f, "offset": off, "problem": what} for f, off, what in replay.damage],
     }
+
+
+def _answers(r) -> dict:
+    """What the responder was asked and answered, as the reprocessed core ends: the newest order
+    of each action with its acknowledgement (UTC s, the wearable's), the wearer's latest "I'm
+    OK" to the man-down prompt and the man-down verdict at the last sample (device clock of the
+    current stream): the same as the last live Status when the recording is whole."""
+    verdict, at = alarms.man_down(r)
+    return {"commands": {a: dict(o) for a, o in r.commands.items()},
+            "ok_at": r.ok_at - r.t_offset if math.isfinite(r.ok_at) else None,
+            "man_down": verdict, "man_down_at": None if at is None else at - r.t_offset}
 
 
 def _compare(live: list, mine: list) -> tuple[float, int]:

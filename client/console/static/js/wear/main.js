@@ -2,6 +2,7 @@
    Everything the page does is in window.__wear for the tests and for a curious officer. */
 import {FrameCutter} from "./motion.js";
 import {Link} from "./link.js";
+import {ManDownPrompt} from "./prompt.js";
 import {ScreenLock, startMotion, watchPosition} from "./sensors.js";
 
 const $ = (id) => document.getElementById(id);
@@ -15,12 +16,12 @@ const W = window.__wear = {
   ready: false, tracking: false, responder: localStorage.getItem(STORE + "responder"),
   token: localStorage.getItem(STORE + "token"), carry: localStorage.getItem(STORE + "carry") || "hand",
   samples: 0, frames: 0, gaps: [], fixes: 0, orders: [], acks: 0, state: null, problems: [],
-  link: null, api: null,
+  link: null, api: null, prompt: null,
 };
 const device = localStorage.getItem(STORE + "device") || `phone-${hex(6)}`;
 localStorage.setItem(STORE + "device", device);
 const boot = hex(8);  // this start of the page: one stream of seq numbers
-const cutter = new FrameCutter();
+const cutter = W.cutter = new FrameCutter();
 const screen = new ScreenLock();
 let motion = null, stopFix = null, flushTimer = null, lastSampleT = null, hiddenAt = null;
 
@@ -67,6 +68,7 @@ function linkEvent(type, m) {
     $("sigma").textContent = m.sigma_m == null ? "—" : `${m.sigma_m.toFixed(1)} m`;
     $("steps").textContent = String(m.steps);
     if (W.tracking && W.link.ready) setLink(m.heard ? "CONNECTED · HEARD" : "CONNECTED · NO SERVICE", m.heard ? "ok" : "wait");
+    W.prompt.update(m);
   } else if (type === "command") order(m);
   if (type === "welcome") for (const c of m.commands || []) order({type: "command", ...c});
   render();
@@ -183,8 +185,13 @@ $("order-ack").addEventListener("click", () => {
   const open = W.orders.find((x) => x.acked_at == null);
   if (open) { showOrder(open); return; }
   $("order").hidden = true;
-  if (beeper) { beeper.stop(); beeper = null; }
+  if (beeper && $("prompt").hidden) { beeper.stop(); beeper = null; }
 });
+
+W.prompt = new ManDownPrompt({box: $("prompt"), title: $("prompt-title"), count: $("prompt-count"), ok: $("prompt-ok")},
+                              (msg) => W.link != null && W.link.send(msg),
+                              {alert: () => { if (navigator.vibrate) navigator.vibrate([600, 200, 600]); beeper = beeper || alarmSound(); },
+                               quiet: () => { if (beeper && $("order").hidden) { beeper.stop(); beeper = null; } }});
 
 // ---------------------------------------------------------------- battery, controls, boot
 async function battery() {

@@ -21,11 +21,21 @@
    Time. Every sample is stamped with its event's time on the page's one monotonic clock
    (performance.now() / Event.timeStamp / Sensor.timestamp, ms since the page's time origin),
    in seconds. A sample that does not come after the previous one is dropped and counted:
-   the wire wants strictly increasing times. */
+   the wire wants strictly increasing times.
+
+   Bunched events. A page that was busy (a long task, a garbage collection; a browser that
+   queues sensor events rather than coalescing them) gets the events it missed in one burst,
+   stamped when they are handled, a fraction of a millisecond apart. The service judges a
+   frame's rate by the median interval of its samples (at most 2 kHz: service/protocol/schema.py),
+   so a burst that fills half a frame would have the whole frame refused. A sample that comes
+   less than MIN_INTERVAL_S after the previous one kept is dropped and counted (`bunched`):
+   MIN_INTERVAL_S is half the interval of the fastest browser rate (200 Hz), so no sample of a
+   steady stream is ever dropped, and the kept ones are never closer than 400 Hz. */
 
 export const DEG = Math.PI / 180;
 export const FRAME_S = 0.1;  // s of samples per wire frame (10 frames a second, like the replay)
 export const MAX_FRAME_SAMPLES = 64;  // a frame closes at this many samples whatever their span
+export const MIN_INTERVAL_S = 0.0025;  // s: a sample closer to the previous one is a bunched event, dropped
 export const MAX_INTERVAL_S = 0.2;  // s: samples further apart go in separate frames (the wire's slowest rate is 5 Hz)
 
 /** A DeviceMotionEvent's reading in SI units and the body frame, or null when it has none. */
@@ -61,15 +71,18 @@ export class SampleJoiner {
    flush() the frame in progress (a timer calls it when the sensors go quiet). A frame is
    {t, acc, gyr, mag|null}: mag only when every sample of the frame has one. */
 export class FrameCutter {
-  constructor(frameS = FRAME_S) {
+  constructor(frameS = FRAME_S, minIntervalS = MIN_INTERVAL_S) {
     this.frameS = frameS;
+    this.minIntervalS = minIntervalS;
     this.lastT = -Infinity;
     this.dropped = 0;  // samples not after their predecessor
+    this.bunched = 0;  // samples less than MIN_INTERVAL_S after their predecessor (a burst of late events)
     this.samples = [];
   }
 
   push(s) {
     if (!(s.t > this.lastT) || ![...s.acc, ...s.gyr].every(Number.isFinite)) { this.dropped++; return null; }
+    if (s.t - this.lastT < this.minIntervalS) { this.bunched++; return null; }
     const apart = this.samples.length && s.t - this.lastT > MAX_INTERVAL_S;
     const done = apart ? this.flush() : null;  // a pause in the sensors ends the frame before it
     this.lastT = s.t;
