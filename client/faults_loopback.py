@@ -111,16 +111,17 @@ def walker_frames(responder: str, seconds: float, seed: int, t0: float = 1000.0,
 
 class WalkerWearable:
     """Frames published by a :class:`client.wearable.Wearable` on its own zenoh session at
-    ``speed`` times real time, in a thread. ``sent_at[seq]`` is when frame ``seq`` left."""
+    ``speed`` times real time, in a thread. ``sent_at[seq]`` is when frame ``seq`` left; with
+    ``tls`` (a :class:`~service.protocol.tls.TlsIdentity`) over mutual TLS as that identity."""
 
     def __init__(self, endpoint: str, incident: str, responder: str, frames: list, speed: float = 1.0,
-                 boot: str | None = None, zenoh_keep: bool = True):
+                 boot: str | None = None, zenoh_keep: bool = True, tls=None):
         self.responder, self.frames, self.speed = responder, frames, speed
         self.sent_at: dict[int, float] = {}
         self.report: dict | None = None
         self.stop = threading.Event()
         self.done = threading.Event()
-        self.session = zenoh.open(client_config(endpoint))
+        self.session = zenoh.open(client_config(endpoint, tls))
         self.wearable = Wearable(self.session, incident, responder, boot=boot, zenoh_keep=zenoh_keep)
         self._thread = threading.Thread(target=self._run, daemon=True, name=f"walker-{responder}")
 

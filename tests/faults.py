@@ -52,10 +52,23 @@ class RouterProcess:
 
 
 def walker(endpoint: str, responder: str, seed: int = 0, seconds: float = 60.0, speed: float = 1.0,
-           incident: str = "demo", zenoh_keep: bool = True) -> WalkerWearable:
-    """A simulated walker's frames published by a wearable at ``speed`` times real time."""
+           incident: str = "demo", zenoh_keep: bool = True, tls=None) -> WalkerWearable:
+    """A simulated walker's frames published by a wearable at ``speed`` times real time (with
+    ``tls``, a :class:`~service.protocol.tls.TlsIdentity`, over mutual TLS as that identity)."""
     return WalkerWearable(endpoint, incident, responder, walker_frames(responder, seconds, seed), speed,
-                          zenoh_keep=zenoh_keep)
+                          zenoh_keep=zenoh_keep, tls=tls)
+
+
+def shut_down(walkers=(), proxies=(), *others) -> None:
+    """The end of a fault test: the walkers not closed yet (without waiting), the proxies, then
+    each of ``others`` (watchers, services, sessions) in order."""
+    for w in walkers:
+        if w.report is None:
+            w.close(0.0)
+    for p in proxies:
+        p.close()
+    for o in others:
+        o.close()
 
 
 def reference(incident, responder: str, frames) -> tuple[list[wire.Pose], IncidentCore]:

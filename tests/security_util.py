@@ -22,6 +22,7 @@ from service.shell.service import IncidentService, ServiceSettings
 from tests.zenoh_util import free_port
 
 INCIDENT = "demo"  # the default incident's id
+DOOR = default_incident().checkpoints[0].name  # surveyed: with access enforced a wearable places itself only at one
 PASSWORDS = {"alice": "alice-incident-pw", "vic": "vic-incident-pw"}
 
 
@@ -102,14 +103,15 @@ class Tap:
 
 
 @contextlib.contextmanager
-def secure_service(d: Path, settings: ServiceSettings | None = None, recorder=None):
+def secure_service(d: Path, settings: ServiceSettings | None = None, recorder=None, incident=None):
     """A TLS router with the roster's access control (what ``serve --tls`` opens), the service
-    on it as ``svc``, and a tap: (service, endpoint, tap)."""
+    on it as ``svc`` (for ``incident``, default the demo's), and a tap: (service, endpoint, tap)."""
     endpoint = f"tls/127.0.0.1:{free_port()}"
     roster = load_roster(d / "roster.json")
     session = open_session([endpoint], tls=identity(d, "svc"), acl=access_control(roster))
     tap = Tap(session)
-    svc = IncidentService(session, default_incident(), settings or ServiceSettings(warm_up=False), recorder=recorder,
+    svc = IncidentService(session, incident or default_incident(), settings or ServiceSettings(warm_up=False),
+                          recorder=recorder,
                           access=access_message(roster, str(d / "roster.json")), actor="svc").start()
     try:
         yield svc, endpoint, tap

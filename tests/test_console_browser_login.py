@@ -13,6 +13,7 @@ from client.console.server import start_console
 from service.protocol import wire
 from service.protocol.incident import default_incident
 from tests.security_util import (
+    DOOR,
     INCIDENT,
     PASSWORDS,
     identity,
@@ -66,7 +67,7 @@ def secured(tmp_path):
                 if i == 40:
                     wait_until(lambda: svc.received["imu"] == 41, 10)
                     put_routed(ff1, wire.key(INCIDENT, "ff1", "fix"), wire.encode(
-                        wire.Fix.checkpoint("ff1", float(b.t[-1]), x=0.0, y=0.0, floor=0, sigma=0.5)))
+                        wire.Fix.checkpoint("ff1", float(b.t[-1]), name=DOOR)))  # a device names a surveyed checkpoint
                 time.sleep(0.05)
         walker = threading.Thread(target=walk, daemon=True)
         walker.start()

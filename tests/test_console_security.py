@@ -18,6 +18,7 @@ from service.protocol.incident import default_incident
 from service.review.recorder import IncidentRecorder, read_recording
 from service.review.reprocess import reprocess
 from tests.security_util import (
+    DOOR,
     INCIDENT,
     PASSWORDS,
     identity,
@@ -82,7 +83,7 @@ def secured(tmp_path):
             for b in head:
                 imu.put(wire.encode(b))
             assert wait_until(lambda: svc.received["imu"] == len(head), 10)  # the door fix comes after these
-            door = wire.Fix.checkpoint("ff1", float(head[-1].t[-1]), x=0.0, y=0.0, floor=0, sigma=0.5)
+            door = wire.Fix.checkpoint("ff1", float(head[-1].t[-1]), name=DOOR)  # a device names a surveyed checkpoint
             put_routed(ff1, wire.key(INCIDENT, "ff1", "fix"), wire.encode(door))  # ff1's own: placed at the door
             assert wait_until(lambda: svc.received["fix"] == 1, 10)
             for b in frames[len(head):]:

@@ -29,7 +29,16 @@ from service.protocol import wire
 from service.protocol.incident import default_incident
 from service.protocol.session import client_config, free_local_port, router_config
 from service.shell.service import IncidentService, ServiceSettings
-from tests.faults import RouterProcess, TcpProxy, WalkerWearable, hostile_messages, reference, walker  # noqa: F401
+from tests.faults import (  # noqa: F401
+    RouterProcess,
+    TcpProxy,
+    WalkerWearable,
+    hostile_messages,
+    reference,
+    shut_down,
+    walker,
+)
+from tests.security_util import identity
 from tests.zenoh_util import wait_until
 
 CFG = default_incident()
@@ -42,6 +51,7 @@ class Watch:
         self.poses: dict[str, list] = {}
         self.alarms: dict[str, set] = {}
         self.status: dict[str, wire.Status] = {}
+        self.history: dict[str, list] = {}  # (time received here, Status)
         self._lock = threading.Lock()
         self._subs = [session.declare_subscriber(wire.key_all(CFG.id, k), self._on) for k in ("pose", "status")]
 
@@ -52,6 +62,7 @@ class Watch:
                 self.poses.setdefault(msg.responder, []).append(msg)
             else:
                 self.status[msg.responder] = msg
+                self.history.setdefault(msg.responder, []).append((time.time(), msg))
                 self.alarms.setdefault(msg.responder, set()).update(msg.alarms)
 
     def close(self):
@@ -152,14 +163,7 @@ def test_outages_of_10_and_40_s_and_a_killed_wearable_lose_nothing_silently():
         for p in (killed,):
             if p is not None and p.poll() is None:
                 p.kill()
-        for w in walkers.values():
-            if w.report is None:
-                w.close(0.0)
-        for p in proxies.values():
-            p.close()
-        watch.close()
-        svc.close()
-        session.close()
+        shut_down(walkers.values(), proxies.values(), watch, svc, session)
 
 
 def test_an_outage_zenoh_cannot_fill_is_filled_by_the_wearables_own_resend():
@@ -244,26 +248,38 @@ def test_a_router_restart_of_5_s_loses_nothing_silently():
 # SIGKILL of serve mid-walk, and a restart on the same endpoint and recording
 # --------------------------------------------------------------------------------------
 def test_serve_killed_mid_walk_resumes_the_track_and_reprocess_equals_the_live_poses(tmp_path):
+    serve_killed_and_restarted(tmp_path)
+
+
+def serve_killed_and_restarted(tmp_path, pki=None) -> dict:
+    """A walker on ``firetrack serve`` (with ``pki``: ``serve --tls`` and the walker's own
+    wearable certificate); serve is killed with SIGKILL about 36 s into the walk and started
+    again 2 s later on the same endpoint and recording. Nothing is lost: the live track ends
+    where the uninterrupted run does, the wearable has every frame acknowledged, and
+    ``reprocess`` of the recording gives the live poses."""
     from service.review.recorder import read_recording, segment_paths
     from service.review.reprocess import reprocess
 
-    ep = f"tcp/127.0.0.1:{free_local_port()}"
+    tls = identity(pki, "ff1") if pki is not None else None
+    ep = f"{'tls' if pki is not None else 'tcp'}/127.0.0.1:{free_local_port()}"
     rec = tmp_path / "incident.mcap"
     cmd = [sys.executable, "-m", "client.entry", "serve", "--listen", ep, "--record", str(rec), "--no-console"]
+    if pki is not None:
+        cmd += ["--tls", str(pki / "svc")]
     log = open(tmp_path / "serve.log", "w")
     serve = subprocess.Popen(cmd, stderr=log, stdout=log)
     w = None
     try:
         def up():
             try:
-                s = zenoh.open(client_config(ep))
+                s = zenoh.open(client_config(ep, tls))
             except Exception:
                 return False
             s.close()
             return True
         assert wait_until(up, 60, 0.2)
         time.sleep(1.0)
-        w = walker(ep, "ff1", seed=5, seconds=90.0, speed=3.0).start()
+        w = walker(ep, "ff1", seed=5, seconds=90.0, speed=3.0, tls=tls).start()
         time.sleep(12.0)  # about 36 s of walking, and a few snapshots
         serve.send_signal(signal.SIGKILL)
         serve.wait(10)
@@ -272,7 +288,6 @@ def test_serve_killed_mid_walk_resumes_the_track_and_reprocess_equals_the_live_p
         serve = subprocess.Popen(cmd, stderr=log, stdout=log)
         assert w.done.wait(120)
         report = w.close(30.0)
-        assert report["unacknowledged"] == 0, report
         serve.send_signal(signal.SIGINT)
         assert serve.wait(60) == 0
         ref, ref_core = reference(CFG, "ff1", w.frames)
@@ -281,19 +296,23 @@ def test_serve_killed_mid_walk_resumes_the_track_and_reprocess_equals_the_live_p
         same = [p for p in ref if p.t == last.t]
         rp = reprocess(rec, CFG)
         text = (tmp_path / "serve.log").read_text()
-        f = figure("serve SIGKILL and restart", segments=[p.name for p in segment_paths(rec)],
+        f = figure(f"serve{' --tls' if pki is not None else ''} SIGKILL and restart",
+                   segments=[p.name for p in segment_paths(rec)],
                    resumed="resumed incident" in text, live_steps=last.steps, reference_steps=ref[-1].steps,
                    final_distance_to_uninterrupted_m=round(math.hypot(last.x - same[-1].x, last.y - same[-1].y), 3)
                    if same else None, reprocess_max_deviation_m=rp["max_deviation_m"],
                    unmatched_live_poses=rp["responders"]["ff1"]["unmatched_live_poses"],
-                   resent_on_request=report["resent"],
+                   frames_sent=report["frames_sent"], unacknowledged=report["unacknowledged"],
+                   acked_seq=report["acked_seq"], resent_on_request=report["resent"],
                    s_killed_to_end=round(time.monotonic() - killed_at, 1))
         # on a failure, what the service said of the frames (rejects, gaps, streams, the resume) goes with it
         said = "\n".join(line for line in text.splitlines() if " WARNING " in line or "resum" in line)[-4000:]
+        assert report["unacknowledged"] == 0 and report["flushed"], (report, said)
         assert len(f["segments"]) == 2 and f["resumed"], said
         assert f["live_steps"] == f["reference_steps"], said
         assert same and f["final_distance_to_uninterrupted_m"] < 1.0, said
         assert f["reprocess_max_deviation_m"] == 0.0 and f["unmatched_live_poses"] == 0
+        return f
     finally:
         if serve.poll() is None:
             serve.kill()

@@ -82,8 +82,11 @@ def test_a_device_checkpoint_far_from_the_track_is_flagged_too():
     _placed_walker(core)
     live = core.responders["ff1"].tracker.live
     bad = wire.Fix.checkpoint("ff1", live.t, x=live.x - 90.0, y=live.y, floor=0, sigma=0.5)
-    (a,) = _audits(core.feed_round([Inbound("fix", wire.key(INC, "ff1", "fix"), wire.encode(bad), 0.0)]))
-    assert (a.actor, a.action, a.outcome, a.flags) == ("ff1", "device_fix", "accepted", ["implausible_jump"])
+    held, a = _audits(core.feed_round([Inbound("fix", wire.key(INC, "ff1", "fix"), wire.encode(bad), 0.0)]))
+    # the estimator's walk gate holds it out (issue 32), audited with its sender; flagged as well
+    assert (held.actor, held.action, held.outcome, held.reason) == ("ff1", "device_fix", "refused", "fix_walk_gate")
+    assert (a.actor, a.action, a.outcome, a.reason, a.flags) == ("ff1", "device_fix", "refused", "walk_gate",
+                                                                   ["implausible_jump"])
 
 
 def test_only_authorised_actors_reach_the_graph_and_revoked_identities_nothing():

@@ -143,10 +143,14 @@ def test_roles_console_viewer_anchor_publish_only_what_they_may(pkidir):
             sessions["vic"].put(wire.key(INCIDENT, "vic", "op"), op("vic"))
             sessions["vic"].put(wire.key(INCIDENT, "ff1", "fix"), fix)
             sessions["alice"].put(wire.key(INCIDENT, "console-1", "op"), op("alice"))
-            # allowed: a console's and an operator's actions on their own keys, an anchor's fix for anyone
+            # an anchor on a wearable's own fix key, or on another anchor's (issue 32)
+            sessions["a1"].put(wire.key(INCIDENT, "ff1", "fix"), fix)
+            sessions["a1"].put(wire.anchor_fix_key(INCIDENT, "ff1", "a2"), fix)
+            # allowed: a console's and an operator's actions on their own keys, an anchor's fix for anyone, on
+            # the key that names it
             put_routed(sessions["console-1"], wire.key(INCIDENT, "console-1", "op"), op("bob"))
             put_routed(sessions["alice"], wire.key(INCIDENT, "alice", "op"), op("alice"))
-            put_routed(sessions["a1"], wire.key(INCIDENT, "ff1", "fix"), fix)
+            put_routed(sessions["a1"], wire.anchor_fix_key(INCIDENT, "ff1", "a1"), fix)
             assert wait_until(lambda: svc.received["op"] >= 2 and svc.received["fix"] >= 1 and svc.wait_idle(0.2), 10)
             time.sleep(SETTLE_S)
             assert svc.received["op"] == 2 and svc.received["fix"] == 1

@@ -15,6 +15,10 @@
 ``track_degraded``  the estimator could not take an input and restarted the track from dead
                     reckoning (:class:`service.fusion.estimators.FusionEstimator`), within the last
                     ``TRACK_DEGRADED_S`` of the responder's walk
+``fixes_refused``   a fix for the responder was refused within ``rejected_window_s``: by the
+                    sender's role, undecodable, or held out by the estimator as further than
+                    the walk allows (:mod:`service.core.fix_audit`; the audits name who sent it;
+                    the wearable's own GNSS and BLE, gated routinely indoors, raise none)
 ==================  ==========================================================================
 
 The pre-alarm is not an alarm of the console's: Status carries it as ``man_down_at`` (the
@@ -51,6 +55,7 @@ RECORDING = "recording_failed"
 FLOODING = "flooding"
 CONTESTED = "stream_contested"
 TRACK_DEGRADED = "track_degraded"
+FIXES_REFUSED = "fixes_refused"
 TRACK_DEGRADED_S = 30.0  # s of device time a restarted track stays flagged: long enough to be seen
 MAN_DOWN_PROMPT = "prompt"
 PROMPT_BEFORE_S = 10.0  # s: the wearer is asked this long before man-down is raised (the pre-alert)
@@ -76,8 +81,10 @@ def of_responder(r, now: float, settings, recording_failed: bool = False, floodi
         out.append(FLOODING)
     if now - r.gate.last_contested <= settings.rejected_window_s:
         out.append(CONTESTED)
-    if r.tracker.device_time - getattr(r.tracker, "degraded_at", math.nan) <= TRACK_DEGRADED_S:
+    if r.tracker.device_time - r.tracker.degraded_at <= TRACK_DEGRADED_S:
         out.append(TRACK_DEGRADED)
+    if now - r.last_fix_refused <= settings.rejected_window_s:
+        out.append(FIXES_REFUSED)
     for action, order in r.commands.items():
         if order["acked_at"] is None and now - order["issued_at"] > settings.command_answer_s:
             out.append(UNANSWERED[action])

@@ -8,6 +8,12 @@ with no responder is held (at most :attr:`FixDesk.MAX_HELD_FIXES` over all ids, 
 is still placed by it, and fixes for ids that never send a frame are dropped and counted
 (``fix_unknown_responder``), with no responder, Status or console row made for them.
 
+**Fixes by role** (issue 32, :meth:`FixDesk.by_role`). An anchor puts on ``{r}/fix-{anchor}``
+(the router lets only that anchor's certificate put there, :mod:`service.protocol.access`) and
+is taken for UWB ranges from its own anchor id only. With access enforced, a responder's own
+wearable places itself only at a surveyed checkpoint it names, at the config's position. Every
+refusal is counted and audited with the identity that sent it (:mod:`service.core.fix_audit`).
+
 :class:`FixDesk` is a collaborator of :class:`service.core.incident_core.IncidentCore`.
 """
 from __future__ import annotations
@@ -18,6 +24,7 @@ import logging
 import math
 
 from service.core.core_types import CoreClock, CoreSettings
+from service.core.fix_audit import FixAudit
 from service.core.fix_types import FixRejected, fix_type_of
 from service.core.frame_rounds import FrameRounds
 from service.core.pose_output import Outbox
@@ -41,36 +48,80 @@ class FixDesk:
     HELD_FIX_S = 10.0  # s such a fix waits for its responder's first frame
 
     def __init__(self, incident: IncidentConfig, settings: CoreSettings, clock: CoreClock, rejects: RejectBook,
-                 outbox: Outbox, frames: FrameRounds, held: dict | None = None):
+                 outbox: Outbox, frames: FrameRounds, audit: FixAudit, held: dict | None = None):
         self.incident, self.settings, self.clock = incident, settings, clock
-        self.rejects, self.outbox, self.frames = rejects, outbox, frames
-        self.held: dict[str, list] = {} if held is None else held  # rid -> [(received, Fix)] before its first frame
+        self.rejects, self.outbox, self.frames, self.audit = rejects, outbox, frames, audit
+        # rid -> [(received, Fix, anchor or None)] before its first frame (a snapshot from before
+        # senders were kept holds pairs: the wearable's own)
+        self.held: dict[str, list] = {rid: [(e[0], e[1], e[2] if len(e) > 2 else None) for e in v]
+                                      for rid, v in (held or {}).items()}
 
-    def device_fix(self, r: Responder, fix: wire.Fix, now: float) -> None:
-        """A fix a device sent for ``r``; an implausible checkpoint is taken, flagged and audited."""
-        outcome, reason, detail, verdict = self.take(r, fix)
-        if verdict is not None and verdict.implausible:  # a device's checkpoint fix: taken, flagged, audited
-            self.outbox.audit(wire.Audit(actor=r.id, action="device_fix", outcome=outcome, responder=r.id, reason=reason,
-                                   detail=detail, flags=["implausible_jump"], jump_m=verdict.jump_m,
-                                   walkable_m=verdict.walkable_m, t=fix.t, received=now))
+    def device_fix(self, r: Responder, fix: wire.Fix, anchor: str | None, enforced: bool, now: float) -> None:
+        """A fix a device sent for ``r``: its wearable's (``anchor`` None) or anchor ``anchor``'s,
+        judged by role (``enforced``: the access policy is enforced), then to the track; an
+        implausible checkpoint is taken, flagged and audited; a refusal is audited with the sender."""
+        sender = anchor or r.id
+        fix, reason, detail = self.by_role(r, anchor, fix, enforced)
+        if fix is None:
+            self.refuse(r, reason, detail, sender)
+            return
+        outcome, reason, detail, verdict = self.take(r, fix, sender=sender)
+        if verdict is not None and verdict.implausible:  # flagged and audited (held out or taken)
+            self.outbox.audit(wire.Audit(actor=sender, action="device_fix", outcome=outcome, responder=r.id,
+                                         reason=reason, detail=detail, flags=["implausible_jump"],
+                                         jump_m=verdict.jump_m, walkable_m=verdict.walkable_m, t=fix.t, received=now))
 
-    def take(self, r: Responder, fix: wire.Fix, authoritative: bool = False):
+    def by_role(self, r: Responder, anchor: str | None, fix: wire.Fix, enforced: bool):
+        """What the sender may claim of ``r``: ``(fix, None, None)`` to go on, or ``(None, reason, detail)``.
+
+        * An **anchor** (its key ``{r}/fix-{anchor}``) sends UWB ranges from its own anchor id
+          only: nothing else is a measurement it can make.
+        * The responder's own **wearable**, when access is ``enforced`` (TLS with a roster),
+          places itself only at a *surveyed* checkpoint it passes: the fix names a checkpoint of
+          the incident, and its position, σ and floor are the config's, whatever the message
+          says. A checkpoint at ``x``, ``y`` is an operator's (the console, with a login), never
+          a device's; so no device can drag a track by checkpoints, however consistent.
+        """
+        if anchor is not None:
+            if fix.source != "uwb":
+                return None, "not_an_anchor_fix", (f"anchor {anchor} sent a {fix.source} fix for {r.id}: an anchor "
+                                                   "sends its own UWB ranges only")
+            if fix.anchor != anchor:
+                return None, "wrong_anchor", (f"anchor {anchor} sent a range from anchor {fix.anchor!r} for {r.id}: "
+                                              "an anchor sends its own ranges only")
+        elif fix.source == "checkpoint" and enforced:
+            if fix.name is None:
+                return None, "unsurveyed_checkpoint", (f"{r.id}'s wearable sent a checkpoint at x, y: a device names a "
+                                                       "surveyed checkpoint of the incident (x, y are an operator's)")
+            fix = fix.model_copy(update={"x": None, "y": None, "sigma": None, "floor": None})
+        return fix, None, None
+
+    def refuse(self, r: Responder, reason: str, detail: str, sender: str | None) -> None:
+        """A fix for ``r`` refused: counted in its Status (:meth:`RejectBook.fix`) and audited
+        with ``sender``, the device that sent it (None: an operator's, audited by its action)."""
+        self.rejects.fix(r, reason, detail, self.clock.now)
+        self.audit.refused(r, sender, reason, detail)
+
+    def take(self, r: Responder, fix: wire.Fix, authoritative: bool = False, sender: str | None = None):
         """A decoded fix for ``r`` to its tracker: ``(outcome, reason, detail, verdict)``,
         outcome ``accepted`` or ``refused`` (reason and detail say why), ``verdict`` the
         plausibility of a checkpoint fix (None for other sources). An ``authoritative`` checkpoint
         (an operator who sees the responder) is flagged when implausible but not held out by the
-        estimator's walk gate: it is how a commander corrects a track that has drifted far."""
+        estimator's walk gate: it is how a commander corrects a track that has drifted far.
+        ``sender`` names who sent it in the audits of its refusal (a device's fix is audited
+        here; an operator's, ``authoritative``, by the operator desk's answer to its action)."""
         self.frames.run_backlog(r)  # the frames that came before the fix go first (its time is judged against them)
+        device = None if authoritative else (sender or r.id)
         try:
             fix = self._on_device_clock(r, fix)
             domain = fix_type_of(fix.source).to_domain(fix, self.incident)
             if hasattr(domain, "at_height"):  # a 3D measurement: the tag is on the responder's floor
                 domain = domain.at_height(self._tag_height(r))
         except FixRejected as e:
-            self.rejects.fix(r, e.reason, str(e), self.clock.now)
+            self.refuse(r, e.reason, str(e), device)
             return "refused", e.reason, str(e), None
         except ValueError as e:  # a domain fix that checks itself (service.fusion.fixes)
-            self.rejects.fix(r, "unknown_reference", str(e), self.clock.now)
+            self.refuse(r, "unknown_reference", str(e), device)
             return "refused", "unknown_reference", str(e), None
         verdict = None
         if isinstance(domain, CheckpointFix):
@@ -87,7 +138,10 @@ class FixDesk:
             for reading in domain.readings:
                 if reading.beacon in heard or len(heard) < MAX_BEACONS:
                     heard[reading.beacon] = max(heard.get(reading.beacon, -math.inf), domain.t)
+        self.audit.sent(r, domain.source, domain.t, sender or r.id)  # for the audit of a later refusal
         pose = r.tracker.on_fix(domain)
+        if (domain.source, float(domain.t)) in self.audit.held_out(r):  # judged at once: held out
+            return "refused", "walk_gate", "held out by the estimator: further than the walk allows", verdict
         log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
         if pose is not None:
             self.outbox.pose(r, pose, self.clock.now)
@@ -134,12 +188,12 @@ class FixDesk:
         base = elevations.get(floor, floor * self.incident.floor_height_m)
         return base + self.incident.uwb_tag_height_m
 
-    def hold(self, rid: str, fix: wire.Fix, now: float) -> None:
+    def hold(self, rid: str, fix: wire.Fix, anchor: str | None, now: float) -> None:
         """A fix for an id with no responder: held (bounded) for :data:`HELD_FIX_S`, so a
         wearable's door fix sent just before its first frame still places it; anything else
         (a fix for an id that never sends a frame) is dropped, counted ``fix_unknown_responder``."""
         held = self.held
-        held.setdefault(rid, []).append((now, fix))
+        held.setdefault(rid, []).append((now, fix, anchor))
         while sum(len(v) for v in held.values()) > self.MAX_HELD_FIXES:
             old = next(iter(held))
             held[old].pop(0)
@@ -147,16 +201,19 @@ class FixDesk:
                 del held[old]
             self.rejects.unknown("fix_unknown_responder", old, "held fixes over their bound", now)
 
-    def take_held(self, r: Responder, now: float) -> None:
-        """The fixes held for a responder just made, in the order they came (as if it had been there)."""
-        for received, fix in self.held.pop(r.id, []):
+    def take_held(self, r: Responder, enforced: bool, now: float) -> None:
+        """The fixes held for a responder just made, in the order they came, judged by who sent
+        them (as if it had been there)."""
+        for received, fix, anchor in self.held.pop(r.id, []):
             if now - received <= self.HELD_FIX_S:
-                self.take(r, fix)
+                self.device_fix(r, fix, anchor, enforced, now)
             else:
                 self.rejects.unknown("fix_unknown_responder", r.id, "a fix that came too long before its first frame", now)
 
     def expire_held(self, now: float) -> None:
         for rid in [rid for rid, v in self.held.items() if now - v[-1][0] > self.HELD_FIX_S]:
-            for _ in self.held.pop(rid):
-                self.rejects.unknown("fix_unknown_responder", rid, f"no frame of {rid!r} came within "
-                                                              f"{self.HELD_FIX_S:g} s of its fix", now)
+            for _, _, anchor in self.held.pop(rid):
+                detail = f"no frame of {rid!r} came within {self.HELD_FIX_S:g} s of its fix"
+                self.rejects.unknown("fix_unknown_responder", rid, detail, now)
+                self.outbox.audit(wire.Audit(actor=anchor or rid, action="device_fix", outcome="refused", responder=rid,
+                                             reason="fix_unknown_responder", detail=detail, received=now))

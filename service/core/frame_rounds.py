@@ -13,6 +13,7 @@ import math
 from pdr.events import MotionEvent
 from pdr.fleet import FleetMember, PdrFleet
 from service.core.core_types import CoreClock, CoreCounters, CoreSettings
+from service.core.fix_audit import FixAudit
 from service.core.pose_output import Outbox
 from service.core.rejects import RejectBook
 from service.core.responder import Responder, continues, frame_of
@@ -28,9 +29,9 @@ class FrameRounds:
     """Frames into tracks: streams, gaps, clock leaps, and the rounds that run the motion models (columnar or one responder at a time)."""
 
     def __init__(self, settings: CoreSettings, fleet: PdrFleet | None, clock: CoreClock, counters: CoreCounters,
-                 rejects: RejectBook, outbox: Outbox):
+                 rejects: RejectBook, outbox: Outbox, fix_audit: FixAudit):
         self.settings, self.fleet, self.clock, self.counters = settings, fleet, clock, counters
-        self.rejects, self.outbox = rejects, outbox
+        self.rejects, self.outbox, self.fix_audit = rejects, outbox, fix_audit
         self.dirty: dict[str, Responder] = {}  # responders with frames waiting for the round's end
 
     def offer(self, r: Responder, batch: wire.ImuBatch, now: float) -> bool:
@@ -183,3 +184,5 @@ class FrameRounds:
                 self.outbox.pose(r, o, self.clock.now)
             elif isinstance(o, MotionEvent):
                 log.info("%s is %s since device time %.1f", r.id, o.state.value, o.since)
+        if r.tracker.held_out:  # a fix queued for its step, held out by the estimator now: audited with its sender
+            self.fix_audit.held_out(r)

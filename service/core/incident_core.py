@@ -4,7 +4,8 @@
 
     Inbound(kind, key, payload, received)  ──►  IncidentCore  ──►  Outbound(key, Pose | Status)
         imu       firetrack/{incident}/{responder}/imu        decode ─► FrameGate ─► ResponderTracker ─► pose
-        fix       firetrack/{incident}/{responder}/fix        decode ─► fix type: to the local frame ─┘
+        fix       firetrack/{incident}/{responder}/fix        decode ─► by role ─► to the local frame ─┘
+                  firetrack/{incident}/{responder}/fix-{anchor}  (an anchor's: its own UWB ranges only)
         presence  firetrack/{incident}/{responder}/presence   (b"1" connected, b"0" gone)
         op        firetrack/{incident}/{actor}/op             an operator action ─► authorised? ─► fix ─► Audit
         access    firetrack/{incident}/{service}/access       the access policy from now on (who may act, who is revoked)
@@ -70,8 +71,9 @@ core that goes on from it (:mod:`service.review.resume`, :mod:`service.core.core
 (responders, newcomers; a responder is changed only through ``roster.changing``, which drops its
 kept pickle), :class:`RejectBook`, :class:`Outbox` (answers in order, poses converted a round at a
 time), :class:`StatusReporter`, :class:`FrameRounds` (frames into tracks), :class:`FixDesk`
-(fixes, and fixes held for ids with no responder yet) and :class:`OperatorDesk` (presence,
-orders, access, operator actions). The core parses each message's key once and routes it.
+(fixes by role, and fixes held for ids with no responder yet), :class:`FixAudit` (refused
+fixes audited with the identity that sent them, also those the estimator holds out at a later
+step) and :class:`OperatorDesk` (presence, orders, access, operator actions). The core parses each message's key once and routes it.
 """
 from __future__ import annotations
 
@@ -94,6 +96,7 @@ from service.core.core_types import (
     Inbound,
     Outbound,
 )
+from service.core.fix_audit import FixAudit
 from service.core.fix_intake import FixDesk
 from service.core.frame_rounds import FrameRounds
 from service.core.gate import FrameGate
@@ -145,9 +148,11 @@ class IncidentCore:
         self.roster = Roster(self.rejects.newcomer_gone)
         self.outbox = Outbox(self.incident, self.counters)
         self.status = StatusReporter(self.id, self.settings, self.intake, self.outbox)
-        self.frames = FrameRounds(self.settings, self.fleet, self.clock, self.counters, self.rejects, self.outbox)
+        self.fix_audit = FixAudit(self.clock, self.outbox)
+        self.frames = FrameRounds(self.settings, self.fleet, self.clock, self.counters, self.rejects, self.outbox,
+                                  self.fix_audit)
         self.fixes = FixDesk(self.incident, self.settings, self.clock, self.rejects, self.outbox, self.frames,
-                             held_fixes)
+                             self.fix_audit, held_fixes)
         self.desk = OperatorDesk(self.incident, self.roster, self.fixes, self.rejects, self.intake, self.outbox,
                                  self.counters)
 
@@ -316,19 +321,22 @@ class IncidentCore:
         elif kind != "fix":  # a fix for nobody keeps no state (see _decode_for)
             self.roster.newcomer(rid, now).last_input = now
         expect = wire.ImuBatch if kind == "imu" else wire.Fix
-        msg, r = self._decode_for(rid, r, payload, expect, now)
+        anchor = wire.fix_sender(key) if kind == "fix" else None  # an anchor's key names it (fix-{anchor})
+        msg, r = self._decode_for(rid, r, payload, expect, now, anchor)
         if msg is None:
             return
         if kind == "fix":
-            self.fixes.device_fix(r, msg, now)
+            self.fixes.device_fix(r, msg, anchor, self.desk.access.enforce, now)
         elif self.frames.offer(r, msg, now):  # a gap in front of held frames: its Status asks for it now
             self.status.send(r, now)
 
-    def _decode_for(self, rid: str, r: Responder | None, payload: bytes, expect, now: float):
+    def _decode_for(self, rid: str, r: Responder | None, payload: bytes, expect, now: float,
+                    anchor: str | None = None):
         """``payload`` decoded as ``expect`` (``wire.ImuBatch`` or ``wire.Fix``) for ``rid``, and its
         responder: ``(message, responder)``, the responder made now if this is the first message
         of a newcomer that decodes; ``(None, None)`` when refused (counted against the responder,
-        or the newcomer, with the reason)."""
+        or the newcomer, with the reason; a fix's refusal audited with its sender, ``anchor`` or
+        the wearable)."""
         frames = expect is wire.ImuBatch
         try:
             msg = wire.decode(payload, expect=expect)
@@ -343,10 +351,10 @@ class IncidentCore:
             elif frames:
                 self.rejects.frame(r, e.reason, e.detail, now)
             else:
-                self.rejects.fix(r, e.reason, e.detail, now)
+                self.fixes.refuse(r, e.reason, e.detail, anchor or rid)
             return None, None
         if r is None and not frames:  # fixes make no responder: only a wearable's frames do (issue 32)
-            self.fixes.hold(rid, msg, now)
+            self.fixes.hold(rid, msg, anchor, now)
             return None, None
         return msg, (r if r is not None else self._new_responder(rid, now))
 
@@ -363,7 +371,7 @@ class IncidentCore:
         self.roster.add(r)
         log.info("responder %s appeared", rid)
         if self.fixes.held:
-            self.fixes.take_held(r, now)
+            self.fixes.take_held(r, self.desk.access.enforce, now)
         return r
 
     def _expire(self, now: float) -> None:

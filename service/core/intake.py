@@ -18,7 +18,8 @@ message however hostile its payloads are:
   known; ids on the roster always are, and with ``roster_only`` nobody else is. Refused ids are
   ``not_admitted``: no state is kept for them, so memory is bounded whatever ids arrive.
 * **Per-source budget, one per lane.** Each source draws from its own token buckets, one per
-  **lane**, the kind its key ends with (``imu``, ``fix``, ``ack``, ``command``, ``op``):
+  **lane**, the kind its key ends with (``imu``, ``fix``, ``ack``, ``command``, ``op``; the
+  anchors' ``fix-{anchor}`` keys share the lane ``anchor``):
   ``source_rate`` messages/s with a burst of ``source_burst`` (enough for a wearable resending
   the frames it kept through an outage). A lane whose messages were rejected ``bad_after``
   times within ``bad_window_s`` (a sender of garbage; duplicates do not count: retransmission
@@ -32,9 +33,10 @@ message however hostile its payloads are:
 tell who sent a sample: ``Sample.source_info`` is empty unless the publisher fills it, and an
 attachment says what the publisher wants. What the shell can trust is the key, because the
 router's access control (certificate names, :mod:`service.protocol.access`) decides who may put
-on it: ``{id}/imu`` and ``{id}/ack`` only ``{id}``'s own wearable, ``{id}/fix`` the wearable and
-the anchors. So the lanes separate the identities the router separates: an anchor flooding
-``ff2/fix`` with garbage spends the ``fix`` lane of ff2, never the frames of ff2's wearable.
+on it: ``{id}/imu``, ``{id}/ack`` and ``{id}/fix`` only ``{id}``'s own wearable, ``{id}/fix-{a}``
+only anchor ``a``. So the lanes separate the identities the router separates: an anchor flooding
+``ff2/fix-a1`` with garbage spends the ``anchor`` lane of ff2, never the frames or the own
+fixes of ff2's wearable.
 
 Pure: time comes in with every call (the shell's receive clock), nothing here touches the
 network. The shell records and feeds only what the intake took, so ``reprocess`` of a
@@ -48,14 +50,14 @@ from collections import deque
 from collections.abc import Container
 from dataclasses import dataclass, field
 
-from service.protocol.keys import ID_PATTERN
+from service.protocol.keys import ANCHOR_FIX, ID_PATTERN
 from service.protocol.schema import MAX_PAYLOAD_BYTES
 
 BAD_KEY = "<bad key>"
 NEW_IDS = "<new ids>"
 OPERATORS = "<operators>"
 INTAKE_REASONS = ("oversize", "not_admitted", "throttled", "bad_key")
-LANES = ("imu", "fix", "ack", "command", "op")  # the kinds with a budget of their own; any other shares "other"
+LANES = ("imu", "fix", "anchor", "ack", "command", "op")  # the kinds with a budget of their own; any other shares "other"
 _LANE_SET = frozenset(LANES)
 _UNLANED = frozenset(("bad_key", "not_admitted"))  # reasons counted under their own name whatever the lane
 ALARM_LANE = "imu"  # the lane whose flooding is the responder's own ``flooding`` alarm (its wearable's frames)
@@ -176,7 +178,7 @@ class Intake:
                 src = self._source(rid)
             elif not _ID_RE.match(rid) or rid in self.pseudo:
                 return self._refuse(BAD_KEY, "bad_key", now), BAD_KEY
-            elif parts[3] == "fix":  # a fix for an id nobody has made yet: it makes nobody
+            elif parts[3].startswith("fix"):  # a fix for an id nobody has made yet: it makes nobody
                 pseudo = self.sources.get(NEW_IDS) or self._source(NEW_IDS)
                 return self._charge(pseudo, "fix", size, now), NEW_IDS
             else:
@@ -184,7 +186,7 @@ class Intake:
                     return self._refuse(NEW_IDS, "not_admitted", now), NEW_IDS
                 src = self._source(rid)
                 self.admitted += 1
-        lane = parts[3] if parts[3] in _LANE_SET else "other"
+        lane = parts[3] if parts[3] in _LANE_SET else ("anchor" if parts[3].startswith(ANCHOR_FIX) else "other")
         if size > self.settings.max_payload_bytes:
             return self._drop(src, "oversize", lane), rid
         ln = src.lanes.get(lane) or self._lane(src, lane, now)  # _charge, inlined: the flood's hot path

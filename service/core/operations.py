@@ -157,7 +157,7 @@ class OperatorDesk:
                                           f"({self.incident.extent_m:g} m from the origin)"))
             return
         r = self.roster.changing(op.responder)
-        outcome, reason, detail, verdict = self.fixes.take(r, fix, authoritative=True)
+        outcome, reason, detail, verdict = self.fixes.take(r, fix, authoritative=True, sender=actor)
         flagged = verdict is not None and verdict.implausible
         self.outbox.audit(wire.Audit(outcome=outcome, reason=reason, detail=detail, t=fix.t,
                                flags=["implausible_jump"] if flagged else [],

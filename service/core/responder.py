@@ -47,6 +47,8 @@ class Responder:
     last_checkpoint: object | None = None  # service.core.plausibility.Reference of the last checkpoint fix taken
     fixes_flagged: int = 0  # checkpoint fixes taken but flagged as implausible jumps
     beacons_heard: dict = field(default_factory=dict)  # beacon id -> device time (s) of the newest scan that heard it
+    fix_senders: dict = field(default_factory=dict)  # (source, t) -> who sent a fix the tracker holds (fix_audit)
+    last_fix_refused: float = -math.inf  # service time of the newest fix refused for it (the fixes_refused alarm)
 
 
 @dataclass

@@ -29,6 +29,7 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,6 +44,8 @@ from service.fusion.estimators import (
     make_estimator,
 )
 from service.fusion.fixes import CheckpointFix  # noqa: F401  (re-exported: the tracker's fix type)
+
+HELD_OUT_KEPT = 64  # fixes held out by the estimator kept for the core's audits (source, t, reason)
 
 __all__ = ["CheckpointFix", "PoseEstimate", "ResponderTracker", "TrackerSettings", "tracker_settings_for"]
 
@@ -107,6 +110,13 @@ class ResponderTracker:
         self._gap: tuple[float, float] | None = None  # (t_from, sigma_m) of a gap the next step crosses
         self._degraded_before = 0  # graph restarts of the estimators replaced by a new placement
         self._degraded_at_before = math.nan
+        self.held_out: deque = deque(maxlen=HELD_OUT_KEPT)  # (source, t, reason) refused: the core audits them
+
+    def __setstate__(self, state: dict) -> None:
+        """A tracker from a snapshot; one pickled before ``held_out`` was kept gets an empty one."""
+        self.__dict__.update(state)
+        if "held_out" not in state:
+            self.held_out = deque(maxlen=HELD_OUT_KEPT)
 
     @property
     def degraded(self) -> int:
@@ -348,6 +358,7 @@ class ResponderTracker:
             self.fixes_rejected += 1
             reason = outcome.reason or "gated"
             self.fix_rejects[reason] = self.fix_rejects.get(reason, 0) + 1
+            self.held_out.append((getattr(fix, "source", type(fix).__name__), float(fix.t), reason))
             return None
         self.fixes_applied += 1
         self.last_fix = {"source": getattr(fix, "source", type(fix).__name__), "t": float(fix.t)}

@@ -15,9 +15,14 @@ service         everything under ``firetrack/{i}/**`` (publishes pose, status, a
                 ``track``; subscribes to frames, fixes, actions, presence)
 wearable        put ``firetrack/{i}/{me}/imu``, ``.../{me}/fix`` and ``.../{me}/ack``; liveliness
                 token ``.../{me}/presence``; subscribe to its own ``.../{me}/command`` (roll
-                call, evacuation); query its own ``.../{me}/track``. Nothing else: no other
-                responder's keys, no pose or status
-anchor          put ``firetrack/{i}/*/fix`` (UWB/GNSS infrastructure measures any responder)
+                call, evacuation) and its own ``.../{me}/status`` (the acknowledgements and
+                resend requests of :mod:`client.wearable`); query its own ``.../{me}/track``;
+                keep its frames and fixes for zenoh's history and recovery (queryable,
+                liveliness token, heartbeat and replies on ``.../{me}/imu/@adv/**`` and
+                ``.../{me}/fix/@adv/**``, and it hears the service's history queries there).
+                Nothing else: no other responder's keys, no pose, no other Status
+anchor          put ``firetrack/{i}/*/fix-{me}`` (its own ranges to any responder; the key names
+                the anchor, and the service takes only UWB ranges whose ``anchor`` is ``{me}``)
 console,        subscribe to ``*/pose``, ``*/status``, ``*/audit``; query ``*/track``; put
 operator        ``firetrack/{i}/{me}/op`` (its own actions only) and orders ``*/command``
 viewer          subscribe to ``*/pose``, ``*/status``, ``*/audit``; query ``*/track``
@@ -29,6 +34,11 @@ gateway         like a wearable for every wearable of the roster, and reads stat
 router          nothing as a client (a standalone zenohd's own certificate)
 everyone        receive subscriber and queryable *declarations* (not data): a publisher's
                 matching status and a client's routing need them
+
+``**`` matches no chunk that starts with ``@``, so zenoh-ext's ``@adv`` keys are named
+explicitly wherever they are allowed (:func:`kept_keys`). Without them a wearable under TLS
+never heard its acknowledgements and a restarted service never got the frames it missed
+(issue 32: 251 frames lost to a SIGKILL of ``serve --tls``; 0 now, ``tests/test_faults_tls.py``).
 ==============  ===========================================================================
 
 Zenoh cannot template the certificate's name into a key, so a wearable's rules are written
@@ -69,7 +79,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from service.protocol.keys import KEY_ROOT, check_id
+from service.protocol.keys import ANCHOR_FIX, KEY_ROOT, check_id
 from service.protocol.tls import ROLES
 
 ACTING_ROLES = ("service", "console", "operator")  # may publish operator actions
@@ -193,21 +203,58 @@ def _rule(rid: str, messages: list[str], flows: list[str], keys: list[str]) -> d
     return {"id": rid, "messages": messages, "flows": flows, "permission": "allow", "key_exprs": keys}
 
 
+KEPT_KINDS = ("imu", "fix")  # kinds a wearable publishes through zenoh's advanced publisher (its keep)
+WEARABLE_RULES = ("put", "presence", "keep", "replies", "query", "reply", "listen", "hear")
+
+
+def kept_keys(root: str, who: str) -> list[str]:
+    """The keys of zenoh-ext's machinery for ``who``'s kept kinds: an advanced publisher on
+    ``K`` declares its keep's queryable, its liveliness token and its heartbeat on
+    ``K/@adv/pub/{zid}/{eid}/...``, and the service's advanced subscriber queries, watches and
+    hears them there (``@adv`` is a verbatim chunk: no ``*`` or ``**`` matches it)."""
+    return [f"{root}/{who}/{k}/@adv/**" for k in KEPT_KINDS]
+
+
+def wearable_rules(prefix: str, me: str, truth: bool = False) -> list[dict]:
+    """The rules of one wearable (``me``: its keys' prefix, ``firetrack/{i}/{id}``), named
+    ``{prefix}-{what}`` for each of :data:`WEARABLE_RULES`: it puts its frames, fixes and
+    acknowledgements (and a simulator its ground truth); holds its presence token; keeps its
+    frames and fixes for zenoh's history and recovery (queryable, token, heartbeat, replies);
+    queries its own track; and hears its own Status (acknowledgements, resend requests) and
+    orders."""
+    adv = [f"{me}/{k}/@adv/**" for k in KEPT_KINDS]
+    kinds = ["imu", "fix", "ack"] + (["truth"] if truth else [])
+    spec = {
+        "put": (["put"], ["ingress"], [f"{me}/{k}" for k in kinds] + adv),
+        "presence": (["liveliness_token"], ["ingress"], [f"{me}/presence", *adv]),
+        "keep": (["declare_queryable"], ["ingress"], adv),
+        "replies": (["reply"], ["ingress"], [f"{me}/{k}" for k in KEPT_KINDS] + adv),
+        "query": (["query"], ["ingress"], [f"{me}/track"]),
+        "reply": (["reply"], ["egress"], [f"{me}/track"]),
+        "listen": (["declare_subscriber"], ["ingress"], [f"{me}/command", f"{me}/status"]),
+        "hear": (["put"], ["egress"], [f"{me}/command", f"{me}/status"]),
+    }
+    return [_rule(f"{prefix}-{what}", *spec[what]) for what in WEARABLE_RULES]
+
+
 def access_control(roster: Roster, incident: str | None = None) -> dict:
     """The ``access_control`` section of a zenoh router for ``roster`` (see the module
     docstring): default deny, one subject per identity (its certificate's common name),
     revoked identities left out."""
     inc = check_id("incident", incident or roster.incident)
     root = f"{KEY_ROOT}/{inc}"
+    everything = [f"{root}/**", *kept_keys(root, "*")]  # ``**`` does not reach zenoh's ``@adv`` chunks
     rules = [
-        _rule("declarations-out", ["declare_subscriber", "declare_queryable"], ["egress"], [f"{root}/**"]),
-        _rule("service-all", ALL_MESSAGES, ["ingress", "egress"], [f"{root}/**"]),
+        _rule("declarations-out", ["declare_subscriber", "declare_queryable"], ["egress"], everything),
+        _rule("service-all", ALL_MESSAGES, ["ingress", "egress"], everything),
         _rule("read-in", ["declare_subscriber"], ["ingress"], [f"{root}/*/pose", f"{root}/*/status", f"{root}/*/audit"]),
         _rule("read-out", ["put"], ["egress"], [f"{root}/*/pose", f"{root}/*/status", f"{root}/*/audit"]),
         _rule("tracks-query", ["query"], ["ingress"], [f"{root}/*/track"]),
         _rule("tracks-reply", ["reply"], ["egress"], [f"{root}/*/track"]),
-        _rule("anchor-fixes", ["put"], ["ingress"], [f"{root}/*/fix"]),
         _rule("orders", ["put"], ["ingress"], [f"{root}/*/command"]),
+        # the service's history and recovery queries reach every keeper of frames (they carry
+        # no data; each wearable's keep answers for its own key only, which its reply rule binds)
+        _rule("history-queries", ["query"], ["egress"], kept_keys(root, "*")),
     ]
     subjects = [{"id": "everyone"}]
     policies = [{"id": "everyone", "rules": ["declarations-out"], "subjects": ["everyone"]}]
@@ -223,27 +270,24 @@ def access_control(roster: Roster, incident: str | None = None) -> dict:
     if subject("readers", roster.names(*READING_ROLES, "gateway")):
         policies.append({"id": "readers", "rules": ["read-in", "read-out", "tracks-query", "tracks-reply"],
                          "subjects": ["readers"]})
-    if subject("anchors", roster.names("anchor")):
-        policies.append({"id": "anchors", "rules": ["anchor-fixes"], "subjects": ["anchors"]})
+    for name in roster.names("anchor"):  # an anchor puts on keys that name it: the service knows who sent a fix
+        rules.append(_rule(f"anchor-{name}", ["put"], ["ingress"], [f"{root}/*/{ANCHOR_FIX}{name}"]))
+        subject(f"anchor-{name}", [name])
+        policies.append({"id": f"anchor-{name}", "rules": [f"anchor-{name}"], "subjects": [f"anchor-{name}"]})
     if subject("actors", roster.names("console", "operator")):
         policies.append({"id": "actors", "rules": ["orders"], "subjects": ["actors"]})
+    if subject("keepers", roster.names("wearable", "simulator", "gateway")):
+        policies.append({"id": "keepers", "rules": ["history-queries"], "subjects": ["keepers"]})
     for name in roster.names("console", "operator"):
         rules.append(_rule(f"op-{name}", ["put"], ["ingress"], [f"{root}/{name}/op"]))
         subject(f"actor-{name}", [name])
         policies.append({"id": f"actor-{name}", "rules": [f"op-{name}"], "subjects": [f"actor-{name}"]})
     for role, chunk in (("wearable", "{}"), ("simulator", "{}-$*")):
         for name in roster.names(role):
-            me = f"{root}/{chunk.format(name)}"
-            ids = [f"{role}-{name}-{what}" for what in ("put", "presence", "query", "reply", "orders-in", "orders-out")]
-            kinds = ["imu", "fix", "ack"] + (["truth"] if role == "simulator" else [])
-            rules += [_rule(ids[0], ["put"], ["ingress"], [f"{me}/{k}" for k in kinds]),
-                      _rule(ids[1], ["liveliness_token"], ["ingress"], [f"{me}/presence"]),
-                      _rule(ids[2], ["query"], ["ingress"], [f"{me}/track"]),
-                      _rule(ids[3], ["reply"], ["egress"], [f"{me}/track"]),
-                      _rule(ids[4], ["declare_subscriber"], ["ingress"], [f"{me}/command"]),
-                      _rule(ids[5], ["put"], ["egress"], [f"{me}/command"])]
+            rules += wearable_rules(f"{role}-{name}", f"{root}/{chunk.format(name)}", truth=role == "simulator")
             subject(f"{role}-{name}", [name] + (gateways if role == "wearable" else []))
-            policies.append({"id": f"{role}-{name}", "rules": ids, "subjects": [f"{role}-{name}"]})
+            policies.append({"id": f"{role}-{name}", "rules": [r["id"] for r in rules[-len(WEARABLE_RULES):]],
+                             "subjects": [f"{role}-{name}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 

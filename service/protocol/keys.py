@@ -7,6 +7,13 @@ console, operator or service identity that published, which with TLS on is the c
 of its certificate, bound to the key by the router's access control
 (:mod:`service.protocol.access`).
 
+A fix has two keys. ``{responder}/fix`` is the responder's own wearable's (and, through the
+phone gateway, its phone's). ``{responder}/fix-{anchor}`` is an anchor's: the router lets the
+anchor certificate named ``{anchor}`` put there and nowhere else
+(:mod:`service.protocol.access`), so the key names who sent the fix, and the service takes only
+ranges from that anchor id from it (:mod:`service.core.fix_intake`). Both parse as kind ``fix``;
+:func:`fix_sender` says which.
+
 Incident and responder ids match ``[A-Za-z0-9_.-]{1,64}``, so they never contain a
 key-expression separator or wildcard (``/``, ``*``, ``$``, ``#``, ``?``). The service, the
 recorder, the console and the wearables all build and parse keys here.
@@ -47,11 +54,32 @@ def key_all(incident: str, kind: str) -> str:
     return f"{KEY_ROOT}/{check_id('incident', incident)}/*/{check_kind(kind)}"
 
 
+ANCHOR_FIX = "fix-"  # the kind chunk of an anchor's fix: fix-{anchor}
+
+
+def anchor_fix_key(incident: str, responder: str, anchor: str) -> str:
+    """``firetrack/{incident}/{responder}/fix-{anchor}``: where anchor ``anchor`` puts its fixes
+    (ranges) for a responder."""
+    return f"{key(incident, responder, 'fix')}-{check_id('anchor', anchor)}"
+
+
+def anchor_fix_all(incident: str) -> str:
+    """``firetrack/{incident}/*/fix-$*``: every anchor's fixes for every responder."""
+    return f"{KEY_ROOT}/{check_id('incident', incident)}/*/{ANCHOR_FIX}$*"
+
+
+def fix_sender(k: str) -> str | None:
+    """The anchor that sent a fix on ``k`` (``.../fix-{anchor}``), None for any other key."""
+    kind = str(k).rsplit("/", 1)[-1]
+    return kind[len(ANCHOR_FIX):] if kind.startswith(ANCHOR_FIX) else None
+
+
 PARSED_KEYS_KEPT = 8192  # keys whose parse is remembered (a service sees a few per responder, every frame)
 
 
 def parse_key(k: str) -> tuple[str, str, str]:
-    """``firetrack/{incident}/{responder}/{kind}`` -> ``(incident, responder, kind)``; ValueError
+    """``firetrack/{incident}/{responder}/{kind}`` -> ``(incident, responder, kind)`` (an anchor's
+    ``fix-{anchor}`` is kind ``fix``); ValueError
     for anything else (wrong root, wrong number of chunks, bad id, unknown kind). Valid keys'
     parses are remembered (the service parses the same few keys for every frame); a bad key
     is checked again each time."""
@@ -64,6 +92,9 @@ def _parse_key(k: str) -> tuple[str, str, str]:
     if len(parts) != 4 or parts[0] != KEY_ROOT:
         raise ValueError(f"key {k!r} is not {KEY_ROOT}/{{incident}}/{{responder}}/{{kind}}")
     _, incident, responder, kind = parts
+    if kind.startswith(ANCHOR_FIX):
+        check_id("anchor", kind[len(ANCHOR_FIX):])
+        kind = "fix"
     return check_id("incident", incident), check_id("responder", responder), check_kind(kind)
 
 

@@ -62,6 +62,10 @@ from service.protocol.fixes import (  # noqa: F401
 )
 from service.protocol.keys import (  # noqa: F401
     ACTOR_KINDS,
+    ANCHOR_FIX,
+    anchor_fix_all,
+    anchor_fix_key,
+    fix_sender,
     ID_PATTERN,
     KEY_KINDS,
     KEY_ROOT,

@@ -169,6 +169,7 @@ class IncidentService(RoundIntake, SnapshotWriter):
             self._fix.sample_miss_listener(self._on_miss),
             s.declare_subscriber(wire.key_all(self.id, "command"), self._enqueue),
             s.declare_subscriber(wire.key_all(self.id, "ack"), self._enqueue),
+            s.declare_subscriber(wire.anchor_fix_all(self.id), self._enqueue),  # anchors' fixes: fix-{anchor}
             s.declare_subscriber(wire.key_all(self.id, "op"), self._enqueue_op),
             s.declare_queryable(wire.key_all(self.id, "track"), self._on_track_query),
             s.liveliness().declare_subscriber(wire.key_all(self.id, "presence"), self._on_presence, history=True),
@@ -227,7 +228,8 @@ class IncidentService(RoundIntake, SnapshotWriter):
         """Fixes, orders and acknowledgements: few, so they come by callback (kind from the key)."""
         key = str(sample.key_expr)
         if self._mine(key):
-            self._put_nowait((key.rsplit("/", 1)[-1], key, sample.payload.to_bytes()))
+            kind = key.rsplit("/", 1)[-1]
+            self._put_nowait(("fix" if kind.startswith(wire.ANCHOR_FIX) else kind, key, sample.payload.to_bytes()))
 
     def _put_nowait(self, item) -> None:
         """A callback's message to the worker's queue; a storm of them must not block zenoh's

@@ -17,11 +17,12 @@ import {select} from "./actions.js";
 import {postJSON} from "./api.js";
 
 const SEVERITY = ["man_down", "evacuation_unacknowledged", "par_unanswered", "lost_contact", "disconnected",
-                  "track_degraded", "stream_contested", "rejected_frames", "flooding", "recording_failed"];
+                  "track_degraded", "fixes_refused", "stream_contested", "rejected_frames", "flooding",
+                  "recording_failed"];
 const LABELS = {man_down: "MAN DOWN", lost_contact: "LOST CONTACT", rejected_frames: "BAD DATA",
                 disconnected: "WEARABLE OFF", par_unanswered: "NO PAR", evacuation_unacknowledged: "NOT EVACUATING",
                 flooding: "FLOODING", recording_failed: "NOT RECORDING", stream_contested: "STREAM CONTESTED",
-                track_degraded: "TRACK DEGRADED"};
+                track_degraded: "TRACK DEGRADED", fixes_refused: "FIX REFUSED"};
 const rank = (kind) => { const i = SEVERITY.indexOf(kind); return i < 0 ? SEVERITY.length : i; };
 
 /** The alarms each responder has now, by "id|kind", with when they began (service clock). */
