@@ -103,23 +103,19 @@ START_WAIT_PER_WALKER_S = 0.3  # s per walker (a 30 s run of 1000 walkers: ~100 
 WARMUP_FRAMES = 30  # the first 3 s of each wearable: kernels compile, trackers and graphs are built
 
 # Where the worker's time goes, by stage: (file, function) pairs whose cumulative time the
-# profile sums, for the columnar rounds (pdr/fleet*) and for one-responder-at-a-time
-# pipelines (pdr/pipeline.py and its stage classes) alike, so one table compares both.
+# profile sums over the PDR engine's rounds (pdr/fleet*, a fleet of one alike).
 STAGES: dict[str, tuple[tuple[str, str], ...]] = {
     "zenoh take": (("service/shell/round_intake.py", "take_frames"), ("service/shell/round_intake.py", "take_queued")),
     "decode": (("service/protocol/codec.py", "decode"),),
     "frame gate": (("service/core/gate.py", "offer"), ("service/core/gate.py", "expire")),
     "heading (AHRS, bias, compass, per step)": (
-        ("pdr/fleet_kernels.py", "heading_stage"), ("pdr/fleet.py", "_epochs"), ("pdr/fleet.py", "_step_headings"),
-        ("pdr/heading.py", "update"), ("pdr/heading.py", "steps")),
-    "height and floors": (("pdr/fleet.py", "_height_round"), ("pdr/pipeline.py", "_update_height")),
-    "step detection": (("pdr/fleet_kernels.py", "detector_buffer"), ("pdr/fleet_kernels.py", "detector_stage"),
-                       ("pdr/fleet.py", "_design"), ("pdr/steps/base.py", "update"), ("pdr/steps/base.py", "finish")),
-    "step length, stairs, floor events": (("pdr/pipeline.py", "_make_steps"), ("pdr/pipeline.py", "_release")),
-    "motion state": (("pdr/fleet_kernels.py", "motion_windows"), ("pdr/fleet_kernels.py", "motion_grid"),
-                     ("pdr/pipeline.py", "_update_motion")),
-    "pipeline (all stages)": (("pdr/fleet.py", "run"), ("pdr/fleet.py", "finish"), ("pdr/pipeline.py", "update"),
-                              ("pdr/pipeline.py", "finish")),
+        ("pdr/fleet_kernels.py", "heading_stage"), ("pdr/heading.py", "take_epochs"), ("pdr/heading.py", "answer_steps")),
+    "height and floors": (("pdr/fleet.py", "_height_round"),),
+    "step detection": (("pdr/detector_kernels.py", "detector_buffer"), ("pdr/detector_kernels.py", "detector_stage"),
+                       ("pdr/fleet.py", "_design")),
+    "step length, stairs, floor events": (("pdr/step_events.py", "assemble"), ("pdr/step_events.py", "release")),
+    "motion state": (("pdr/fleet_kernels.py", "motion_windows"), ("pdr/fleet_kernels.py", "motion_grid")),
+    "pipeline (all stages)": (("pdr/fleet.py", "run"), ("pdr/fleet.py", "finish")),
     "fusion (graph, dead reckoning)": (("service/fusion/estimators.py", "add_step"), ("service/fusion/estimators.py", "add_fix"),
                                        ("service/fusion/estimators.py", "set_floor"), ("service/fusion/estimators.py", "flush")),
     "pose message": (("service/core/pose_output.py", "_emit_poses"), ("service/core/pose_output.py", "pose_message")),

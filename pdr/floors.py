@@ -73,7 +73,10 @@ from collections import deque
 from collections.abc import Mapping
 
 import numpy as np
-from numba import njit
+from pdr.floor_kernels import (
+    F_B, F_COUNT, F_DCNT, F_DFLOOR, F_DSUM, F_DWELL_ID, F_HEAD, F_IN_DWELL, F_K, F_PEND, F_PEND_TO, F_RATE, F_RING,
+    F_STATE, F_TPREV, MAX_DRIFT_RATE, REASONS, predict, track_run,
+)
 
 
 # ------------------------------------------------------------------------------------------
@@ -185,244 +188,6 @@ class FloorTrack:
     changes: list[FloorChange]
 
 
-# state vector of the tracker (float64), see _track_run
-_K, _B, _PEND, _PEND_TO, _TPREV, _IN_DWELL, _DWELL_ID, _DSUM, _DCNT, _DFLOOR, _HEAD, _COUNT, _REJECTED, _DSTART, _RATE = range(15)
-_STATE = 15
-MAX_DRIFT_RATE = 25.0 / 3600.0  # m/s: 3 hPa/h, a fast weather change; the drift rate estimate stays below it
-_UNDECIDED = -2.0  # the open dwell's floor while it is too young to teach a new level
-_EXIT_FACTOR = 2.0  # a dwell ends when the window's rate or range passes this many times the entry limits
-_RING = 1024  # samples the dwell window can hold (6 s at 170 Hz; barometers give 1-25 Hz)
-_REASONS = ("", "height", "dwell")
-
-
-@njit(cache=True)
-def _predict(r, known, elev, pred):  # pragma: no cover - compiled
-    """Predicted level of every floor from the seen ones (module docstring); returns α̂."""
-    nf = elev.shape[0]
-    lo, hi, n = -1, -1, 0
-    for f in range(nf):
-        if known[f] > 0:
-            n += 1
-            if lo < 0:
-                lo = f
-            hi = f
-    alpha = 1.0
-    if n >= 2:
-        alpha = (r[hi] - r[lo]) / (elev[hi] - elev[lo])
-        if not alpha > 0.0:
-            alpha = 1.0
-    for f in range(nf):
-        if known[f] > 0:
-            pred[f] = r[f]
-            continue
-        below, above = -1, -1
-        for g in range(f - 1, -1, -1):
-            if known[g] > 0:
-                below = g
-                break
-        for g in range(f + 1, nf):
-            if known[g] > 0:
-                above = g
-                break
-        if below >= 0 and above >= 0:
-            pred[f] = r[below] + (r[above] - r[below]) * (elev[f] - elev[below]) / (elev[above] - elev[below])
-        elif below >= 0:
-            pred[f] = r[below] + alpha * (elev[f] - elev[below])
-        else:
-            pred[f] = r[above] + alpha * (elev[f] - elev[above])
-    return alpha
-
-
-@njit(cache=True)
-def _local_gap(pred, f):  # pragma: no cover - compiled
-    nf = pred.shape[0]
-    gap = np.inf
-    if f > 0:
-        gap = min(gap, abs(pred[f] - pred[f - 1]))
-    if f + 1 < nf:
-        gap = min(gap, abs(pred[f + 1] - pred[f]))
-    return gap
-
-
-@njit(cache=True)
-def _match(level, r, known, pred, match_fraction):  # pragma: no cover - compiled
-    """The seen floor whose level is within ``match_fraction`` of its local gap of ``level`` (nearest), else -1."""
-    best, best_d = -1, np.inf
-    for f in range(r.shape[0]):
-        if known[f] > 0:
-            d = abs(level - r[f])
-            if d <= match_fraction * _local_gap(pred, f) and d < best_d:
-                best, best_d = f, d
-    return best
-
-
-@njit(cache=True)
-def _decide(level, r, known, elev, pred, alpha, match_fraction, scale_lo, scale_hi):  # pragma: no cover - compiled
-    """The floor index of a dwell at ``level``, or -1 when it is on no floor (module docstring)."""
-    nf = elev.shape[0]
-    best = _match(level, r, known, pred, match_fraction)
-    if best >= 0:
-        return best
-    a, da = -1, np.inf  # the seen floor nearest in level
-    for f in range(nf):
-        if known[f] > 0 and abs(level - r[f]) < da:
-            a, da = f, abs(level - r[f])
-    if a < 0:
-        return -1
-    step = 1 if level > r[a] else -1
-    c = -1  # the next seen floor on that side
-    f = a + step
-    while 0 <= f < nf:
-        if known[f] > 0:
-            c = f
-            break
-        f += step
-    if c >= 0:  # between two seen floors: the nearest interpolated level, if close
-        best, best_d = -1, np.inf
-        f = a + step
-        while f != c:
-            d = abs(level - pred[f])
-            if d < best_d:
-                best, best_d = f, d
-            f += step
-        if best >= 0 and best_d <= match_fraction * _local_gap(pred, best):
-            return best
-        return -1
-    f = a + step  # beyond the seen floors: the fewest floors whose implied spacing is plausible
-    while 0 <= f < nf:
-        q = (level - r[a]) / (elev[f] - elev[a]) / alpha
-        if scale_lo <= q <= scale_hi:
-            return f
-        if q < scale_lo:
-            return -1  # farther floors imply even smaller spacings
-        f += step
-    return -1
-
-
-@njit(cache=True)
-def _track_run(t, h, S, ring_t, ring_z, r, known, learned_in, pred, elev, P):  # pragma: no cover - compiled
-    """The tracker over one batch; returns (floor index, z, reason of a change) per sample.
-
-    ``S`` (float64[_STATE]) holds the floor index, the offset b, the start and target of a
-    pending threshold switch, the last time, the open dwell (flag, id, running sum and count of
-    z, its floor) and the ring buffer's head and count; ``ring_t``/``ring_z`` the dwell window;
-    ``r``/``known``/``learned_in`` the learned levels (known: 0 not seen, 1 seen on a dwell,
-    2 start or fix), ``pred`` the predicted levels. ``P`` = switch margin, dwell_s, window,
-    max rate, band, match fraction, scale lo, scale hi, τ_d, max_dt, learn_s, drift band. All updated in place.
-    """
-    margin, hold, window, max_rate, band, match, s_lo, s_hi, tau, max_dt, learn_s, drift_fraction = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7], P[8], P[9], P[10], P[11]
-    n = t.shape[0]
-    nf = elev.shape[0]
-    cap = ring_t.shape[0]
-    out_k = np.empty(n, dtype=np.int64)
-    out_z = np.empty(n)
-    out_why = np.zeros(n, dtype=np.int64)
-    alpha = _predict(r, known, elev, pred)
-    for i in range(n):
-        k = int(S[_K])
-        t_prev = S[_TPREV]
-        dt = 0.0 if math.isnan(t_prev) else min(max(t[i] - t_prev, 0.0), max_dt)
-        S[_TPREV] = t[i]
-        S[_B] += S[_RATE] * dt  # the weather keeps drifting between updates
-        z = h[i] - S[_B]
-        # the dwell window: push, drop what is older than the window
-        head, count = int(S[_HEAD]), int(S[_COUNT])
-        ring_t[(head + count) % cap] = t[i]
-        ring_z[(head + count) % cap] = z
-        if count < cap:
-            count += 1
-        else:
-            head = (head + 1) % cap
-        while count > 1 and ring_t[head] <= t[i] - window:
-            head = (head + 1) % cap
-            count -= 1
-        S[_HEAD], S[_COUNT] = head, count
-        # threshold path on the predicted levels
-        c = k
-        while c + 1 < nf and z > pred[c] + (0.5 + margin) * (pred[c + 1] - pred[c]):
-            c += 1
-        if c == k:
-            while c > 0 and z < pred[c] - (0.5 + margin) * (pred[c] - pred[c - 1]):
-                c -= 1
-        new_k, why = k, 0
-        if c != k:
-            if math.isnan(S[_PEND]) or int(S[_PEND_TO]) != c:
-                S[_PEND], S[_PEND_TO] = t[i], c
-            if t[i] - S[_PEND] >= hold:
-                new_k, why = c, 1
-        else:
-            S[_PEND] = math.nan
-        # steady height over the window: least-squares rate and range
-        span = t[i] - ring_t[head]
-        steady = False
-        if span >= 0.9 * window and count >= 3:
-            st = 0.0
-            sz = 0.0
-            zmin, zmax = np.inf, -np.inf
-            for j in range(count):
-                q = (head + j) % cap
-                st += ring_t[q] - t[i]
-                sz += ring_z[q]
-                zmin = min(zmin, ring_z[q])
-                zmax = max(zmax, ring_z[q])
-            mt, mz = st / count, sz / count
-            num, den = 0.0, 0.0
-            for j in range(count):
-                q = (head + j) % cap
-                dtj = ring_t[q] - t[i] - mt
-                num += dtj * (ring_z[q] - mz)
-                den += dtj * dtj
-            rate = num / den if den > 0.0 else 0.0
-            # hysteresis: a dwell is entered under the limits and left only well past them
-            x = 1.0 if S[_IN_DWELL] == 0.0 else _EXIT_FACTOR
-            steady = abs(rate) <= x * max_rate and zmax - zmin <= x * band
-        if steady:
-            if S[_IN_DWELL] == 0.0:  # a new dwell: on a floor seen before?
-                S[_IN_DWELL] = 1.0
-                S[_DWELL_ID] += 1.0
-                S[_DSTART] = ring_t[head]
-                S[_DSUM], S[_DCNT] = mz * count, float(count)
-                f = _match(mz, r, known, pred, match)
-                S[_DFLOOR] = f if f >= 0 else _UNDECIDED
-            else:
-                S[_DSUM] += z
-                S[_DCNT] += 1.0
-            if S[_DFLOOR] == _UNDECIDED and t[i] - S[_DSTART] >= learn_s:  # long enough: a floor not seen yet?
-                level = S[_DSUM] / S[_DCNT]
-                f = _decide(level, r, known, elev, pred, alpha, match, s_lo, s_hi)
-                if f >= 0 and not math.isnan(S[_REJECTED]) and abs(level - S[_REJECTED]) <= match * _local_gap(pred, f):
-                    f = -1  # back at a level already judged to be on no floor (a landing)
-                if f < 0:
-                    S[_REJECTED] = level
-                elif known[f] == 0:
-                    known[f], r[f], learned_in[f] = 1, level, S[_DWELL_ID]
-                    alpha = _predict(r, known, elev, pred)
-                S[_DFLOOR] = f
-            f = int(S[_DFLOOR])
-            if f >= 0:
-                if f != new_k:
-                    why = 2
-                new_k = f
-                S[_PEND] = math.nan
-        else:
-            S[_IN_DWELL] = 0.0
-        if tau > 0.0 and known[new_k] > 0 and abs(z - r[new_k]) <= drift_fraction * _local_gap(pred, new_k):
-            e = z - r[new_k]  # near a seen floor's level: follow the drift (critically damped, ramps without lag)
-            g = dt / tau
-            S[_B] += 2.0 * g * e
-            S[_RATE] = min(max(S[_RATE] + g / tau * e, -MAX_DRIFT_RATE), MAX_DRIFT_RATE)
-        if new_k != k:
-            S[_K] = new_k
-            S[_PEND] = math.nan
-            S[_REJECTED] = math.nan
-        else:
-            why = 0
-        out_k[i] = new_k
-        out_z[i] = z
-        out_why[i] = why
-    return out_k, out_z, out_why
-
-
 class FloorTracker:
     """Streaming floor from height: ``track = tracker.update(t, height_m)`` (module docstring).
 
@@ -438,11 +203,11 @@ class FloorTracker:
         self._elev = elevations.heights
         nf = self._elev.shape[0]
         k0 = self._index(start_floor)
-        self._state = np.full(_STATE, np.nan)
-        self._state[[_K, _PEND_TO, _IN_DWELL, _DWELL_ID, _DSUM, _DCNT, _DFLOOR, _HEAD, _COUNT, _RATE]] = [
+        self._state = np.full(F_STATE, np.nan)
+        self._state[[F_K, F_PEND_TO, F_IN_DWELL, F_DWELL_ID, F_DSUM, F_DCNT, F_DFLOOR, F_HEAD, F_COUNT, F_RATE]] = [
             k0, -1, 0, 0, 0, 0, -1, 0, 0, 0.0]
-        self._ring_t = np.zeros(_RING)
-        self._ring_z = np.zeros(_RING)
+        self._ring_t = np.zeros(F_RING)
+        self._ring_z = np.zeros(F_RING)
         self._r = self._elev.copy()  # learned levels (z frame: the start floor at its configured elevation)
         self._known = np.zeros(nf, dtype=np.int64)
         self._known[k0] = 2
@@ -455,6 +220,26 @@ class FloorTracker:
         self._last_h = math.nan
         self._history: deque[FloorChange] = deque(maxlen=256)
 
+    # -- the state a columnar engine keeps in rows of its own arrays (pdr.fleet) -------------
+    ROW_NAMES = ("state", "ring_t", "ring_z", "levels", "known", "learned_in", "predicted")
+
+    def rows(self) -> tuple[np.ndarray, ...]:
+        """The arrays :func:`pdr.floor_kernels.track_run` updates, in :attr:`ROW_NAMES` order."""
+        return self._state, self._ring_t, self._ring_z, self._r, self._known, self._learned_in, self._pred
+
+    def attach(self, rows: tuple[np.ndarray, ...]) -> None:
+        """Work on ``rows`` (same shapes as :meth:`rows`; e.g. views of a fleet's row) from now on."""
+        self._state, self._ring_t, self._ring_z, self._r, self._known, self._learned_in, self._pred = rows
+
+    @property
+    def kernel_params(self) -> np.ndarray:
+        """The settings packed for :func:`pdr.floor_kernels.track_run`."""
+        return self._params
+
+    def record(self, change: FloorChange) -> None:
+        """A change decided for this tracker's state elsewhere (a columnar round): remembered for :meth:`floor_at`."""
+        self._history.append(change)
+
     def _index(self, floor: int) -> int:
         idx = np.flatnonzero(self._floors == int(floor))
         if idx.size == 0:
@@ -465,12 +250,12 @@ class FloorTracker:
     @property
     def floor(self) -> int:
         """The current floor."""
-        return int(self._floors[int(self._state[_K])])
+        return int(self._floors[int(self._state[F_K])])
 
     @property
     def offset(self) -> float:
         """The offset b (m) between the input height and the level frame (NaN before data)."""
-        return float(self._state[_B])
+        return float(self._state[F_B])
 
     @property
     def levels(self) -> dict[int, float]:
@@ -480,7 +265,7 @@ class FloorTracker:
     @property
     def predicted_levels(self) -> dict[int, float]:
         """The level (m, level frame) every configured floor is expected at now."""
-        _predict(self._r, self._known, self._elev, self._pred)
+        predict(self._r, self._known, self._elev, self._pred)
         return {int(f): float(v) for f, v in zip(self._floors, self._pred)}
 
     def floor_at(self, t: float) -> int:
@@ -499,15 +284,15 @@ class FloorTracker:
         if h.shape != t.shape:
             raise ValueError(f"height has {h.shape[0]} samples, t has {t.shape[0]}")
         n = t.shape[0]
-        k0 = int(self._state[_K])
+        k0 = int(self._state[F_K])
         k_out = np.full(n, k0, dtype=np.int64)
         z_out = np.full(n, np.nan)
         why_out = np.zeros(n, dtype=np.int64)
         good = np.flatnonzero(np.isfinite(h) & np.isfinite(t))
         if good.size:
-            if math.isnan(self._state[_B]):
-                self._state[_B] = h[good[0]] - self._r[k0]
-            k, z, why = _track_run(t[good], h[good], self._state, self._ring_t, self._ring_z, self._r, self._known,
+            if math.isnan(self._state[F_B]):
+                self._state[F_B] = h[good[0]] - self._r[k0]
+            k, z, why = track_run(t[good], h[good], self._state, self._ring_t, self._ring_z, self._r, self._known,
                                    self._learned_in, self._pred, self._elev, self._params)
             z_out[good] = z
             why_out[good] = why
@@ -520,7 +305,7 @@ class FloorTracker:
         prev = np.concatenate([[k0], k_out[:-1]])
         changes = [
             FloorChange(float(t[i]), int(self._floors[prev[i]]), int(self._floors[k_out[i]]), float(z_out[i]),
-                        _REASONS[int(why_out[i])] or "height")
+                        REASONS[int(why_out[i])] or "height")
             for i in np.flatnonzero(k_out != prev)
         ]
         self._history.extend(changes)
@@ -535,22 +320,22 @@ class FloorTracker:
         becomes that floor's level; a level the open dwell taught another floor is forgotten.
         Returns the floor change this makes, if any."""
         k_new = self._index(floor)
-        k_old = int(self._state[_K])
+        k_old = int(self._state[F_K])
         h = self._last_h if height_m is None else float(height_m)
         S = self._state
-        if math.isfinite(shift) and not math.isnan(S[_B]):
-            S[_B] += shift
-        S[_K] = k_new
-        S[_PEND] = math.nan
-        wrong = (self._known == 1) & (self._learned_in == S[_DWELL_ID]) & (np.arange(self._known.size) != k_new)
+        if math.isfinite(shift) and not math.isnan(S[F_B]):
+            S[F_B] += shift
+        S[F_K] = k_new
+        S[F_PEND] = math.nan
+        wrong = (self._known == 1) & (self._learned_in == S[F_DWELL_ID]) & (np.arange(self._known.size) != k_new)
         self._known[wrong] = 0
         if math.isfinite(h):
-            if math.isnan(S[_B]) or self._known[k_new] > 0:
-                S[_B] = h - self._r[k_new]
-                S[_COUNT] = 0.0  # the window's heights were in the old frame: start it again
-                S[_IN_DWELL] = 0.0
+            if math.isnan(S[F_B]) or self._known[k_new] > 0:
+                S[F_B] = h - self._r[k_new]
+                S[F_COUNT] = 0.0  # the window's heights were in the old frame: start it again
+                S[F_IN_DWELL] = 0.0
             else:
-                self._r[k_new] = h - S[_B]
+                self._r[k_new] = h - S[F_B]
                 # levels that cannot lie where they are with this floor here were assumptions or
                 # mislabels (a start floor that was not): forget them
                 lo = self.settings.scale_range[0]
@@ -558,12 +343,12 @@ class FloorTracker:
                 self._known[(sep < lo * np.abs(self._elev - self._elev[k_new])) & (np.arange(self._known.size) != k_new)] = 0
             self._last_h = h
         self._known[k_new] = 2
-        if S[_IN_DWELL] != 0.0:
-            S[_DFLOOR] = k_new
-        _predict(self._r, self._known, self._elev, self._pred)
+        if S[F_IN_DWELL] != 0.0:
+            S[F_DFLOOR] = k_new
+        predict(self._r, self._known, self._elev, self._pred)
         if k_new == k_old:
             return None
-        when = float(S[_TPREV]) if t is None else float(t)
+        when = float(S[F_TPREV]) if t is None else float(t)
         change = FloorChange(when, int(self._floors[k_old]), int(self._floors[k_new]), float(self._r[k_new]), "anchor")
         self._history.append(change)
         return change

@@ -100,6 +100,7 @@ up to its time have arrived (earlier steps wait in a queue).
 """
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 from collections import deque
@@ -109,8 +110,9 @@ import numpy as np
 from pdr.ahrs import make_filter
 from pdr.angles import wrap  # noqa: F401  (re-exported)
 from pdr.grip import GripSettings, GripTracker
-from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass, still_bias
+from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass
 from pdr.walking_direction import walking_angle
+from pdr.window_kernels import still_bias
 from pdr.windows import norm3, unwrap_turns
 
 TWO_PI = 2.0 * math.pi
@@ -229,7 +231,7 @@ class HeadingEstimator:
         self.grip = GripTracker(s.grip)
         self._pending: list[float] = []
         self._pending_off: list[float] = []
-        self._buf = {k: np.empty(0) for k in BUF_COLUMNS}  # samples for step means and the walking direction
+        self._buf = np.empty((0, len(BUF_COLUMNS)))  # samples for step means and the walking direction
         self._prev_step: tuple[float, float] | None = None  # (t, mean gyro heading)
         self._index = 0
         self.samples: dict[str, np.ndarray] = {}
@@ -245,13 +247,8 @@ class HeadingEstimator:
         gyr = np.asarray(gyr, float).reshape(-1, 3)
         use_mag = s.use_mag and mag is not None
         self._queue_steps(step_times, walking_offset)
-        if self._t0 is None:
-            self._t0 = float(t[0])
-
-        # filter history old enough that no step can still ask for it leaves (keep one before)
-        limit = t[0] - 4 * s.max_step_duration - s.epoch
-        while len(self._hist) > 1 and self._hist[1][0] < limit:
-            self._hist.popleft()
+        self.start(t[0])
+        self.prune_history(t[0])
         an = norm3(acc) if acc_norm is None else acc_norm
         bias = self._bias_per_sample(t, an, gyr) if s.estimate_bias else np.tile(self.bias, (len(t), 1))
         q = self._ahrs.update(t, acc, gyr - bias)
@@ -262,15 +259,35 @@ class HeadingEstimator:
         self._raw_last = float(raw[-1])
         psi = raw + TWO_PI * turns
         self.samples = {"t": t, "psi_gyro": psi, "delta_mag": d, "norm": norm, "inclination": inc, "bias": bias, "q": q}
-        self._run_epochs(t, psi, d, norm, inc, norm3(gyr - bias))
-        # older samples leave before the new ones come in, so every sample of this batch
-        # stays until the next one: steps found in it later (update with step_times only)
-        # still find their samples, however large the batch; and what a step the detector
-        # still holds back (up to a few steps before this batch) needs stays too
-        keep = self._buf["t"] > (t[0] - 4 * s.max_step_duration)
-        for k, v in zip(BUF_COLUMNS, (t, psi, d, norm, inc, af, al, az)):
-            self._buf[k] = np.concatenate([self._buf[k][keep], v])
-        return self._answer_steps()
+        self.take_epochs(close_epochs(t, psi, d, norm, inc, norm3(gyr - bias), self._t0, s.epoch, self._epoch_state))
+        # older samples leave before the new ones come in: steps found in this batch later (or
+        # held back by the detector, a few steps before it) still find their samples
+        keep = self._buf[:, 0] > (t[0] - 4 * s.max_step_duration)
+        self._buf = np.concatenate([self._buf[keep], np.column_stack((t, psi, d, norm, inc, af, al, az))])
+        return self.answer_steps(self._buf)
+
+    # ---------------------------------------------------------------- what a columnar engine calls
+    @property
+    def ahrs(self):
+        """The levelling filter (its kernel state seeds a columnar engine's row)."""
+        return self._ahrs
+
+    @property
+    def forward_axes(self) -> np.ndarray:
+        """Forward axis, upright axis, sin²(upright_from): :func:`pdr.heading_kernels.level_and_compass`'s ``fwd``."""
+        return self._fwd
+
+    def start(self, t0: float) -> None:
+        """The stream's first sample is at ``t0`` (s): epochs and the field reference count from it."""
+        if self._t0 is None:
+            self._t0 = float(t0)
+
+    def prune_history(self, t_first: float) -> None:
+        """Filter history no step can ask for once samples start at ``t_first`` leaves (one before stays)."""
+        s = self.settings
+        limit = t_first - 4 * s.max_step_duration - s.epoch
+        while len(self._hist) > 1 and self._hist[1][0] < limit:
+            self._hist.popleft()
 
     def _bias_per_sample(self, t, acc_norm, gyr) -> np.ndarray:
         """Bias used for each sample: the gyro mean of the latest still window ending before it."""
@@ -287,11 +304,7 @@ class HeadingEstimator:
         return bias
 
     # ---------------------------------------------------------------- compass epochs + filter
-    def _run_epochs(self, t, psi, d, norm, inc, w) -> None:
-        s = self.settings
-        self._take_epochs(close_epochs(t, psi, d, norm, inc, w, self._t0, s.epoch, self._epoch_state))
-
-    def _take_epochs(self, rows: np.ndarray) -> None:
+    def take_epochs(self, rows: np.ndarray) -> None:
         """Closed compass epochs (rows of :func:`pdr.heading_kernels.close_epochs`) into the
         reference, the measurement sigma and the filter (also the columnar engine's path,
         :mod:`pdr.fleet`)."""
@@ -411,8 +424,7 @@ class HeadingEstimator:
     # ---------------------------------------------------------------- steps
     def steps(self, step_times, walking_offset=None) -> StepHeadings:
         """Headings of steps at ``step_times`` found in samples already given (no new samples)."""
-        self._queue_steps(step_times, walking_offset)
-        return self._answer_steps()
+        return self.answer_steps(self._buf, step_times, walking_offset)
 
     def _queue_steps(self, step_times, walking_offset) -> None:
         if len(step_times) == 0:
@@ -421,48 +433,52 @@ class HeadingEstimator:
         self._pending += [float(x) for x in np.asarray(step_times, float).reshape(-1)]
         self._pending_off += [float(x) for x in offs.reshape(-1)]
 
-    def _answer_steps(self) -> StepHeadings:
+    def answer_steps(self, buf: np.ndarray, step_times=(), walking_offset=None) -> StepHeadings:
+        """Headings of the steps queued so far and at ``step_times`` whose samples have arrived in
+        ``buf``: rows of :data:`BUF_COLUMNS` in time order (this estimator's, or a columnar
+        engine's, which runs the per-sample part itself)."""
+        self._queue_steps(step_times, walking_offset)
         s = self.settings
-        B = self._buf
-        if not len(B["t"]) or not self._pending:
+        if not len(buf) or not self._pending:
             return StepHeadings.concatenate([])
-        t_last = B["t"][-1]
+        bt = buf[:, 0]
         order = np.argsort(self._pending, kind="stable")
         ts = np.asarray(self._pending)[order]
         offs = np.asarray(self._pending_off)[order]
-        ready = ts <= t_last
+        ready = ts <= bt[-1]
         self._pending = list(ts[~ready])
         self._pending_off = list(offs[~ready])
-        ts, offs = ts[ready], offs[ready]
+        hist = self._hist
+        hist_t = [e[0] for e in hist]
         rows = []
-        hist_t = np.array([h[0] for h in self._hist])
-        for tk, off in zip(ts, offs):
+        for tk, off in zip(ts[ready].tolist(), offs[ready].tolist()):
             t_prev = self._prev_step[0] if self._prev_step else -math.inf
             lo = max(t_prev, tk - s.max_step_duration)
-            sel = (B["t"] > lo) & (B["t"] <= tk)
-            if not sel.any():  # the sample at or before the step (after a gap in the samples: the oldest kept)
-                before = np.flatnonzero(B["t"] <= tk)
-                sel = np.arange(len(B["t"])) == (before[-1] if before.size else 0)
-            psi_g = float(np.mean(B["psi"][sel]))  # unwrapped: the arithmetic mean is circular
-            w0, w1 = np.searchsorted(B["t"], (tk - s.grip.window, tk), side="right")  # samples in (tk − window, tk]
-            omega, jumped = self._grip_step(B["t"][w0:w1], B["af"][w0:w1], B["al"][w0:w1], B["az"][w0:w1])
+            i0 = int(np.searchsorted(bt, lo, side="right"))
+            i1 = int(np.searchsorted(bt, tk, side="right"))
+            if i1 <= i0:  # no sample in the step: the last one at or before it (after a gap: the oldest)
+                i0, i1 = (i1 - 1, i1) if i1 > 0 else (0, 1)
+            psi_g = float(np.mean(buf[i0:i1, 1]))  # unwrapped: the arithmetic mean is circular
+            w0 = int(np.searchsorted(bt, tk - s.grip.window, side="right"))  # samples in (tk − window, tk]
+            omega, jumped = self._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7])
             off = off + omega
-            h = int(np.searchsorted(hist_t, tk, side="right")) - 1
-            _, delta, P = self._hist[max(h, 0)]
+            k = bisect.bisect_right(hist_t, tk) - 1
+            _, delta, P = hist[max(k, 0)]
             if not np.isfinite(delta):  # before the first compass epoch
-                delta = float(B["d"][sel][-1]) if np.isfinite(B["d"][sel][-1]) else 0.0
+                delta = float(buf[i1 - 1, 2]) if np.isfinite(buf[i1 - 1, 2]) else 0.0
                 P = math.pi**2
-            elapsed = tk - self._hist[max(h, 0)][0]
+            elapsed = tk - hist[max(k, 0)][0]
             P = P + s.sigma_rw**2 * elapsed if np.isfinite(P) and np.isfinite(elapsed) else P
             dev = float(wrap(psi_g + delta))
             # compass heading of this step on its own
-            dd = B["d"][sel]
+            dd = buf[i0:i1, 2]
             okd = np.isfinite(dd)
             if okd.sum() >= 2:
-                c, sn = np.cos(dd[okd]).mean(), np.sin(dd[okd]).mean()
+                ddo = dd[okd]
+                c, sn = np.cos(ddo).mean(), np.sin(ddo).mean()
                 spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
                 sig_m = float(self._measurement_sigma(
-                    np.array([spread]), np.array([B["norm"][sel][okd].mean()]), np.array([B["inc"][sel][okd].mean()]),
+                    np.array([spread]), np.array([buf[i0:i1, 3][okd].mean()]), np.array([buf[i0:i1, 4][okd].mean()]),
                     np.array([tk]),
                 )[0])
                 magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if np.isfinite(sig_m) else math.nan

@@ -2,7 +2,8 @@
 
 Each sample is handled on its own (or folded into a running sum, oldest first), so a
 stream cut into frames of any size gives bit-identical results, and a 10-sample frame
-costs one call instead of a dozen small array operations.
+costs one call instead of a dozen small array operations. The gyro bias at standstill is
+:func:`pdr.window_kernels.still_bias`.
 """
 from __future__ import annotations
 
@@ -10,8 +11,6 @@ import math
 
 import numpy as np
 from numba import njit
-
-from pdr.windows import trailing_moments
 
 TWO_PI = 2.0 * math.pi
 
@@ -119,32 +118,6 @@ def close_epochs(t, psi, d, norm, inc, w, t0, epoch, state):  # pragma: no cover
         state[6] += w[i]
         state[7] = psi[i]
     return out[:m]
-
-
-@njit(cache=True)
-def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma: no cover - compiled
-    """Gyro bias for each sample ``start..n-1`` (see ``HeadingEstimator._bias_per_sample``).
-
-    ``X`` (n, 4) holds the gyro axes and the specific-force norm. A sample is *still* when its
-    trailing ``window`` (s) is at least 90 % full and, over it (:func:`pdr.windows.window_moments`),
-    every gyro axis varies less than ``gyr_std``, the gyro mean is shorter than ``gyr_max``
-    and the force norm varies less than ``acc_std``. Each sample uses the gyro mean of the
-    latest still sample before it, else ``bias0``. Returns the biases (n − start, 3), the
-    still flags, the bias after the last sample."""
-    mean, std, _, first = trailing_moments(T, X, start, window)
-    m = T.shape[0] - start
-    out = np.empty((m, 3))
-    still = np.zeros(m, np.bool_)
-    cur = bias0.copy()
-    for r in range(m):
-        out[r, 0], out[r, 1], out[r, 2] = cur[0], cur[1], cur[2]
-        g = mean[r]
-        if (T[start + r] - T[first[r]] >= 0.9 * window
-                and std[r, 0] < gyr_std and std[r, 1] < gyr_std and std[r, 2] < gyr_std and std[r, 3] < acc_std
-                and math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) < gyr_max):
-            still[r] = True
-            cur[0], cur[1], cur[2] = g[0], g[1], g[2]
-    return out, still, cur
 
 
 @njit(cache=True)

@@ -152,7 +152,7 @@ def metres_per_hpa(p, settings: AltimeterSettings | None = None) -> float:
 
 
 @njit(cache=True)
-def _altimeter_run(t, p, state, tau, reference_s):  # pragma: no cover - compiled
+def altimeter_run(t, p, state, tau, reference_s):  # pragma: no cover - compiled
     """Low-pass and reference over one batch; returns (filtered p, p_ref) per sample.
 
     ``state`` (float64[6], updated in place): filtered value, last time, time of the first
@@ -187,6 +187,21 @@ def _altimeter_run(t, p, state, tau, reference_s):  # pragma: no cover - compile
     return filt, pref
 
 
+# the altimeter's state row before its first sample: filtered p, last t, first t, reference
+# sum, reference count, reference frozen (what altimeter_run reads and writes)
+ALTIMETER_START = (math.nan, math.nan, math.nan, 0.0, 0.0, 0.0)
+
+
+def reanchor(state: np.ndarray) -> bool:
+    """The altimeter whose state row is ``state`` (:data:`ALTIMETER_START` layout) takes its
+    current low-passed pressure as the reference from now on (the height there is whatever
+    the caller declares). False, and nothing changed, before the first sample."""
+    if math.isnan(state[1]):
+        return False
+    state[3], state[4], state[5] = state[0], 1.0, 1.0
+    return True
+
+
 class BarometricAltimeter:
     """Streaming barometric height: ``h = alt.update(t, pressure_hpa)`` → (N,) metres.
 
@@ -199,8 +214,7 @@ class BarometricAltimeter:
     def __init__(self, settings: AltimeterSettings | None = None, start_height_m: float = 0.0):
         self.settings = settings or AltimeterSettings()
         self._h0 = float(start_height_m)
-        # filtered p, last t, first t, reference sum, reference count, reference frozen
-        self._state = np.array([np.nan, np.nan, np.nan, 0.0, 0.0, 0.0])
+        self._state = np.array(ALTIMETER_START)
         self._height = math.nan
         self._hist_t = np.empty(0)
         self._hist_h = np.empty(0)
@@ -238,7 +252,7 @@ class BarometricAltimeter:
         good = np.isfinite(p) & np.isfinite(t)
         if good.any():
             s = self.settings
-            filt, pref = _altimeter_run(t[good], p[good], self._state, s.tau_s, s.reference_s)
+            filt, pref = altimeter_run(t[good], p[good], self._state, s.tau_s, s.reference_s)
             out[good] = self._h0 + relative_height(filt, pref, s)
         if not good.all():
             out = _hold_last(out, self._height)
@@ -272,9 +286,8 @@ class BarometricAltimeter:
         :meth:`pdr.floors.FloorTracker.anchor`.
         """
         self._h0 = float(height_m)
-        if math.isnan(self._state[1]):
+        if not reanchor(self._state):
             return
-        self._state[3], self._state[4], self._state[5] = self._state[0], 1.0, 1.0
         # shift the kept history onto the new reference so a step's dz spans the anchor
         self._hist_h = self._hist_h + (self._h0 - self._height)
         self._height = self._h0

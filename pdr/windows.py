@@ -1,70 +1,10 @@
-"""Trailing time windows over a sample stream: mean, standard deviation and maximum.
-
-For each sample ``i`` the window holds the samples ``j <= i`` with ``T[j] > T[i] - window``
-(``np.searchsorted(T, T[i] - window, side="right")`` is its first index). Every window is
-summed on its own, oldest sample first, with the two-pass variance
-
-    μ = (1/n) Σ x_j,      σ² = (1/n) Σ (x_j − μ)²,
-
-so a sample's statistics depend only on the samples in its window, never on where a batch
-began: a stream cut into frames of any size gives bit-identical results (running sums over a
-cumulative array would not, and lose precision besides). The cost is O(n · samples per
-window), a few hundred operations per sample at 100 Hz and a 1 s window.
+"""Per-sample helpers whose value for a sample never depends on how the stream was cut into
+frames: row norms, and whole turns of an unwrapped angle. (The trailing windows' statistics
+are compiled in :mod:`pdr.window_kernels`.)
 """
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
-
-
-@njit(cache=True)
-def trailing_moments(T, X, start, window):  # pragma: no cover - compiled
-    n, k = X.shape
-    m = n - start
-    mean = np.empty((m, k))
-    std = np.empty((m, k))
-    mx = np.empty((m, k))
-    first = np.empty(m, np.int64)
-    j0 = 0
-    for i in range(start, n):
-        lim = T[i] - window
-        while j0 < i and T[j0] <= lim:
-            j0 += 1
-        cnt = i + 1 - j0
-        r = i - start
-        first[r] = j0
-        for c in range(k):
-            s = 0.0
-            top = -np.inf
-            for j in range(j0, i + 1):
-                v = X[j, c]
-                s += v
-                if v > top:
-                    top = v
-            mu = s / cnt
-            ss = 0.0
-            for j in range(j0, i + 1):
-                d = X[j, c] - mu
-                ss += d * d
-            mean[r, c] = mu
-            std[r, c] = np.sqrt(ss / cnt)
-            mx[r, c] = top
-    return mean, std, mx, first
-
-
-def window_moments(T: np.ndarray, X: np.ndarray, start: int, window: float):
-    """Statistics of the trailing ``window`` (s) ending at each sample ``start..n-1``.
-
-    ``T`` (n,) s increasing, ``X`` (n, k). Returns ``mean``, ``std``, ``max`` each
-    (n − start, k) and ``first`` (n − start,), the index of each window's oldest sample.
-    """
-    T = np.ascontiguousarray(T, dtype=np.float64)
-    X = np.ascontiguousarray(X, dtype=np.float64)
-    if X.ndim != 2 or X.shape[0] != T.shape[0]:
-        raise ValueError(f"X must be (n, k) with n = len(T) = {T.shape[0]}, got {X.shape}")
-    if not 0 <= start <= T.shape[0]:
-        raise ValueError(f"start {start} outside [0, {T.shape[0]}]")
-    return trailing_moments(T, X, int(start), float(window))
 
 
 def norm3(a: np.ndarray) -> np.ndarray:
@@ -88,4 +28,4 @@ def unwrap_turns(angle: np.ndarray, last_angle: float | None, last_turns: int) -
     return last_turns + np.cumsum(step), int(last_turns + step.sum())
 
 
-__all__ = ["trailing_moments", "window_moments", "norm3", "unwrap_turns"]
+__all__ = ["norm3", "unwrap_turns"]

@@ -102,8 +102,8 @@ SLOW: dict[str, str] = {
         "2.4 s: every real IPIN file",
     "tests/test_wire.py::test_fuzz_field_values":
         "2.1 s: hypothesis fuzz",
-    "tests/test_fleet.py::test_the_service_gives_the_same_poses_with_and_without_columnar_rounds":
-        "2.1 s: the core twice over walks",
+    "tests/test_fleet.py::test_the_service_gives_a_responder_the_same_poses_alone_or_beside_others":
+        "the core four times over walks",
     "tests/test_fusion.py::test_pdr_heading_slows_gyro_drift_and_its_offset_state_is_the_price":
         "2.0 s: long synthetic walks, with and without",
     "tests/test_resume.py::test_a_crashed_service_resumes_and_reprocess_equals_the_live_poses":

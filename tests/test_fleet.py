@@ -1,6 +1,8 @@
-"""The columnar pipeline (issue 15): a responder's events are the same, bit for bit, alone in a
-:class:`pdr.pipeline.PdrPipeline` or among many in a :class:`pdr.fleet.PdrFleet`, in rounds of
-any size; and the service gives the same poses with and without it."""
+"""The one PDR engine (:class:`pdr.fleet.PdrFleet`; issues 15, 30): a responder's events are
+the same, bit for bit, alone (a :class:`pdr.pipeline.PdrPipeline`, a fleet of one, fed frame
+by frame) or among many members in rounds of any size, joining, leaving and reusing slots; a
+pickled fleet goes on as the original; and the service gives a responder the same poses
+whether others share its core or not."""
 from __future__ import annotations
 
 import warnings
@@ -49,9 +51,9 @@ def in_fleet(walks, floors, settings=None, seed=0, max_join=3, p_take=0.7, ancho
     """Every walk's frames through one fleet: each round takes a random subset of the
     responders, each a random number of its next frames joined (as the service joins a
     responder's frames of a round). Returns the events, the members and the frames each
-    member was given (to give a PdrPipeline the same batches: HeadingEstimator's compass
-    sigma of a step answered while the field reference is still being learned depends on
-    the batching, a property of the pipeline itself)."""
+    member was given (to give a fleet of one the same batches: the compass sigma of a step
+    answered while the field reference is still being learned depends on the batching, a
+    property of the pipeline itself)."""
     rng = np.random.default_rng(seed)
     fleet = PdrFleet(settings, floors, capacity=2)  # small: the rows grow (and the views follow) mid-run
     members = [fleet.member(sf) for _, sf in walks]
@@ -196,34 +198,45 @@ def test_the_fleet_refuses_a_frame_that_goes_back_in_time_and_keeps_its_state():
         a.update(walks[0][1])
 
 
-def test_settings_the_fleet_cannot_run_are_said_so():
-    assert PdrFleet.supports(PipelineSettings())
-    assert not PdrFleet.supports(PipelineSettings(detector="peak"))
-    with pytest.raises(ValueError, match="PdrPipeline"):
-        PdrFleet(PipelineSettings(detector="vertical"))
+def test_settings_the_engine_does_not_run_are_refused_naming_the_one_it_runs():
+    with pytest.raises(ValueError, match="'norm' step detector.*eval steps"):
+        PipelineSettings(detector="vertical")
+    from pdr.heading import HeadingSettings
+
+    with pytest.raises(ValueError, match="'decoupled' AHRS.*eval ahrs"):
+        PipelineSettings(heading=HeadingSettings(ahrs="madgwick"))
 
 
 @pytest.mark.bitexact
-def test_the_service_gives_the_same_poses_with_and_without_columnar_rounds():
+def test_the_service_gives_a_responder_the_same_poses_alone_or_beside_others():
+    """Three walkers in one core (their frames in shared rounds of one fleet) and each alone in
+    a core of its own: every pose the same, bit for bit."""
     from service.core.incident_core import CoreSettings, Inbound, IncidentCore
     from service.protocol import wire
     from tests.test_service import _simulated_messages
 
     cfg, msgs = _simulated_messages()
-    outs = {}
-    for columnar in (False, True):
-        core = IncidentCore(cfg, CoreSettings(columnar=columnar))
-        rng = np.random.default_rng(11)
-        out, i = [], 0
-        while i < len(msgs):
-            n = int(rng.integers(1, 80))
-            out += core.feed_round([Inbound(k, key, p, 0.0) for k, key, p in msgs[i:i + n]])
-            i += n
-        assert core.counters.errors == 0
-        assert (core.fleet is not None) == columnar
-        outs[columnar] = sorted((o.message for o in out if isinstance(o.message, wire.Pose)), key=lambda p: p.responder)
-    assert len(outs[True]) == len(outs[False]) > 100
-    for p, q in zip(outs[False], outs[True]):
+
+    rng = np.random.default_rng(11)
+    rounds, i = [], 0
+    while i < len(msgs):  # rounds of 1-80 messages; a responder alone gets its share of each
+        n = int(rng.integers(1, 80))
+        rounds.append(msgs[i:i + n])
+        i += n
+
+    def poses(keep):
+        core = IncidentCore(cfg, CoreSettings())
+        out = []
+        for r in rounds:
+            out += core.feed_round([Inbound(k, key, p, 0.0) for k, key, p in r if keep(key)])
+        assert core.counters.errors == 0 and core.fleet is not None
+        return sorted((o.message for o in out if isinstance(o.message, wire.Pose)), key=lambda p: (p.responder, p.t))
+
+    together = poses(lambda key: True)
+    names = sorted({p.responder for p in together})
+    apart = [p for name in names for p in poses(lambda key, name=name: f"/{name}/" in key)]
+    assert len(names) == 3 and len(together) == len(apart) > 100
+    for p, q in zip(apart, together):
         assert (p.responder, p.t, p.x, p.y, p.floor, p.steps, p.source, p.lat, p.lon) == \
                (q.responder, q.t, q.x, q.y, q.floor, q.steps, q.source, q.lat, q.lon)
         assert np.array_equal(p.cov, q.cov)
@@ -233,7 +246,7 @@ def test_the_service_gives_the_same_poses_with_and_without_columnar_rounds():
 def test_a_pickled_fleet_goes_on_like_the_original():
     """A fleet pickled mid-walk (a service's snapshot: typed lists packed, the rows in use only)
     and read back gives the same events as the original, bit for bit, with its pipelines'
-    floor and altimeter state views of the restored rows again."""
+    floor trackers working on views of the restored rows again."""
     import pickle
 
     floors = FloorElevations.uniform(3.0, 0, 2)
@@ -245,9 +258,9 @@ def test_a_pickled_fleet_goes_on_like_the_original():
     for k in range(200):
         fleet.run([(m, w[k]) for m, w in zip(members, walks)])
     twin = pickle.loads(pickle.dumps(fleet, protocol=5))
-    assert twin._ring_t.shape == fleet._ring_t.shape and twin._free == fleet._free
+    assert twin.rows.ring_t.shape == fleet.rows.ring_t.shape and twin.rows.free == fleet.rows.free
     for m in twin.members:
-        assert m.pipe._tracker._state.base is twin._fs and m.pipe._altimeter._state.base is twin._alt
+        assert m.floor_tracker.rows()[0].base is twin.rows.fs and m.floor_tracker.rows()[1].base is twin.rows.ring_t
     a, b = [[] for _ in walks], [[] for _ in walks]
     for k in range(200, 500):
         for i, ev in enumerate(fleet.run([(m, w[k]) for m, w in zip(members, walks)])):
@@ -274,10 +287,11 @@ def test_a_crowd_that_leaves_gives_its_rows_back_and_the_fleet_goes_on():
     for k in range(150):
         res = fleet.run([(walker, walks[0][k])] + [(m, walks[1 + j % 2][k]) for j, m in enumerate(crowd)])
         got += res[0]
-    assert fleet._cap == 64
+    assert fleet.rows.cap == 64
     for m in crowd[::-1][:20] + crowd[:20]:  # out of order: the top is freed only when all of it is
         fleet.release(m)
-    assert (fleet._n, fleet._cap, fleet._free, len(fleet._hbufs), len(fleet._step_times)) == (1, 2, [], 1, 1)
+    R = fleet.rows
+    assert (R.n, R.cap, R.free, len(R.hbufs), len(R.step_times)) == (1, 2, [], 1, 1)
     late = fleet.member(0)
     assert late.slot == 1
     late_got = []

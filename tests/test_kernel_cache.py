@@ -26,7 +26,8 @@ def test_the_fingerprint_changes_with_any_kernel_source(tmp_path):
 
 def test_the_fleet_and_the_kernels_it_calls_are_in_the_fingerprint():
     names = {p.name for p in kernel_cache.kernel_sources()}
-    assert {"fleet_kernels.py", "_decoupled_kernel.py", "heading_kernels.py", "height.py", "floors.py"} <= names
+    assert {"fleet_kernels.py", "_decoupled_kernel.py", "heading_kernels.py", "height.py", "floor_kernels.py",
+            "detector_kernels.py", "window_kernels.py", "fleet_buffers.py"} <= names
 
 
 def test_a_child_process_uses_the_same_folder_and_numba_caches_there(tmp_path):
@@ -38,7 +39,7 @@ def test_a_child_process_uses_the_same_folder_and_numba_caches_there(tmp_path):
             "sys.stdout.flush()\n"
             "subprocess.run([sys.executable, '-c', 'import pdr; from numba.core import config; print(config.CACHE_DIR)'])\n"
             "import numpy as np\n"
-            "from pdr.fleet_kernels import np_sum\n"
+            "from pdr.detector_kernels import np_sum\n"
             "np_sum(np.ones(3))\n")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr

@@ -19,7 +19,7 @@ def test_stage_table_sums_stages_per_frame_and_step_and_takes_the_idle_wait_out(
                                                                     ("/x/other.py", 1, "f"): (1, 1, 0.0, 0.25)}),
         ("/x/service/protocol/codec.py", 68, "decode"): _entry(0.3),
         ("/x/pdr/fleet_kernels.py", 166, "heading_stage"): _entry(0.4),
-        ("/x/pdr/heading.py", 300, "update"): _entry(0.1),  # the one-responder path counts in the same row
+        ("/x/pdr/heading.py", 300, "answer_steps"): _entry(0.1),  # the per-step part counts in the same row
         ("/x/pdr/other.py", 1, "update"): _entry(9.0),  # same function name, another file: not a stage
     })
     table = stage_table(stats, frames=1000, steps=100)

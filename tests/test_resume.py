@@ -236,16 +236,16 @@ def test_a_crowd_of_new_responders_is_pickled_a_batch_per_round_before_the_snaps
     assert written[0] == core.snapshot()
 
 
-def test_a_restored_fleets_pipelines_see_its_rows():
-    """The handheld pipelines' floor and altimeter state are views of the fleet's rows; after a
-    restore they are views of the restored fleet's rows (not copies that the fleet's rounds
-    would leave behind)."""
+def test_a_restored_fleets_members_see_its_rows():
+    """The handheld members' floor trackers work on views of the fleet's rows; after a restore
+    on views of the restored fleet's rows (not copies that the fleet's rounds would leave
+    behind)."""
     core = IncidentCore(CFG)
     core.feed_round(inputs_of(walk(seconds=5.0, seed=3))[:40])
     twin = IncidentCore.restore(core.snapshot(), CFG)
     m = twin.responders["ff1"].tracker.model
-    assert m.pipe._tracker._state.base is twin.fleet._fs and m.pipe._altimeter._state.base is twin.fleet._alt
-    assert np.shares_memory(m.pipe._tracker._ring_t, twin.fleet._ring_t[m.slot])
+    rows = m.floor_tracker.rows()
+    assert rows[0].base is twin.fleet.rows.fs and np.shares_memory(rows[1], twin.fleet.rows.ring_t[m.slot])
 
 
 def test_the_state_file_is_replaced_whole_and_checked_on_reading(tmp_path):

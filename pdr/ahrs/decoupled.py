@@ -171,6 +171,21 @@ class Decoupled(OrientationFilter):
         return q if q[0] >= 0 else -q
 
     @property
+    def kernel_state(self) -> np.ndarray:
+        """The compiled filter's state vector (a copy): what a columnar engine keeps as a row."""
+        return self._s.copy()
+
+    @property
+    def kernel_params(self) -> np.ndarray:
+        """The settings packed for the compiled filter (:meth:`DecoupledSettings.pack`)."""
+        return self._p
+
+    @property
+    def frame_turn(self) -> np.ndarray:
+        """The quaternion from ENU to the output frame (scalar first)."""
+        return np.ascontiguousarray(self._turn, dtype=float)
+
+    @property
     def bias(self) -> np.ndarray:
         """The current gyroscope bias estimate (rad/s, body frame)."""
         return self._s[K.S_BIAS:K.S_BIAS + 3].copy()

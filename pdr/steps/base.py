@@ -36,7 +36,7 @@ from pdr.settings import settings_with  # noqa: F401  (re-exported)
 from pdr.steps.signals import estimate_rate
 from pdr.steps.sosfilter import sos_filter
 
-_TAIL_MARGIN_S = 0.5  # s kept beyond the longest step, for the extremum and crossing tests
+TAIL_MARGIN_S = 0.5  # s kept beyond the longest step, for the extremum and crossing tests
 
 
 @dataclasses.dataclass(frozen=True)
@@ -131,9 +131,14 @@ class StepDetector:
         return self.update(t, y) + self.finish()
 
     # -- internals ----------------------------------------------------------------------
+    def filter_sections(self, fs: float) -> np.ndarray:
+        """The detector's band-pass at sampling rate ``fs`` (Hz) as contiguous second-order
+        sections (what a columnar engine runs for it)."""
+        return np.ascontiguousarray(self._design(float(fs)), dtype=np.float64)
+
     def _start(self, fs: float) -> None:
         self.rate_hz = float(fs)
-        self._sos = np.ascontiguousarray(self._design(self.rate_hz), dtype=np.float64)
+        self._sos = self.filter_sections(self.rate_hz)
 
     def _process(self, t: np.ndarray, a: np.ndarray) -> list[StepDetection]:
         if t.size == 0:
@@ -149,7 +154,7 @@ class StepDetector:
         n = self._t.size
         steps = self._scan(self._t, self._y, self._next, n - 2) if n - 2 >= self._next else []
         self._next = max(self._next, n - 1)
-        drop = int(np.searchsorted(self._t, self._t[-1] - (self.settings.max_step_s + _TAIL_MARGIN_S)))
+        drop = int(np.searchsorted(self._t, self._t[-1] - (self.settings.max_step_s + TAIL_MARGIN_S)))
         drop = min(drop, self._next - 1)
         if drop > 0:
             self._t, self._y = self._t[drop:], self._y[drop:]

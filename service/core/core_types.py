@@ -57,7 +57,6 @@ class CoreSettings:
     max_clock_lead_s: float = 60.0  # s a device clock may run ahead of the service's across a gap (beyond: a leap)
     idle_after_s: float = 2.0  # s without a message after which a responder's Status goes out less often ...
     idle_status_every_s: float = 5.0  # ... every this many s (and at once when its alarms change)
-    columnar: bool = True  # handheld pipelines run in columnar rounds (pdr.fleet); False: one responder at a time
     plausibility: PlausibilitySettings = field(default_factory=PlausibilitySettings)
 
 

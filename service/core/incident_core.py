@@ -139,7 +139,7 @@ class IncidentCore:
         pipeline = settings.tracker.pipeline
         # the handheld pipelines of all responders, run a stage at a time over the round (pdr.fleet)
         self.fleet = (PdrFleet(pipeline, FloorElevations(incident.elevations()))
-                      if settings.columnar and PdrFleet.supports(pipeline) and settings.tracker.motion is None else None)
+                      if settings.tracker.motion is None else None)
         self.assemble()
 
     def assemble(self, unattributed: dict | None = None, held_fixes: dict | None = None) -> None:

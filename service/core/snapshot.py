@@ -15,8 +15,8 @@ core until the responder changes, so a snapshot costs the responders that change
 last one, not every responder the incident holds (a flood that brought hundreds of ids that
 then fell silent must not stall the worker for a tenth of a second every few seconds, issue
 20). What responders share is named in their pickles, not held (:class:`SharedRefs`): the
-core's fleet of handheld pipelines (:class:`pdr.fleet.PdrFleet`), its rows (a pipeline's
-arrays are views of them), its members, and the settings every tracker shares; the whole-core
+core's fleet of handheld pipelines (:class:`pdr.fleet.PdrFleet`), its rows (a floor
+tracker's arrays are views of them), its members, and the settings every tracker shares; the whole-core
 pickle holds these once and the responders' pickles as bytes. Restoring resolves the names
 against the restored objects, so the views are views of the restored fleet again.
 
@@ -33,7 +33,7 @@ import pickle
 
 import numpy as np
 
-MAGIC = b"firetrack-core-snapshot/3\n"
+MAGIC = b"firetrack-core-snapshot/4\n"  # 4: one PDR engine (pdr.fleet_rows)
 
 # what a snapshot may name: classes (never functions) of this project's pure layers, and a few
 # named reconstructors of numpy and the standard library
@@ -140,10 +140,11 @@ class SharedRefs:
         self.shared = _dataclass_tree(roots)
         self._ids = {id(o): ("shared", k) for k, o in enumerate(self.shared)}
         self._rows: dict[int, str] = {}
-        self._arrays = frozenset(k for k, v in vars(fleet).items() if isinstance(v, np.ndarray)) if fleet is not None else frozenset()
+        rows = vars(fleet.rows) if fleet is not None else {}  # pdr.fleet_rows.FleetRows
+        self._arrays = frozenset(k for k, v in rows.items() if isinstance(v, np.ndarray))
         if fleet is not None:
             self._ids[id(fleet)] = ("fleet",)
-            self._rows = {id(v): k for k, v in vars(fleet).items() if isinstance(v, np.ndarray) and v.ndim >= 2}
+            self._rows = {id(v): k for k, v in rows.items() if isinstance(v, np.ndarray) and v.ndim >= 2}
 
     def name(self, obj):
         """For the responders' pickles: the name of a shared object, a fleet row or None."""
@@ -174,7 +175,7 @@ class SharedRefs:
                 name, slot = pid[1], pid[2]
                 if name not in self._arrays:  # only the fleet's arrays may be named
                     raise KeyError(name)
-                return getattr(self.fleet, name)[int(slot)]
+                return getattr(self.fleet.rows, name)[int(slot)]
         except (TypeError, IndexError, KeyError, ValueError):
             pass
         raise SnapshotError(f"a snapshot names {str(pid)[:80]}, which it does not hold")

@@ -1,0 +1,137 @@
+"""What happens a few times a second per responder: detected steps become :class:`StepEvent`,
+floor changes become :class:`FloorEvent`, in one time-ordered stream.
+
+The per-sample work of the dead reckoning runs in compiled kernels over many responders at
+once (:mod:`pdr.fleet`); each responder keeps one :class:`StepAssembler` and one
+:class:`FloorEvents` for the rare events.
+
+**A step** (:meth:`StepAssembler.assemble`), given its detection and its heading:
+
+* length ``L = a + b·f`` from the responder's profile (:func:`pdr.step_length.step_lengths`,
+  seed 002 §2.8), clipped to ``[min_step_length_m, max_step_length_m]``; on stairs
+  (:class:`pdr.floors.StairsDetector` on the per-step height change) whole treads instead
+  (seed 000 §7: 0.80 m estimated against 0.28 m real); uncertainty ``σ_L = σ_0 + k·L``;
+* height change ``dz = h(t_k) − h(t_{k−1})`` where ``h(t)`` is the height at the last
+  pressure sample at or before ``t`` — never a later one, so the answer does not depend on
+  whether the next pressure sample came in the same frame;
+* the floor the barometer had at ``t_k``.
+
+**Floor events** (:meth:`FloorEvents.release`): a floor change from the barometer (not from a
+fix) goes into the stream in time order with the steps: steps at or before the change come
+before it, later ones after it. A change is released once the newest sample is
+``floor_event_hold_s`` past it (every step before it has been detected by then: the norm
+detector releases a bout's first steps at most ≈3 s late); steps after a change wait for it.
+So the stream is the same whatever the batching, and a responder in a lift is moved to the
+new floor without a step.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from pdr.events import FloorEvent, StepDetection, StepEvent
+from pdr.floors import FloorChange, StairsDetector
+from pdr.heading import StepHeadings
+from pdr.pipeline_settings import PipelineSettings
+from pdr.step_length import step_arrays, step_lengths
+
+
+class StepAssembler:
+    """Detected steps of one responder -> :class:`StepEvent` (module docstring)."""
+
+    def __init__(self, settings: PipelineSettings):
+        self.settings = settings
+        self.count = 0  # steps emitted so far
+        self._stairs = StairsDetector(settings.stairs)
+        self._detected: list[StepDetection] = []  # detected steps waiting for their heading
+        self._last: tuple[float, float] | None = None  # (t, height) of the previous step
+
+    def detected(self, found: list[StepDetection]) -> None:
+        """Steps the detector found; each is assembled once its heading is known."""
+        self._detected += found
+
+    def reanchor(self, height_m: float) -> None:
+        """The height was re-referenced (a fix): the previous step counts as at ``height_m``."""
+        if self._last is not None:
+            self._last = (self._last[0], float(height_m))
+
+    def assemble(self, hd: StepHeadings, pressure: np.ndarray, floor_at: Callable[[float], int]) -> list[StepEvent]:
+        """The first ``len(hd)`` detected steps with their headings ``hd``; ``pressure`` holds
+        rows (t, height) of the recent pressure samples, ``floor_at`` the barometer's floor."""
+        n = len(hd)
+        if n == 0:
+            return []
+        s = self.settings
+        det, self._detected = self._detected[:n], self._detected[n:]
+        L = np.clip(step_lengths(step_arrays(det), s.profile), s.min_step_length_m, s.max_step_length_m)
+        h = _height_before(pressure, hd.t)
+        h_prev = np.concatenate(([self._last[1] if self._last else np.nan], h[:-1]))
+        known = np.isfinite(h) & np.isfinite(h_prev)
+        dz = np.where(known, h - h_prev, 0.0)
+        dz_sigma = np.where(known, s.dz_sigma_m, math.inf)
+        stairs = self._stairs.update(dz)
+        L = np.where(stairs.on_stairs, stairs.length, L)
+        sigma_L = s.length_sigma_m + s.length_sigma_frac * L
+        events = []
+        for k in range(n):
+            self.count += 1
+            events.append(StepEvent(
+                t=float(hd.t[k]), index=self.count, length=float(L[k]), length_sigma=float(sigma_L[k]),
+                heading=float(hd.heading[k]), heading_sigma=float(hd.heading_sigma[k]),
+                heading_change=float(hd.heading_change[k]) if self.count > 1 else 0.0,
+                heading_change_sigma=float(hd.heading_change_sigma[k]),
+                dz=float(dz[k]), dz_sigma=float(dz_sigma[k]), floor=int(floor_at(float(hd.t[k]))),
+                on_stairs=bool(stairs.on_stairs[k]), mag_heading=float(hd.mag_heading[k]),
+                mag_heading_sigma=float(hd.mag_heading_sigma[k]),
+            ))
+        self._last = (float(hd.t[-1]), float(h[-1]))
+        return events
+
+
+def _height_before(pressure: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Height at the last pressure sample at or before each ``t`` (NaN before any)."""
+    if pressure.shape[0] == 0:
+        return np.full(t.shape, np.nan)
+    i = np.searchsorted(pressure[:, 0], t, side="right") - 1
+    return np.where(i >= 0, pressure[np.maximum(i, 0), 1], np.nan)
+
+
+class FloorEvents:
+    """One responder's floor changes waiting to be released, and the steps held behind them."""
+
+    def __init__(self):
+        self._queue: list[FloorChange] = []  # changes not yet released as FloorEvent
+        self._held: list[StepEvent] = []  # steps after an unreleased change
+
+    @property
+    def waiting(self) -> bool:
+        """A change or a step is held (a later round may release it without new steps)."""
+        return bool(self._queue or self._held)
+
+    def changed(self, change: FloorChange) -> None:
+        self._queue.append(change)
+
+    def superseded(self) -> None:
+        """A fix re-referenced the floor: the changes the barometer made before it are void."""
+        self._queue = []
+
+    def release(self, steps: list[StepEvent], horizon: float) -> list[StepEvent | FloorEvent]:
+        """Steps and floor events in time order: changes up to ``horizon``, and the steps
+        before the first change still held (module docstring)."""
+        self._held += steps
+        out: list[StepEvent | FloorEvent] = []
+        while self._queue and self._queue[0].t <= horizon:
+            c = self._queue.pop(0)
+            out += self._take_until(c.t)
+            out.append(FloorEvent(t=c.t, floor=c.floor_to, floor_from=c.floor_from, reason=c.reason))
+        return out + self._take_until(self._queue[0].t if self._queue else math.inf)
+
+    def _take_until(self, bound: float) -> list[StepEvent]:
+        n = sum(1 for e in self._held if e.t <= bound)
+        out, self._held = self._held[:n], self._held[n:]
+        return out
+
+
+__all__ = ["StepAssembler", "FloorEvents"]

@@ -1,0 +1,198 @@
+"""Trailing-window stillness tests, compiled: the gyro bias at standstill
+(:func:`still_bias`, for :class:`pdr.heading.HeadingEstimator` and the engine's heading stage)
+and the motionless windows of the motion state (:func:`motionless_windows`).
+
+For each sample ``i`` the window holds the samples ``j <= i`` with ``T[j] > T[i] - window``.
+A window that is tested is summed on its own, oldest sample first, with the two-pass variance
+
+    μ = (1/n) Σ x_j,      σ² = (1/n) Σ (x_j − μ)²,
+
+so a sample's decision depends only on the samples in its window, never on where a batch
+began: a stream cut into frames of any size gives bit-identical results (running sums over
+a cumulative array would not, and lose precision besides).
+
+A window's standard deviation is needed only where it could pass: a window whose range is at
+least √(2n)·σ_max cannot have σ < σ_max (σ ≥ range/√(2n) for any n samples), and a window
+whose maximum passes a limit fails whatever its σ. Those are decided from exact sliding minima
+and maxima (monotone deques, O(1) per sample), so the sums are paid only while the device is
+nearly still.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+_RANGE_MARGIN = 1.01  # the bound's safety factor against rounding (relative errors of ~1e-13)
+
+
+@njit(cache=True, inline="always")
+def _push(dq, head, tail, X, c, i, sign):
+    """Monotone deque of indices for the max (sign 1) or min (sign -1) of column c."""
+    while tail > head and sign * X[dq[tail - 1], c] <= sign * X[i, c]:
+        tail -= 1
+    dq[tail] = i
+    return tail + 1
+
+
+@njit(cache=True)
+def _first_in_window(T, i, window):  # pragma: no cover - compiled
+    lim = T[i] - window
+    j = 0
+    while j < i and T[j] <= lim:
+        j += 1
+    return j
+
+
+@njit(cache=True)
+def _all_moving(T, X, start, window, gyr_std, acc_std):  # pragma: no cover - compiled
+    """True when no window ending at samples ``start..n-1`` can be still: the samples every one
+    of them holds, ``[j0(n−1), start]``, already spread too far in some column for any window of
+    at most ``n − j0(start)`` samples (σ ≥ range/√(2n))."""
+    n = T.shape[0]
+    a = _first_in_window(T, n - 1, window)
+    if a > start:
+        return False
+    cnt = n - _first_in_window(T, start, window)
+    bound = _RANGE_MARGIN * math.sqrt(2.0 * cnt)
+    for c in range(X.shape[1]):
+        lo = X[a, c]
+        hi = X[a, c]
+        for j in range(a + 1, start + 1):
+            v = X[j, c]
+            if v < lo:
+                lo = v
+            if v > hi:
+                hi = v
+        if hi - lo >= bound * (gyr_std if c < 3 else acc_std):
+            return True
+    return False
+
+
+@njit(cache=True)
+def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma: no cover - compiled
+    """Gyro bias for each sample ``start..n-1`` (:class:`pdr.heading.HeadingEstimator`, 1).
+
+    ``X`` (n, 4) holds the gyro axes and the specific-force norm. A sample is *still* when its
+    trailing ``window`` (s) is at least 90 % full and, over it, every gyro axis varies less
+    than ``gyr_std``, the gyro mean is shorter than ``gyr_max`` and the force norm varies less
+    than ``acc_std``. Each sample uses the gyro mean of the latest still sample before it,
+    else ``bias0``. Returns the biases (n − start, 3), the still flags, the bias after the
+    last sample."""
+    n = T.shape[0]
+    m = n - start
+    out = np.empty((m, 3))
+    still = np.zeros(m, np.bool_)
+    cur = bias0.copy()
+    if m > 0 and _all_moving(T, X, start, window, gyr_std, acc_std):
+        for r in range(m):
+            out[r, 0], out[r, 1], out[r, 2] = cur[0], cur[1], cur[2]
+        return out, still, cur
+    dqmax = np.empty((4, n), np.int64)
+    dqmin = np.empty((4, n), np.int64)
+    hmax = np.zeros(4, np.int64)
+    tmax = np.zeros(4, np.int64)
+    hmin = np.zeros(4, np.int64)
+    tmin = np.zeros(4, np.int64)
+    j0 = 0
+    full_s = 0.9 * window
+    for i in range(n):
+        for c in range(4):
+            tmax[c] = _push(dqmax[c], hmax[c], tmax[c], X, c, i, 1.0)
+            tmin[c] = _push(dqmin[c], hmin[c], tmin[c], X, c, i, -1.0)
+        lim = T[i] - window
+        while j0 < i and T[j0] <= lim:
+            j0 += 1
+        if i < start:
+            continue
+        r = i - start
+        out[r, 0], out[r, 1], out[r, 2] = cur[0], cur[1], cur[2]
+        if not T[i] - T[j0] >= full_s:
+            continue
+        cnt = i + 1 - j0
+        bound = _RANGE_MARGIN * math.sqrt(2.0 * cnt)
+        hopeless = False
+        for c in range(4):
+            while dqmax[c, hmax[c]] < j0:
+                hmax[c] += 1
+            while dqmin[c, hmin[c]] < j0:
+                hmin[c] += 1
+            spread = X[dqmax[c, hmax[c]], c] - X[dqmin[c, hmin[c]], c]
+            if spread >= bound * (gyr_std if c < 3 else acc_std):
+                hopeless = True
+        if hopeless:
+            continue
+        g = np.empty(4)
+        sd = np.empty(4)
+        for c in range(4):
+            s = 0.0
+            for j in range(j0, i + 1):
+                s += X[j, c]
+            mu = s / cnt
+            ss = 0.0
+            for j in range(j0, i + 1):
+                d = X[j, c] - mu
+                ss += d * d
+            g[c] = mu
+            sd[c] = np.sqrt(ss / cnt)
+        if (sd[0] < gyr_std and sd[1] < gyr_std and sd[2] < gyr_std and sd[3] < acc_std
+                and math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) < gyr_max):
+            still[r] = True
+            cur[0], cur[1], cur[2] = g[0], g[1], g[2]
+    return out, still, cur
+
+
+@njit(cache=True)
+def motionless_windows(T, X, start, window, full_s, acc_std, gyr_max):  # pragma: no cover - compiled
+    """Per sample ``start..n-1``: the trailing ``window`` is full (``full_s``), σ of column 0 is
+    below ``acc_std`` and the maximum of column 1 below ``gyr_max`` (the motionless windows of
+    :mod:`pdr.pipeline`, 7)."""
+    n = T.shape[0]
+    still = np.zeros(n - start, np.bool_)
+    if n > start:  # the samples every window holds: a gyro peak there rules them all out
+        a = _first_in_window(T, n - 1, window)
+        top = -np.inf
+        for j in range(a, start + 1):
+            if X[j, 1] > top:
+                top = X[j, 1]
+        if a <= start and not top < gyr_max:
+            return still
+    dqmax0 = np.empty(n, np.int64)
+    dqmin0 = np.empty(n, np.int64)
+    dqmax1 = np.empty(n, np.int64)
+    h0 = t0 = h1 = t1 = h2 = t2 = 0
+    j0 = 0
+    for i in range(n):
+        t0 = _push(dqmax0, h0, t0, X, 0, i, 1.0)
+        t1 = _push(dqmin0, h1, t1, X, 0, i, -1.0)
+        t2 = _push(dqmax1, h2, t2, X, 1, i, 1.0)
+        lim = T[i] - window
+        while j0 < i and T[j0] <= lim:
+            j0 += 1
+        if i < start:
+            continue
+        if not T[i] - T[j0] >= full_s:
+            continue
+        while dqmax1[h2] < j0:
+            h2 += 1
+        if not X[dqmax1[h2], 1] < gyr_max:
+            continue
+        while dqmax0[h0] < j0:
+            h0 += 1
+        while dqmin0[h1] < j0:
+            h1 += 1
+        cnt = i + 1 - j0
+        if X[dqmax0[h0], 0] - X[dqmin0[h1], 0] >= _RANGE_MARGIN * math.sqrt(2.0 * cnt) * acc_std:
+            continue
+        s = 0.0
+        for j in range(j0, i + 1):
+            s += X[j, 0]
+        mu = s / cnt
+        ss = 0.0
+        for j in range(j0, i + 1):
+            d = X[j, 0] - mu
+            ss += d * d
+        if np.sqrt(ss / cnt) < acc_std:
+            still[i - start] = True
+    return still
