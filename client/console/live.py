@@ -43,7 +43,7 @@ def status_json(s: wire.Status, received_at: float) -> dict:
             "frames": s.frames, "gaps": s.gaps, "lost": s.lost, "gap_s": round(s.gap_s, 2), "streams": s.streams,
             "last_heard": s.last_heard, "steps": s.steps,
             "fixes": dict(s.fixes), "last_fix": s.last_fix, "first_heard": s.first_heard, "utc_offset": s.utc_offset,
-            "commands": {a: dict(o) for a, o in s.commands.items()}, "received_at": received_at}
+            "commands": {a: dict(o) for a, o in s.commands.items()}, "lag_s": s.lag_s, "received_at": received_at}
 
 
 class LiveBoard:

@@ -10,6 +10,7 @@ import math
 
 from pdr.events import MotionEvent
 from pdr.fleet import FleetMember
+from service.core import lag
 from service.core.responder import Responder, continues, frame_of
 from service.core.tracker import (
     PoseEstimate,
@@ -45,6 +46,8 @@ class FrameRounds:
         self._touch(r)
         if b is r.gate.first_of_stream and b is not r.stream_start:
             self._new_stream(r, b)
+            r.lag.reset()  # another device clock
+        r.lag.note(self._now, float(b.t[-1]))
         t0 = float(b.t[0]) + r.t_offset
         if math.isfinite(r.last_t) and t0 - r.last_t > self.settings.gap_reanchor_s:
             self._run_backlog(r)  # the frames before the gap go first
@@ -56,6 +59,16 @@ class FrameRounds:
         r.last_t = float(b.t[-1]) + r.t_offset
         r.last_rt = self._now
         self._dirty[r.id] = r  # run at the round's end (frame by frame while a fix waits: see _run_backlog)
+
+    def behind_s(self, now: float) -> float:
+        """How far behind the core is at ``now``: its responders' median lag (s; :mod:`service.core.lag`)."""
+        return lag.behind_s(self._lag_of(r, now) for r in self.responders.values())
+
+    def _lag_of(self, r: Responder, now: float) -> float:
+        """``r``'s lag at ``now``, or at its last input unless heard within ``idle_after_s`` of the
+        newest input (of the input, not of the clock: a worker that is behind takes all input late)."""
+        lately = r.last_input > self._last_take - self.settings.idle_after_s
+        return r.lag.at(now if lately else r.last_input)
 
     def _new_stream(self, r: Responder, b: wire.ImuBatch) -> None:
         """The gate opened a stream with ``b``: the first of the responder, or a new one (a

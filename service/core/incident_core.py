@@ -123,6 +123,7 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         self._out: list[Outbound] = []
         self._pose_queue: list[tuple] = []  # poses of this round waiting for their wire form
         self._now = 0.0
+        self._last_take = -math.inf  # service time of the newest message taken (lags: who was heard lately)
         self._presence: dict[str, bool] = {}  # liveliness seen before a responder's first frame (bounded)
         self.intake = Intake(settings.intake)
         self.reject_log = RejectLog(log, settings.rejected_window_s, settings.log_rejects_per_window,
@@ -269,7 +270,7 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
             beacons_heard={b: t - r.t_offset for b, t in getattr(r, "beacons_heard", {}).items()},
             last_fix=tr.last_fix, first_heard=r.first_heard, commands={a: dict(o) for a, o in r.commands.items()},
             lost=g.lost, gap_s=g.gap_s, streams=g.streams, device=g.device, boot=g.boot, seq=g.last_seq,
-            missing=None if g.missing is None else list(g.missing),
+            missing=None if g.missing is None else list(g.missing), lag_s=round(self._lag_of(r, now), 3),
         )
 
     def flooding_sources(self, now: float) -> list[str]:
@@ -308,7 +309,7 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
     # ------------------------------------------------------------------ per message
     def _take(self, item: Inbound) -> None:
         kind, key, payload, now = item
-        self._now = now
+        self._now = self._last_take = now
         self.intake.in_hand = kind  # a reject of this message is charged to its lane (service.core.intake)
         if now - self._expiry_checked >= 1.0 or now < self._expiry_checked:
             self._expire(now)

@@ -344,6 +344,9 @@ class Status(WireMessage):
                                                          "responder (time in the building counts from here)")
     commands: dict[str, dict] = Field(default_factory=dict, description="per action (par, evacuate): the newest "
                                       "order's id, when it was issued (UTC s) and when it was acknowledged (or null)")
+    lag_s: Finite | None = Field(None, ge=0.0, description="s: how much later than its quickest frame the newest "
+                                                          "frame reached the service (queued in the network, the "
+                                                          "router or a worker behind; service/core/lag.py)")
 
 
 class Command(WireMessage):

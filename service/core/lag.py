@@ -1,0 +1,70 @@
+"""How late frames reach the core: a responder's lag, and how far behind the service is.
+
+Per frame ``k`` the core knows its newest sample's device time ``t_k`` and the service time
+``r_k`` the shell took it at. ``d_k = r_k − t_k`` is the frame's delay plus the offset between
+the two clocks, which is unknown but constant (a clock drifts by at most about 100 ppm:
+0.03 s in 5 minutes). The least delayed frame seen recently, the *base* ``b = min d_j``, carries
+the offset and the smallest delay (the base-delay idea of LEDBAT, RFC 6817 section 2.4.1: the
+minimum over the current and the previous window of ``window_s``, two buckets, so it follows a
+drifting clock and forgets an old one). At service time ``now``, the newest sample taken is
+
+    lag(now) = now − t_newest − b  ≥ 0
+
+seconds old beyond what the quickest frame took: the time frames spend queued (network,
+router, the worker's channel) and the rounds of a worker that is behind. No clock needs to be
+synchronised. Between two frames of a live wearable (0.1 s) it grows by up to 0.1 s.
+
+One responder's lag is its own news (a bad radio link, frames resent after a gap). When the
+service cannot keep up, every responder's lag grows together: :func:`behind_s`, the median
+over the responders heard lately, is the service's lag. Status carries each responder's; the
+console shows the service's.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+BASE_WINDOW_S = 300.0  # s of service time per bucket of the base delay's minimum
+
+
+class FrameLag:
+    """``note(received, t_last)`` per frame in order; ``at(now)`` the age of the newest sample."""
+
+    __slots__ = ("window_s", "_bucket_start", "_min_now", "_min_before", "_t_newest")
+
+    def __init__(self, window_s: float = BASE_WINDOW_S):
+        self.window_s = window_s
+        self.reset()
+
+    def reset(self) -> None:
+        """A new device clock (another stream): the base starts again."""
+        self._bucket_start = -math.inf
+        self._min_now = math.inf
+        self._min_before = math.inf
+        self._t_newest = math.nan
+
+    def note(self, received: float, t_last: float) -> None:
+        """The frame whose newest sample is at ``t_last`` (device s) was taken at ``received`` (service s)."""
+        d = received - t_last
+        if not math.isfinite(d):
+            return
+        if received - self._bucket_start >= self.window_s or received < self._bucket_start:
+            self._bucket_start, self._min_before, self._min_now = received, self._min_now, math.inf
+        self._min_now = min(self._min_now, d)
+        self._t_newest = t_last
+
+    def at(self, now: float) -> float:
+        """s: how much older the newest sample is at service time ``now`` than the quickest
+        frame's delay says it would be (0 before any frame)."""
+        lag = now - self._t_newest - min(self._min_now, self._min_before)
+        return max(lag, 0.0) if math.isfinite(lag) else 0.0
+
+
+def behind_s(lags: Iterable[float]) -> float:
+    """The service's lag: the median of its responders' lags (0 with none). One responder's
+    late frames do not move it; a worker that cannot keep up moves everyone's."""
+    xs = sorted(x for x in lags if math.isfinite(x))
+    if not xs:
+        return 0.0
+    m = len(xs) // 2
+    return xs[m] if len(xs) % 2 else 0.5 * (xs[m - 1] + xs[m])

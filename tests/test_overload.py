@@ -1,0 +1,105 @@
+"""A worker that cannot keep up (issue 29 part 3): every responder is still tracked, all late
+alike, no frame is lost, and the service says it is behind and by how much."""
+from __future__ import annotations
+
+import statistics
+import threading
+import time
+
+import pytest
+
+from client.simulate import SimulationPublisher
+from service.core.lag import FrameLag, behind_s
+from service.protocol import wire
+from service.protocol.incident import default_incident
+from service.shell.service import IncidentService, ServiceSettings
+from tests.zenoh_util import client, router, wait_until
+
+WALKERS = 8
+SECONDS = 12.0  # of walking, published in real time: 8 walkers x 10 frames/s
+SLOW_S_PER_FRAME = 0.016  # the worker takes at most 62 frames/s of the 80 sent: 1.3 times overloaded
+
+
+def test_lag_is_the_age_of_the_newest_sample_beyond_the_quickest_frame_whatever_the_clocks():
+    lag = FrameLag(window_s=10.0)
+    assert lag.at(5.0) == 0.0  # nothing heard yet
+    # the device clock is 1000 s behind the service's; frames 0.1 s apart, the quickest 0.05 s late
+    lag.note(1000.0 + 1.05, 1.0)
+    assert lag.at(1001.05) == 0.0
+    lag.note(1000.0 + 1.2, 1.1)
+    assert lag.at(1001.2) == pytest.approx(0.05)
+    assert lag.at(1004.0) == pytest.approx(2.85)  # nothing newer taken since: the track grows old
+    lag.note(1000.0 + 3.75, 1.2)  # this frame waited 2.5 s more than the quickest
+    assert lag.at(1003.75) == pytest.approx(2.5)
+    lag.reset()  # another device clock: its own base
+    lag.note(2000.0, 5.0)
+    assert lag.at(2000.0) == 0.0
+    # one responder's late frames do not make the service behind; everyone's do
+    assert behind_s([0.0, 0.1, 9.0]) == 0.1
+    assert behind_s([3.0, 3.2, 2.9, 3.1]) == pytest.approx(3.05)
+    assert behind_s([]) == 0.0
+
+
+def test_an_overloaded_worker_tracks_everyone_alike_loses_nothing_and_says_it_is_behind():
+    cfg = default_incident()
+    session, endpoint = router()
+    svc = IncidentService(session, cfg, ServiceSettings(slow_s_per_frame=SLOW_S_PER_FRAME)).start()
+    watch = client(endpoint)
+    poses: dict[str, list[tuple[float, int]]] = {}  # responder -> (arrival, newest frame seq)
+    lags: dict[str, list[float]] = {}
+    lock = threading.Lock()
+
+    def on_pose(sample):
+        p = wire.decode(sample.payload.to_bytes(), expect=wire.Pose)
+        with lock:
+            poses.setdefault(p.responder, []).append((time.monotonic(), p.seq))
+
+    def on_status(sample):
+        s = wire.decode(sample.payload.to_bytes(), expect=wire.Status)
+        with lock:
+            lags.setdefault(s.responder, []).append(s.lag_s)
+
+    subs = [watch.declare_subscriber(wire.key_all(cfg.id, "pose"), on_pose),
+            watch.declare_subscriber(wire.key_all(cfg.id, "status"), on_status)]
+    wearables = client(endpoint)
+    pub = SimulationPublisher(wearables, cfg.id, WALKERS, rate_hz=100.0, seed=5, truth=False)
+    try:
+        pub.step(10)  # the door fixes and a first frame each
+        start = time.monotonic()
+        sent = WALKERS + pub.run(SECONDS)
+        end = time.monotonic()
+        assert wait_until(lambda: svc.frames_processed >= sent, 60), (svc.frames_processed, sent)
+        drained = time.monotonic()
+        drained = time.monotonic()
+        svc.wait_idle(10)
+        accounting = svc.frame_accounting()
+    finally:
+        pub.close()
+        for s in subs:
+            s.undeclare()
+        svc.close()
+        wearables.close()
+        watch.close()
+        session.close()
+    # nothing lost: every frame sent went through a tracker
+    assert svc.frames_processed == sent
+    assert not {k: v for k, v in accounting.items() if k in ("lost", "held") or k.startswith("newcomer")}, accounting
+    assert svc.missed == 0
+    # behind, and by how much: the service's lag and every responder's Status say so
+    assert svc.behind_max_s > 2.0, svc.behind_max_s
+    assert set(lags) == set(pub.names)
+    assert all(max(x for x in v if x is not None) > 2.0 for v in lags.values()), lags
+    # everyone tracked alike while the worker was behind (from a quarter into the run until it
+    # caught up): each responder's track went as far (frames reflected per second), and each got
+    # poses as often (from its first pose on: a few more poses each, less rounding)
+    lo = start + 0.25 * (end - start)
+    progress, rate = {}, {}
+    for rid in pub.names:
+        mine = poses.get(rid, [])
+        inside = [(t, seq) for t, seq in mine if lo <= t <= drained]
+        assert len(inside) >= 2, (rid, len(inside))
+        progress[rid] = (inside[-1][1] - inside[0][1]) / (inside[-1][0] - inside[0][0])
+        rate[rid] = len(mine) / (drained - mine[0][0])
+    for name, figures in (("frames per second", progress), ("poses per second", rate)):
+        mid = statistics.median(figures.values())
+        assert all(abs(v - mid) <= 0.2 * mid for v in figures.values()), (name, figures)
