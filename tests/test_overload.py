@@ -103,3 +103,52 @@ def test_an_overloaded_worker_tracks_everyone_alike_loses_nothing_and_says_it_is
     for name, figures in (("frames per second", progress), ("poses per second", rate)):
         mid = statistics.median(figures.values())
         assert all(abs(v - mid) <= 0.2 * mid for v in figures.values()), (name, figures)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from tests.browser_util import launch_chromium
+
+    yield from launch_chromium()
+
+
+def test_the_console_says_service_behind_and_by_how_much(browser):
+    """The page's banner: the median of the Statuses' lags, from ``behind_s`` (1 s) up; one
+    late wearable alone does not raise it."""
+    from client.console.server import start_console
+    from tests.zenoh_util import free_port
+
+    session, endpoint = router()
+    cfg = default_incident()
+    console = start_console(session, cfg, port=free_port())
+    cl = client(endpoint)
+    page = None
+
+    def statuses(lags):
+        now = time.time()
+        for i, lag in enumerate(lags):
+            rid = f"ff{i}"
+            cl.put(wire.key(cfg.id, rid, "status"), wire.encode(wire.Status(
+                responder=rid, t=100.0, motion="walking", motion_since=0.0, last_heard=now, lag_s=lag)))
+
+    try:
+        page = browser.new_page()
+        page.goto(console.url)
+        page.wait_for_function("window.__firetrack && window.__firetrack.ready && window.__firetrack.connected",
+                               timeout=15_000)
+        statuses([0.1, 0.2, 0.1, 9.0])  # one wearable's frames late: not the service
+        page.wait_for_function("window.__firetrack.responders.size === 4", timeout=5000)
+        page.wait_for_timeout(1500)  # the panels refresh once a second
+        assert page.locator("#behind").is_hidden()
+        statuses([3.2, 3.4, 3.6, 9.0])  # everyone's: the service is behind (median 3.5 s)
+        page.wait_for_function("document.querySelector('#behind').textContent === 'SERVICE BEHIND 3.5 s'",
+                               timeout=5000)
+        assert page.locator("#behind").is_visible()
+        statuses([0.0, 0.1, 0.0, 0.2])  # caught up
+        page.wait_for_function("document.querySelector('#behind').hidden", timeout=5000)
+    finally:
+        if page is not None:
+            page.close()
+        console.close()
+        cl.close()
+        session.close()
