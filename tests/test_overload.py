@@ -86,9 +86,9 @@ def test_an_overloaded_worker_tracks_everyone_alike_loses_nothing_and_says_it_is
     assert not {k: v for k, v in accounting.items() if k in ("lost", "held") or k.startswith("newcomer")}, accounting
     assert svc.missed == 0
     # behind, and by how much: the service's lag and every responder's Status say so
-    assert svc.behind_max_s > 2.0, svc.behind_max_s
+    assert svc.behind_max_s > 1.5, svc.behind_max_s
     assert set(lags) == set(pub.names)
-    assert all(max(x for x in v if x is not None) > 2.0 for v in lags.values()), lags
+    assert all(max(x for x in v if x is not None) > 1.5 for v in lags.values()), lags
     # everyone tracked alike while the worker was behind (from a quarter into the run until it
     # caught up): each responder's track went as far (frames reflected per second), and each got
     # poses as often (from its first pose on: a few more poses each, less rounding)

@@ -12,7 +12,9 @@ drifting clock and forgets an old one). At service time ``now``, the newest samp
 
 seconds old beyond what the quickest frame took: the time frames spend queued (network,
 router, the worker's channel) and the rounds of a worker that is behind. No clock needs to be
-synchronised. Between two frames of a live wearable (0.1 s) it grows by up to 0.1 s.
+synchronised. Between two frames of a live wearable (0.1 s) it grows by up to 0.1 s; the core
+lets it grow at most ``GROWTH_S`` past the newest input of any responder, so silence (nobody
+sending) is not mistaken for a service behind: a worker behind takes input all the time, late.
 
 One responder's lag is its own news (a bad radio link, frames resent after a gap). When the
 service cannot keep up, every responder's lag grows together: :func:`behind_s`, the median
@@ -25,6 +27,7 @@ import math
 from collections.abc import Iterable
 
 BASE_WINDOW_S = 300.0  # s of service time per bucket of the base delay's minimum
+GROWTH_S = 0.5  # s a lag may grow past the newest input taken (frames every 0.1 s; below the console's 1 s)
 
 
 class FrameLag:
