@@ -31,9 +31,13 @@ def test_lag_is_the_age_of_the_newest_sample_beyond_the_quickest_frame_whatever_
     assert lag.at(1004.0) == pytest.approx(2.85)  # nothing newer taken since: the track grows old
     lag.note(1000.0 + 3.75, 1.2)  # this frame waited 2.5 s more than the quickest
     assert lag.at(1003.75) == pytest.approx(2.5)
-    lag.reset()  # another device clock: its own base
-    lag.note(2000.0, 5.0)
-    assert lag.at(2000.0) == 0.0
+    lag.reset()  # another device clock: its own base, not from its first frame
+    lag.note(2000.0, 5.0, base=False)
+    assert lag.at(2000.0) == 0.0  # no base yet
+    lag.note(2090.0, 5.1)  # the wearable's clock stood still 90 s after its first frame
+    assert lag.at(2090.0) == 0.0
+    lag.note(2091.1, 5.2)
+    assert lag.at(2091.1) == pytest.approx(1.0)
     # one responder's late frames do not make the service behind; everyone's do
     assert behind_s([0.0, 0.1, 9.0]) == 0.1
     assert behind_s([3.0, 3.2, 2.9, 3.1]) == pytest.approx(3.05)

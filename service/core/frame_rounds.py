@@ -47,7 +47,7 @@ class FrameRounds:
         if b is r.gate.first_of_stream and b is not r.stream_start:
             self._new_stream(r, b)
             r.lag.reset()  # another device clock
-        r.lag.note(self._now, float(b.t[-1]))
+        r.lag.note(self._now, float(b.t[-1]), base=b is not r.gate.first_of_stream)
         t0 = float(b.t[0]) + r.t_offset
         if math.isfinite(r.last_t) and t0 - r.last_t > self.settings.gap_reanchor_s:
             self._run_backlog(r)  # the frames before the gap go first

@@ -46,15 +46,19 @@ class FrameLag:
         self._min_before = math.inf
         self._t_newest = math.nan
 
-    def note(self, received: float, t_last: float) -> None:
-        """The frame whose newest sample is at ``t_last`` (device s) was taken at ``received`` (service s)."""
+    def note(self, received: float, t_last: float, base: bool = True) -> None:
+        """The frame whose newest sample is at ``t_last`` (device s) was taken at ``received``
+        (service s); ``base=False``: it does not count towards the base (a stream's first frame,
+        sent before the wearable settled: a simulator that paused its clock after it, say)."""
         d = received - t_last
         if not math.isfinite(d):
+            return
+        self._t_newest = t_last
+        if not base:
             return
         if received - self._bucket_start >= self.window_s or received < self._bucket_start:
             self._bucket_start, self._min_before, self._min_now = received, self._min_now, math.inf
         self._min_now = min(self._min_now, d)
-        self._t_newest = t_last
 
     def at(self, now: float) -> float:
         """s: how much older the newest sample is at service time ``now`` than the quickest
