@@ -108,13 +108,13 @@ def _wait_publisher(child, svc, seconds: float) -> None:
 EVEN_MIN_SPAN_S = 5.0  # s of poses a responder needs in the window to have rates
 
 
-def _even(poses, names, lo: float, hi: float) -> dict:
+def _even(poses, names, lo: float, hi: float, workers: int) -> dict:
     """How evenly the responders were tracked between wall times ``lo`` and ``hi``: per
     responder, from its first pose to its last there, poses per second and frames its track
     advanced per second (the seq its poses reflect; 10 keeps up with a wearable); min, median,
     max of each and the largest deviation from the median, relative. Responders whose poses
     there span less than ``EVEN_MIN_SPAN_S`` are left out (and counted out)."""
-    rate, progress = [], []
+    rate, progress, shard = [], [], []
     by: dict[str, list] = {}
     for rid, seq, pub in poses:
         if lo <= pub <= hi:
@@ -125,9 +125,13 @@ def _even(poses, names, lo: float, hi: float) -> dict:
         if span >= EVEN_MIN_SPAN_S:  # from its first pose to its last
             rate.append((len(mine) - 1) / span)
             progress.append((mine[-1][1] - mine[0][1]) / span)
+            shard.append(next(k for k in range(workers) if in_shard(rid, k, workers)))
     out: dict = {"responders": len(rate)}
     if not rate:
         return out
+    # the median frames/s of each worker's responders: a worker slower than another is uneven too
+    out["frames_per_s_by_worker"] = [round(float(np.median([p for p, k in zip(progress, shard) if k == w] or [0.0])), 3)
+                                     for w in range(workers)]
     for name, xs in (("poses_per_s", rate), ("frames_per_s", progress)):
         xs = np.array(xs)
         mid = float(np.median(xs)) if xs.size else 0.0
@@ -349,7 +353,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "behind_max_s": max([svc.behind_max_s] + [s.get("behind_max_s", 0.0) for s in others]),  # service.core.lag
         "publishing_s": round(end_wall - go_wall, 1),  # longer than seconds: the service pushed back
         # per responder while the wearables published (after the first 3 s): poses/s and frames/s its track advanced
-        "tracked_evenly": _even(poses, list(index), go_wall + WARMUP_FRAMES / 10.0, end_wall),
+        "tracked_evenly": _even(poses, list(index), go_wall + WARMUP_FRAMES / 10.0, end_wall, workers),
         "publisher_cpu_s": publisher_cpu,
         "load_average": [round(x, 2) for x in os.getloadavg()],  # 1, 5, 15 min at the end: a shared machine's load
         "rss_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
