@@ -16,8 +16,8 @@ from service.shell.service import IncidentService, ServiceSettings
 from tests.zenoh_util import client, router, wait_until
 
 WALKERS = 8
-SECONDS = 12.0  # of walking, published in real time: 8 walkers x 10 frames/s
-SLOW_S_PER_FRAME = 0.016  # the worker takes at most 62 frames/s of the 80 sent: 1.3 times overloaded
+SECONDS = 10.0  # of walking, published in real time: 8 walkers x 10 frames/s
+SLOW_S_PER_FRAME = 0.02  # the worker takes at most 50 frames/s of the 80 sent: 1.6 times overloaded
 
 
 def test_lag_is_the_age_of_the_newest_sample_beyond_the_quickest_frame_whatever_the_clocks():
@@ -119,40 +119,31 @@ def browser():
 def test_the_console_says_service_behind_and_by_how_much(browser):
     """The page's banner: the median of the Statuses' lags, from ``behind_s`` (1 s) up; one
     late wearable alone does not raise it."""
-    from client.console.server import start_console
-    from tests.zenoh_util import free_port
+    from tests.browser_util import console_alone
 
-    session, endpoint = router()
     cfg = default_incident()
-    console = start_console(session, cfg, port=free_port())
-    cl = client(endpoint)
-    page = None
+    with console_alone(cfg) as (console, cl):
+        def statuses(lags):
+            now = time.time()
+            for i, lag in enumerate(lags):
+                rid = f"ff{i}"
+                cl.put(wire.key(cfg.id, rid, "status"), wire.encode(wire.Status(
+                    responder=rid, t=100.0, motion="walking", motion_since=0.0, last_heard=now, lag_s=lag)))
 
-    def statuses(lags):
-        now = time.time()
-        for i, lag in enumerate(lags):
-            rid = f"ff{i}"
-            cl.put(wire.key(cfg.id, rid, "status"), wire.encode(wire.Status(
-                responder=rid, t=100.0, motion="walking", motion_since=0.0, last_heard=now, lag_s=lag)))
-
-    try:
         page = browser.new_page()
-        page.goto(console.url)
-        page.wait_for_function("window.__firetrack && window.__firetrack.ready && window.__firetrack.connected",
-                               timeout=15_000)
-        statuses([0.1, 0.2, 0.1, 9.0])  # one wearable's frames late: not the service
-        page.wait_for_function("window.__firetrack.responders.size === 4", timeout=5000)
-        page.wait_for_timeout(1500)  # the panels refresh once a second
-        assert page.locator("#behind").is_hidden()
-        statuses([3.2, 3.4, 3.6, 9.0])  # everyone's: the service is behind (median 3.5 s)
-        page.wait_for_function("document.querySelector('#behind').textContent === 'SERVICE BEHIND 3.5 s'",
-                               timeout=5000)
-        assert page.locator("#behind").is_visible()
-        statuses([0.0, 0.1, 0.0, 0.2])  # caught up
-        page.wait_for_function("document.querySelector('#behind').hidden", timeout=5000)
-    finally:
-        if page is not None:
+        try:
+            page.goto(console.url)
+            page.wait_for_function("window.__firetrack && window.__firetrack.ready && window.__firetrack.connected",
+                                   timeout=15_000)
+            statuses([0.1, 0.2, 0.1, 9.0])  # one wearable's frames late: not the service
+            page.wait_for_function("window.__firetrack.responders.size === 4", timeout=5000)
+            page.wait_for_timeout(1500)  # the panels refresh once a second
+            assert page.locator("#behind").is_hidden()
+            statuses([3.2, 3.4, 3.6, 9.0])  # everyone's: the service is behind (median 3.5 s)
+            page.wait_for_function("document.querySelector('#behind').textContent === 'SERVICE BEHIND 3.5 s'",
+                                   timeout=5000)
+            assert page.locator("#behind").is_visible()
+            statuses([0.0, 0.1, 0.0, 0.2])  # caught up
+            page.wait_for_function("document.querySelector('#behind').hidden", timeout=5000)
+        finally:
             page.close()
-        console.close()
-        cl.close()
-        session.close()

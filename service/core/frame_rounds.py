@@ -65,11 +65,13 @@ class FrameRounds:
         return lag.behind_s(self._lag_of(r, now) for r in self.responders.values())
 
     def _lag_of(self, r: Responder, now: float) -> float:
-        """``r``'s lag at ``now`` (at most ``lag.GROWTH_S`` past the newest input: a quiet incident
-        is not a service behind), or at its own last input unless heard within ``idle_after_s``
-        of the newest input (of the input, not of the clock: a worker behind takes all input late)."""
+        """``r``'s lag at ``now`` (after a tick that follows no input, at most ``lag.GROWTH_S`` past
+        the newest input: a quiet incident is not a service behind, a round's work is), or at its
+        own last input unless heard within ``idle_after_s`` of the newest input (of the input, not
+        of the clock: a worker behind takes all input late)."""
         lately = r.last_input > self._last_take - self.settings.idle_after_s
-        return r.lag.at(min(now, self._last_take + lag.GROWTH_S) if lately else r.last_input)
+        at = now if self._tick_busy else min(now, self._last_take + lag.GROWTH_S)
+        return r.lag.at(at if lately else r.last_input)
 
     def _new_stream(self, r: Responder, b: wire.ImuBatch) -> None:
         """The gate opened a stream with ``b``: the first of the responder, or a new one (a

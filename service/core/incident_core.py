@@ -124,6 +124,7 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         self._pose_queue: list[tuple] = []  # poses of this round waiting for their wire form
         self._now = 0.0
         self._last_take = -math.inf  # service time of the newest message taken (lags: who was heard lately)
+        self._fed = self._tick_busy = False  # input since the last tick / at the last tick (service.core.lag)
         self._presence: dict[str, bool] = {}  # liveliness seen before a responder's first frame (bounded)
         self.intake = Intake(settings.intake)
         self.reject_log = RejectLog(log, settings.rejected_window_s, settings.log_rejects_per_window,
@@ -147,6 +148,7 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         new frames go through its tracker as one batch (a fix first runs the frames that came
         before it). The poses are those of :meth:`feed` one message at a time, bit for bit."""
         for item in items:
+            self._fed = True  # a tick right after this round: the worker was busy until then (lags grow)
             try:
                 self._take(item)
             except Exception:  # a bug must not stop the incident: log it, count it, go on
@@ -168,6 +170,7 @@ class IncidentCore(FrameRounds, FixIntake, HeldFixes, OperatorDesk, PoseOutput):
         ones are spread over ticks (:meth:`_idle_budget`): a crowd admitted together does not
         stay in step and answer all at once every few seconds."""
         self._now = now
+        self._tick_busy, self._fed = self._fed, False
         for r in list(self.responders.values()):
             try:
                 for b in r.gate.expire(now):

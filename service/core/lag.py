@@ -13,8 +13,10 @@ drifting clock and forgets an old one). At service time ``now``, the newest samp
 seconds old beyond what the quickest frame took: the time frames spend queued (network,
 router, the worker's channel) and the rounds of a worker that is behind. No clock needs to be
 synchronised. Between two frames of a live wearable (0.1 s) it grows by up to 0.1 s; the core
-lets it grow at most ``GROWTH_S`` past the newest input of any responder, so silence (nobody
-sending) is not mistaken for a service behind: a worker behind takes input all the time, late.
+lets it grow at most ``GROWTH_S`` past the newest input of any responder at a tick that follows
+no input, so silence (nobody sending) is not mistaken for a service behind; at a tick right
+after a round that took input, the round's own work counts in full (a worker behind takes all
+that waits, then works through it).
 
 One responder's lag is its own news (a bad radio link, frames resent after a gap). When the
 service cannot keep up, every responder's lag grows together: :func:`behind_s`, the median
