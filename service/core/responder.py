@@ -9,6 +9,7 @@ import numpy as np
 
 from pdr.pipeline import ImuFrame
 from service.core.gate import FrameGate
+from service.core.lag import FrameLag
 from service.core.tracker import ResponderTracker
 from service.protocol import wire
 
@@ -47,6 +48,7 @@ class Responder:
     last_checkpoint: object | None = None  # service.core.plausibility.Reference of the last checkpoint fix taken
     fixes_flagged: int = 0  # checkpoint fixes taken but flagged as implausible jumps
     beacons_heard: dict = field(default_factory=dict)  # beacon id -> device time (s) of the newest scan that heard it
+    lag: FrameLag = field(default_factory=FrameLag)  # how late its frames reach the core (service.core.lag)
 
 
 @dataclass
