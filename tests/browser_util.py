@@ -2,6 +2,7 @@
 Playwright or the browser is missing."""
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -45,4 +46,22 @@ def console_stack():
         console.close()
         cl.close()
         svc.close()
+        session.close()
+
+
+@contextlib.contextmanager
+def console_alone(cfg, **settings):
+    """Yield a router on a free port, the console of ``cfg`` on it with no service, and a client
+    session that puts what a service would: ``(console, client)``; all closed afterwards."""
+    from client.console.server import start_console
+    from tests.zenoh_util import client, free_port, router
+
+    session, endpoint = router()
+    console = start_console(session, cfg, port=free_port(), **settings)
+    cl = client(endpoint)
+    try:
+        yield console, cl
+    finally:
+        console.close()
+        cl.close()
         session.close()

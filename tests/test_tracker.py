@@ -58,3 +58,20 @@ def test_gnss_with_nothing_to_correct_is_counted_not_dropped():
     last = poses[-1]
     tr.on_fix(GnssFix(t=last.t, x=last.x + 1.0, y=last.y, accuracy=5.0))
     assert (tr.fixes_unused, tr.fixes_applied, tr.fixes_rejected) == (1, 2, 0)
+
+
+def test_a_first_step_without_a_heading_waits_for_one_instead_of_failing_every_step():
+    """Frames lost before a responder's first placed step can leave it without a heading (NaN):
+    the estimator then starts at the next step that has one, it does not raise at each step."""
+    from pdr.events import StepEvent
+
+    def step(i, heading):
+        return StepEvent(t=1.0 + 0.5 * i, index=i, length=0.7, length_sigma=0.1, heading=heading, heading_sigma=0.1,
+                         heading_change=0.0, heading_change_sigma=0.05, dz=0.0, dz_sigma=0.1, floor=0, on_stairs=False,
+                         mag_heading=float("nan"), mag_heading_sigma=float("inf"))
+
+    tr = ResponderTracker("ff", FloorElevations({0: 0.0}))
+    tr.on_fix(CheckpointFix(0.5, 0.0, 0.0, sigma=0.3))
+    assert tr.on_events([step(1, float("nan"))]) == []
+    poses = tr.on_events([step(2, 0.0), step(3, 0.0)])
+    assert len(poses) == 2 and tr.estimator is not None and poses[-1].x > 0.5

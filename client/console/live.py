@@ -44,7 +44,7 @@ def status_json(s: wire.Status, received_at: float) -> dict:
             "last_heard": s.last_heard, "steps": s.steps,
             "fixes": dict(s.fixes), "last_fix": s.last_fix, "first_heard": s.first_heard, "utc_offset": s.utc_offset,
             "commands": {a: dict(o) for a, o in s.commands.items()}, "man_down_at": s.man_down_at, "ok_at": s.ok_at,
-            "received_at": received_at}
+            "lag_s": s.lag_s, "received_at": received_at}
 
 
 class LiveBoard:

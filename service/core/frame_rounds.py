@@ -53,6 +53,8 @@ class FrameRounds:
         """A frame the gate released, for the round's end (frame by frame while a fix waits)."""
         if b is r.gate.first_of_stream and b is not r.stream_start:
             self._new_stream(r, b)
+            r.lag.reset()  # another device clock (service.core.lag)
+        r.lag.note(self.clock.now, float(b.t[-1]), base=b is not r.gate.first_of_stream)
         t0 = float(b.t[0]) + r.t_offset
         if math.isfinite(r.last_t) and t0 - r.last_t > self.settings.gap_reanchor_s:
             self.run_backlog(r)  # the frames before the gap go first

@@ -101,6 +101,7 @@ from service.core.fix_intake import FixDesk
 from service.core.frame_rounds import FrameRounds
 from service.core.gate import FrameGate
 from service.core.intake import OPERATORS, Intake
+from service.core.lag import ServiceLag
 from service.core.operations import OperatorDesk
 from service.core.pose_output import Outbox, pose_message
 from service.core.rejectlog import RejectLog
@@ -132,6 +133,7 @@ class IncidentCore:
         self.settings = settings
         self.clock = CoreClock()
         self.counters = CoreCounters()
+        self.lags = ServiceLag(settings.idle_after_s)  # how late frames come in (service.core.lag)
         self.intake = Intake(settings.intake)
         self.reject_log = RejectLog(log, settings.rejected_window_s, settings.log_rejects_per_window,
                                     settings.log_lines_per_window)
@@ -147,7 +149,7 @@ class IncidentCore:
         self.rejects = RejectBook(self.intake, self.reject_log, self.counters, unattributed)
         self.roster = Roster(self.rejects.newcomer_gone)
         self.outbox = Outbox(self.incident, self.counters)
-        self.status = StatusReporter(self.id, self.settings, self.intake, self.outbox)
+        self.status = StatusReporter(self.id, self.settings, self.intake, self.outbox, self.lags)
         self.fix_audit = FixAudit(self.clock, self.outbox)
         self.frames = FrameRounds(self.settings, self.fleet, self.clock, self.counters, self.rejects, self.outbox,
                                   self.fix_audit)
@@ -198,6 +200,7 @@ class IncidentCore:
         its alarms change), so a crowd of silent ids costs little status traffic
         (:meth:`StatusReporter.due`)."""
         self.clock.now = now
+        self.lags.ticked()
         for r in self.roster:
             if not r.gate.waiting:  # nothing for the gate to settle: the responder does not change
                 continue
@@ -233,6 +236,10 @@ class IncidentCore:
     def status_of(self, r: Responder, now: float, current: list[str] | None = None) -> wire.Status:
         """The responder's Status at ``now`` (``current``: its alarms, when already judged at ``now``)."""
         return self.status.status_of(r, now, current)
+
+    def behind_s(self, now: float) -> float:
+        """How far behind the core is at ``now``: its responders' median lag (s; :mod:`service.core.lag`)."""
+        return self.lags.behind_s(self.roster, now)
 
     def pose_message(self, r: Responder, p: PoseEstimate) -> wire.Pose:
         """The wire form of one pose (``published_at`` the core's time; the shell restamps it)."""
@@ -277,6 +284,7 @@ class IncidentCore:
         """One message: its key parsed (once, here), then to the part that takes its kind."""
         kind, key, payload, now = item
         self.clock.now = now
+        self.lags.took(now)  # input: a tick right after this round counts its work in the lags
         self.intake.in_hand = kind  # a reject of this message is charged to its lane (service.core.intake)
         if now - self.expiry_checked >= 1.0 or now < self.expiry_checked:
             self._expire(now)

@@ -9,6 +9,7 @@ import numpy as np
 
 from pdr.pipeline import ImuFrame
 from service.core.gate import FrameGate
+from service.core.lag import FrameLag
 from service.core.tracker import ResponderTracker
 from service.protocol import wire
 
@@ -49,6 +50,7 @@ class Responder:
     beacons_heard: dict = field(default_factory=dict)  # beacon id -> device time (s) of the newest scan that heard it
     fix_senders: dict = field(default_factory=dict)  # (source, t) -> who sent a fix the tracker holds (fix_audit)
     last_fix_refused: float = -math.inf  # service time of the newest fix refused for it (the fixes_refused alarm)
+    lag: FrameLag = field(default_factory=FrameLag)  # how late its frames reach the core (service.core.lag)
 
 
 @dataclass

@@ -10,16 +10,19 @@ import math
 from service.core import alarms
 from service.core.core_types import CoreSettings, Outbound
 from service.core.intake import Intake
+from service.core.lag import ServiceLag
 from service.core.pose_output import Outbox
 from service.core.responder import Responder
 from service.protocol import wire
 
 
 class StatusReporter:
-    """Builds and answers Statuses; ``recording_failed`` (set by the shell) puts its alarm in every one."""
+    """Builds and answers Statuses; ``recording_failed`` (set by the shell) puts its alarm in every one;
+    ``lags`` (the core's) gives each Status its responder's lag."""
 
-    def __init__(self, incident_id: str, settings: CoreSettings, intake: Intake, outbox: Outbox):
+    def __init__(self, incident_id: str, settings: CoreSettings, intake: Intake, outbox: Outbox, lags: ServiceLag):
         self.incident_id, self.settings, self.intake, self.outbox = incident_id, settings, intake, outbox
+        self.lags = lags
         self.recording_failed = False
         self.last_tick = -math.inf  # service time of the last tick (spreads idle Statuses)
 
@@ -101,4 +104,5 @@ class StatusReporter:
             missing=None if g.missing is None else list(g.missing),
             man_down_at=None if alarm_at is None else alarm_at - r.t_offset,
             ok_at=r.ok_at - r.t_offset if math.isfinite(r.ok_at) else None,
+            lag_s=round(self.lags.of(r.lag, r.last_input, now), 3),
         )

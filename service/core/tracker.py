@@ -303,6 +303,8 @@ class ResponderTracker:
             ev = dataclasses.replace(ev, heading_change=0.0)
         pt = self.baseline.add_step(ev)
         self.pdr_track.append((pt.t, pt.x, pt.y, pt.floor))
+        if self.estimator is None and not math.isfinite(ev.heading):
+            return None  # no heading yet (frames lost before it): the estimator starts at the next step that has one
         if self.estimator is None:
             p0 = self._placed_at
             self.estimator = make_estimator(self.settings.engine, self.settings.fusion)

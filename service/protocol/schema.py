@@ -348,6 +348,9 @@ class Status(WireMessage):
                                        "present from the pre-alarm on (a phone asks its wearer then)")
     ok_at: Finite | None = Field(None, description="s, device clock: the wearer's latest answer \"I'm OK\" to the "
                                  "man-down prompt")
+    lag_s: Finite | None = Field(None, ge=0.0, description="s: how much later than its quickest frame the newest "
+                                                          "frame reached the service (queued in the network, the "
+                                                          "router or a worker behind; service/core/lag.py)")
 
 
 class Command(WireMessage):

@@ -79,6 +79,8 @@ class ServiceSettings:
     warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
     catch_all: bool = False  # --workers > 1: also the incident's wildcard, for sources without a presence token
     mmap_threshold_bytes: int | None = 128 * 1024  # bytes: larger blocks mapped alone, returned when freed (None: glibc's)
+    slow_s_per_frame: float = 0.0  # s the worker idles per message it takes (tests: a worker that cannot keep up)
+    behind_warn_s: float = 1.0  # s: the service's lag (service.core.lag) from which the log says it is behind
 
 
 class IncidentService(SnapshotWriter):
@@ -112,6 +114,8 @@ class IncidentService(SnapshotWriter):
         self.recorder_error: str | None = None
         self.clock = clock
         self.busy_s = 0.0  # wall time the worker spent on rounds (the benchmark's capacity figure)
+        self.behind_s = 0.0  # s: how far behind the core's input is, as of the last tick (service.core.lag)
+        self.behind_max_s = 0.0  # ... the most it was
         self.pose_hook = None  # callable(responder_id, Pose, oldest seq of its batch) after each publication
         self.profiler = None  # a cProfile.Profile the worker runs under, when set before start()
         self._queue: queue.Queue = queue.Queue(maxsize=self.settings.max_queue)
@@ -322,6 +326,8 @@ class IncidentService(SnapshotWriter):
     def _run_round(self, items: list[Inbound], ticks: int) -> None:
         started = time.perf_counter()
         try:
+            if self.settings.slow_s_per_frame:  # a slower machine: the round's work takes this much longer
+                time.sleep(self.settings.slow_s_per_frame * len(items))
             for m in items:
                 self._record(m.key, m.payload, m.received)
             with self._core_lock:
@@ -331,6 +337,7 @@ class IncidentService(SnapshotWriter):
                     out += self.core.tick(self.clock())
             self._publish(out)
             if ticks:
+                self._note_behind(self.core.behind_s(self.clock()))
                 self._forget_publishers()
                 self.routes.forget(self.core.responders)
                 gone = self.core.counters.expired + self.core.counters.newcomers_forgotten
@@ -340,6 +347,15 @@ class IncidentService(SnapshotWriter):
             self._snapshot_if_due()
         finally:
             self.busy_s += time.perf_counter() - started
+
+    def _note_behind(self, lag: float) -> None:
+        """The service's lag after a tick; the log says when it passes ``behind_warn_s`` and when it is back."""
+        warn = self.settings.behind_warn_s
+        if (lag >= warn) != (self.behind_s >= warn):
+            (log.warning if lag >= warn else log.info)("the service is %s: its frames come %.1f s late",
+                                                       "behind" if lag >= warn else "back in time", lag)
+        self.behind_s = lag
+        self.behind_max_s = max(self.behind_max_s, lag)
 
     def _forget_publishers(self) -> None:
         """Publishers of responders the core let go (expired) are undeclared: bounded state."""

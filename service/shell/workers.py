@@ -84,7 +84,8 @@ def worker_main(endpoint: str, config: dict, base_dir: str, k: int, n: int, stop
     stats = {"shard": k, "frames_processed": svc.frames_processed, "busy_s": svc.busy_s,
              "tracker_batches": svc.tracker_batches, "frames_not_processed": svc.frame_accounting(),
              "responders": len(svc.responders), "errors": svc.errors, "poses": poses,
-             "heard": dict(svc.heard), "routes": len(svc.routes.routes)}
+             "heard": dict(svc.heard), "routes": len(svc.routes.routes),
+             "behind_max_s": svc.behind_max_s}
     if watcher is not None:
         watcher.close()
     svc.close()

@@ -17,7 +17,7 @@
 
    Data: the login first (GET /api/session), then GET /api/incident once (floors, checkpoints, plans with their pixel -> ENU maps), then
    the WebSocket. This module starts everything and runs the animation-frame loop. */
-import {S, frame, seedRoster} from "./state.js";
+import {S, frame, seedRoster, serverNow, serviceBehind} from "./state.js";
 import {$, bindModal, modalOpen, setText, toast} from "./ui.js";
 import {getJSON} from "./api.js";
 import {connect} from "./connection.js";
@@ -70,6 +70,9 @@ function refreshPanels() {
   renderRoster();
   renderFloorButtons();
   renderSelection();
+  const lag = serviceBehind(S.responders.values(), serverNow());
+  $("behind").hidden = lag < S.settings.behind_s;
+  setText($("behind"), lag >= S.settings.behind_s ? `SERVICE BEHIND ${lag.toFixed(1)} s` : "");
   const rej = Object.entries(S.rejected).filter(([, n]) => n > 0);
   $("rejected").hidden = rej.length === 0;
   setText($("rejected"), rej.length ? "ignored messages: " + rej.map(([k, n]) => `${k} ${n}`).join(", ") : "");

@@ -23,7 +23,7 @@ export const S = {
   rejected: {},           // the service's counts of ignored messages, by reason
   flags: {},              // responder -> the service's audit of its latest implausible fix
   session: null,          // who is logged in: {auth: "open"|"required", user, role}
-  settings: {lost_contact_s: 10, trail_points: 120},
+  settings: {lost_contact_s: 10, trail_points: 120, behind_s: 1.0},  // behind_s: the "SERVICE BEHIND" banner from this lag
   dirty: true,            // the responders layer must be redrawn
   messages: 0,
   ready: false,
@@ -82,4 +82,18 @@ export function alarmSets() {
     if (!a.acked) unacked.add(a.responder);
   }
   return {active, unacked};
+}
+
+/** How far behind the service is (s): the median of the lags (Status.lag_s) of the responders
+    whose Status came in the last 5 s. One late wearable does not move it; a service that cannot
+    keep up moves everyone's (service/core/lag.py). */
+export function serviceBehind(responders, now) {
+  const lags = [];
+  for (const r of responders) {
+    if (r.status && r.status.lag_s != null && now - r.status.received_at < 5) lags.push(r.status.lag_s);
+  }
+  if (!lags.length) return 0;
+  lags.sort((a, b) => a - b);
+  const m = lags.length >> 1;
+  return lags.length % 2 ? lags[m] : 0.5 * (lags[m - 1] + lags[m]);
 }
