@@ -61,9 +61,15 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
    the field was rejected, a device frame that moved), every later epoch would be gated out
    until ``P`` had grown past the error. So a streak of gated-out epochs that agree among
    themselves (circular spread of their δ_m below ``gate_recover_spread``) for
-   ``gate_recover_s`` seconds reopens the filter: ``P ← max(P, σ_init²)`` and the epoch is
-   gated again. A disturbed field does not agree with itself for that long while the walker
+   ``gate_recover_s`` seconds reopens the filter: δ restarts from the streak's circular mean,
+   ``P ← max(P, σ_init²)``, and the epoch is gated again (raising ``P`` alone cannot accept an
+   error beyond the gate, about 127°). A disturbed field does not agree with itself for that long while the walker
    moves; a wrong δ does.
+
+   **A gap in the samples** (epochs with no sample: the sensor service paused) hides the turns
+   made in it from the gyro: ``P ← P + (ω_gap · T_gap)²`` (``gap_turn_rate`` 1 rad/s, T_gap the
+   time between the epochs less one epoch), so the compass after the gap sets the heading (a
+   1.4 s gap at a corner of trial 04 rep 01 left the steps 71° off for three legs).
 
    ``σ_rw`` = 2.5°/√s with ``σ_mag`` = 30° per 0.5 s epoch make the steady-state gain about
    0.07 per epoch, i.e. the compass offset is averaged over roughly the last 10 s. That is
@@ -126,7 +132,9 @@ class HeadingSettings:
     # orientation basis
     ahrs: str = "decoupled"  # magnetometer-free AHRS used for levelling and gyro heading
     # its settings: shipped defaults, but no rest detection of its own (the bias is this module's)
-    ahrs_params: tuple[tuple[str, float], ...] = (("rest_time", math.inf),)
+    # and a tilt error beyond 30° levelled at once (no walker holds the 5.7 m/s² that tilts the
+    # low-passed specific force so far; a lost attitude does: pdr.ahrs.decoupled, acc_relevel_angle)
+    ahrs_params: tuple[tuple[str, float], ...] = (("rest_time", math.inf), ("acc_relevel_angle", math.radians(30.0)))
     forward_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # body axis taken as "forward"
     # body axis that points forward when the phone stands up (forward axis vertical): the back
     # of a phone whose screen faces the walker; (0, 0, 0): the forward axis alone
@@ -159,6 +167,7 @@ class HeadingSettings:
     gate_sigmas: float = 3.0  # innovation gate, in standard deviations
     gate_recover_s: float = 20.0  # s of consistently gated-out compass epochs after which δ is re-decided (inf: never)
     gate_recover_spread: float = math.radians(20.0)  # rad, their circular spread must stay below this
+    gap_turn_rate: float = 1.0  # rad/s, δ's variance grows by (rate · gap)² over a gap in the samples
     # changes of grip (walking direction − device heading as a jump state; pdr.grip)
     grip: GripSettings = dataclasses.field(default_factory=GripSettings)
     # per-step outputs
@@ -365,9 +374,12 @@ class HeadingEstimator:
             dt = t_end - self._kf_t
             dpsi = psi_end - self._kf_psi
             self._P += s.sigma_rw**2 * dt + (s.scale_error * dpsi) ** 2
+            if dt > 1.5 * s.epoch:  # epochs without a sample between: a gap the gyro did not see
+                self._P += (s.gap_turn_rate * (dt - s.epoch)) ** 2
             if np.isfinite(sig):
                 nu = float(wrap(dm - self._delta))
-                self._gate(t_end, dm, nu * nu <= s.gate_sigmas**2 * (self._P + sig**2))
+                if self._gate(t_end, dm, nu * nu <= s.gate_sigmas**2 * (self._P + sig**2)):
+                    nu = float(wrap(dm - self._delta))
                 S = self._P + sig**2
                 if nu * nu <= s.gate_sigmas**2 * S:
                     K = self._P / S
@@ -376,17 +388,18 @@ class HeadingEstimator:
         self._kf_t, self._kf_psi = t_end, psi_end
         self._hist.append((t_end, math.nan if self._delta is None else self._delta, self._P))
 
-    def _gate(self, t_end, dm, passes: bool) -> None:
+    def _gate(self, t_end, dm, passes: bool) -> bool:
         """The innovation gate must not lock the compass out for good: a streak of gated-out
         epochs that agree among themselves (circular spread below ``gate_recover_spread``) for
         ``gate_recover_s`` seconds means δ itself is wrong (a gyro drift while the field was
-        rejected, a frame that moved): ``P`` is raised to ``σ_init²``, and the caller gates
-        the epoch again with it."""
+        rejected, a frame that moved, a first epoch next to steel): δ restarts from the streak's
+        circular mean, ``P = max(P, σ_init²)``, and the caller gates the epoch again (raising ``P``
+        alone cannot accept an error beyond the gate, 127°). Returns whether δ restarted."""
         s = self.settings
         r = self._rejected
         if passes:
             self._rejected = [math.nan, 0.0, 0.0, 0]
-            return
+            return False
         if r[3] == 0:
             r[0] = t_end
         r[1] += math.cos(dm)
@@ -395,10 +408,13 @@ class HeadingEstimator:
         rho = min(max(math.hypot(r[1], r[2]) / r[3], 1e-12), 1.0)
         if math.sqrt(-2.0 * math.log(rho)) > s.gate_recover_spread:  # not one consistent offset: start over
             self._rejected = [t_end, math.cos(dm), math.sin(dm), 1]
-            return
+            return False
         if t_end - r[0] >= s.gate_recover_s:
+            self._delta = math.atan2(r[2], r[1])
             self._P = max(self._P, s.sigma_init**2)
             self._rejected = [math.nan, 0.0, 0.0, 0]
+            return True
+        return False
 
     def _grip_step(self, t, f, l, z) -> tuple[float, bool]:
         """The walking offset ω after one step whose window holds samples ``t``, ``f``, ``l``, ``z``
