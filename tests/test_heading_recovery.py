@@ -59,3 +59,27 @@ def test_a_compass_gate_shut_by_a_wrong_start_reopens_on_consistent_evidence():
     err = np.abs(deg(wrap(r.heading - truth[0])))
     assert err[(r.t > 5.0) & (r.t < 15.0)].min() > 90.0  # the start's error is beyond the gate
     assert err[r.t > 30.0].max() < 5.0  # 20 s of a consistent, rejected compass restart δ
+
+
+def _travel_error_deg(q: np.ndarray) -> float:
+    """Heading of travel from the device's heading vector (``level_and_compass``) for a walker
+    going north (ENU yaw 90°), with the phone's y axis pointing north before it was turned."""
+    from pdr.heading_kernels import level_and_compass
+
+    raw = level_and_compass(np.ascontiguousarray(q[None, :]), HeadingEstimator()._fwd, np.zeros((1, 3)),
+                            np.empty((0, 3)), False, 0.0)[0][0]
+    return float(deg(wrap(raw - math.pi / 2)))
+
+
+def test_a_phone_tipped_past_vertical_keeps_the_heading_of_travel():
+    # issue 27's grip_x on a phone held at 55°: turned about x up to 145°, screen facing the floor
+    # behind; the heading of travel must not flip when the long axis goes over the vertical
+    x, y = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    for pitch in (0.0, 55.0, 90.0, 100.0, 108.0, 115.0, 130.0, 145.0, 160.0):
+        for sway in (-5.0, 0.0, 5.0):  # the hand's roll about the long axis
+            q = quat.multiply(quat.from_axis_angle(x, math.radians(pitch)), quat.from_axis_angle(y, math.radians(sway)))
+            assert abs(_travel_error_deg(q)) < 6.0, (pitch, sway)
+    # a phone rolled on its side (landscape, issue 27's grip_y) keeps its long axis as forward
+    for roll in (60.0, 90.0, 120.0, 135.0):
+        q = quat.multiply(quat.from_axis_angle(x, math.radians(55.0)), quat.from_axis_angle(y, math.radians(roll)))
+        assert abs(_travel_error_deg(q)) < 1.0, roll
