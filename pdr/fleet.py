@@ -57,7 +57,7 @@ from pdr.heading import BUF_COLUMNS, StepHeadings
 from pdr.height import relative_height
 from pdr.pipeline import ImuFrame, PdrPipeline, PipelineSettings, _merge
 from pdr.steps.base import _TAIL_MARGIN_S
-from pdr.windows import norm3
+from pdr.windows import norm3, spans_gap
 
 _STATES = {K.WALKING: MotionState.WALKING, K.STILL: MotionState.STILL, K.NO_MOTION: MotionState.NO_MOTION}
 _EMPTY2 = np.empty((0, 2))
@@ -632,7 +632,8 @@ def _step_headings(h, buf: np.ndarray, times: list[float]) -> StepHeadings:
         else:
             dt = tk - h._prev_step[0]
             dch = psi_g - h._prev_step[1]
-            dsig = math.inf if jumped else math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
+            unknown = jumped or spans_gap(bt, h._prev_step[0], tk, s.epoch)  # as HeadingEstimator._answer_steps
+            dsig = math.inf if unknown else math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
         h._prev_step = (tk, psi_g)
         rows.append((tk, float(wrap(dev + omega)), math.sqrt(P), float(wrap(dch)), dsig, magh, sig_m, dev, omega))
     if not rows:

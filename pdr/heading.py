@@ -94,7 +94,7 @@ Per step ``k`` spanning ``(t_{k−1}, t_k]`` (at most ``max_step_duration`` long
   acceleration pattern says the grip changed (:mod:`pdr.grip`), plus any offset the caller
   supplies; ``heading_sigma = √P``;
 * ``heading_change = ψ̄_g,k − ψ̄_g,k−1`` with σ² = σ_arw² Δt + (σ_b Δt)² + (k_s Δψ)² (σ = ∞ on
-  the step where ω jumps: the gyro's turn there is the phone's, not the walker's);
+  the step where ω jumps, the turn being the phone's, and across a sample gap > ``epoch``, unseen);
 * ``mag_heading`` = ψ̄_g,k + circular mean of δ over the step (NaN when that step's field
   failed the gates) and its σ_m (∞ when disturbed) — for a fusion that wants to weigh the
   compass itself.
@@ -117,7 +117,7 @@ from pdr.angles import wrap  # noqa: F401  (re-exported)
 from pdr.grip import GripSettings, GripTracker
 from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass, still_bias
 from pdr.walking_direction import walking_angle
-from pdr.windows import norm3, unwrap_turns
+from pdr.windows import norm3, spans_gap, unwrap_turns
 
 TWO_PI = 2.0 * math.pi
 # per-sample columns kept for the steps: time, gyro heading, compass offset, |B|, dip, and the
@@ -489,8 +489,8 @@ class HeadingEstimator:
             else:
                 dt = tk - self._prev_step[0]
                 dch = psi_g - self._prev_step[1]
-                # after a change of grip the gyro's turn is the phone's, not the walker's: unknown
-                dsig = math.inf if jumped else math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
+                unknown = jumped or spans_gap(B["t"], self._prev_step[0], tk, s.epoch)  # a grip's turn; one unseen in a gap
+                dsig = math.inf if unknown else math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
             self._prev_step = (tk, psi_g)
             rows.append((tk, float(wrap(dev + off)), math.sqrt(P), float(wrap(dch)), dsig, magh, sig_m, dev, off))
         if not rows:

@@ -45,6 +45,8 @@ def test_the_walkers_turn_inside_a_gap_is_taken_from_the_compass_at_once():
     for rate in (1.0, 0.0):
         r = HeadingEstimator(HeadingSettings(gap_turn_rate=rate)).update(t[keep], acc[keep], gyr[keep], mag[keep], steps)
         errs[rate] = np.abs(deg(wrap(r.heading - np.interp(r.t, t, truth))))[after]
+        # the step across the gap reports its turn as unknown (the fusion takes it from the heading)
+        assert np.isinf(r.heading_change_sigma[1:]).sum() == 1 and np.isinf(r.heading_change_sigma[r.t == 31.0]).all()
     assert errs[1.0].max() < 10.0
     # weighted as usual, the compass brings the unseen turn back only over about ten seconds
     assert errs[0.0].min() > 30.0
