@@ -61,9 +61,15 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
    the field was rejected, a device frame that moved), every later epoch would be gated out
    until ``P`` had grown past the error. So a streak of gated-out epochs that agree among
    themselves (circular spread of their δ_m below ``gate_recover_spread``) for
-   ``gate_recover_s`` seconds reopens the filter: ``P ← max(P, σ_init²)`` and the epoch is
-   gated again. A disturbed field does not agree with itself for that long while the walker
+   ``gate_recover_s`` seconds reopens the filter: δ restarts from the streak's circular mean,
+   ``P ← max(P, σ_init²)``, and the epoch is gated again (raising ``P`` alone cannot accept an
+   error beyond the gate, about 127°). A disturbed field does not agree with itself for that long while the walker
    moves; a wrong δ does.
+
+   **A gap in the samples** (epochs with no sample: the sensor service paused) hides the turns
+   made in it from the gyro: ``P ← P + (ω_gap · T_gap)²`` (``gap_turn_rate`` 1 rad/s, T_gap the
+   time between the epochs less one epoch), so the compass after the gap sets the heading (a
+   1.4 s gap at a corner of trial 04 rep 01 left the steps 71° off for three legs).
 
    ``σ_rw`` = 2.5°/√s with ``σ_mag`` = 30° per 0.5 s epoch make the steady-state gain about
    0.07 per epoch, i.e. the compass offset is averaged over roughly the last 10 s. That is
@@ -88,7 +94,7 @@ Per step ``k`` spanning ``(t_{k−1}, t_k]`` (at most ``max_step_duration`` long
   acceleration pattern says the grip changed (:mod:`pdr.grip`), plus any offset the caller
   supplies; ``heading_sigma = √P``;
 * ``heading_change = ψ̄_g,k − ψ̄_g,k−1`` with σ² = σ_arw² Δt + (σ_b Δt)² + (k_s Δψ)² (σ = ∞ on
-  the step where ω jumps: the gyro's turn there is the phone's, not the walker's);
+  the step where ω jumps, the turn being the phone's, and across a sample gap > ``epoch``, unseen);
 * ``mag_heading`` = ψ̄_g,k + circular mean of δ over the step (NaN when that step's field
   failed the gates) and its σ_m (∞ when disturbed) — for a fusion that wants to weigh the
   compass itself.
@@ -109,64 +115,17 @@ import numpy as np
 
 from pdr.ahrs import make_filter
 from pdr.angles import wrap  # noqa: F401  (re-exported)
-from pdr.grip import GripSettings, GripTracker
+from pdr.grip import GripTracker
+from pdr.heading_settings import HeadingSettings  # noqa: F401  (re-exported)
 from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass
 from pdr.walking_direction import walking_angle
 from pdr.window_kernels import still_bias
-from pdr.windows import norm3, unwrap_turns
+from pdr.windows import norm3, spans_gap, unwrap_turns
 
 TWO_PI = 2.0 * math.pi
 # per-sample columns kept for the steps: time, gyro heading, compass offset, |B|, dip, and the
 # levelled specific force along the device's heading, to its left and up (the walking direction)
 BUF_COLUMNS = ("t", "psi", "d", "norm", "inc", "af", "al", "az")
-
-
-@dataclasses.dataclass(frozen=True)
-class HeadingSettings:
-    """Every number with its unit. Defaults: see the module's evaluation notes (IPIN 2023 set)."""
-
-    # orientation basis
-    ahrs: str = "decoupled"  # magnetometer-free AHRS used for levelling and gyro heading
-    # its settings: shipped defaults, but no rest detection of its own (the bias is this module's)
-    ahrs_params: tuple[tuple[str, float], ...] = (("rest_time", math.inf),)
-    forward_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)  # body axis taken as "forward"
-    # body axis that points forward when the phone stands up (forward axis vertical): the back
-    # of a phone whose screen faces the walker; (0, 0, 0): the forward axis alone
-    upright_axis: tuple[float, float, float] = (0.0, 0.0, -1.0)
-    upright_from: float = math.radians(65.0)  # rad, elevation of the forward axis where the upright axis starts to count
-    declination: float = 0.0  # rad, east positive (Nuremberg 2023: +3.6° = 0.0628 rad)
-    # gyro bias at standstill
-    estimate_bias: bool = True
-    still_window: float = 1.5  # s
-    still_gyr_std: float = 0.005  # rad/s, per-axis standard deviation inside the window
-    still_gyr_max: float = 0.02  # rad/s, norm of the window mean (a larger mean is motion, not bias)
-    still_acc_std: float = 0.15  # m/s², std of the specific-force norm inside the window
-    # compass and disturbance
-    use_mag: bool = True
-    epoch: float = 0.5  # s, compass epochs of the heading filter
-    sigma_mag: float = math.radians(30.0)  # rad, per 0.5 s epoch; with sigma_rw: the compass is averaged over ~10 s
-    spread_gate: float = math.radians(6.0)  # rad, reject epochs whose δ varies more
-    field_norm: float = math.nan  # µT, expected |B|; NaN: learn from the first reference_seconds
-    field_inclination: float = math.nan  # rad, expected dip (positive down); NaN: learn
-    reference_seconds: float = 60.0  # s
-    norm_gate: float = math.inf  # µT, reject when ||B| − field_norm| exceeds it (only with a given field_norm)
-    inclination_gate: float = math.radians(15.0)  # rad, reject when |I − field_inclination| exceeds it (only when given)
-    max_rate: float = 1.0  # rad/s, reject epochs whose mean |ω| exceeds it (phone waved: tilt, and so δ, unreliable)
-    norm_weight: float = math.radians(1.0)  # rad per µT of norm deviation (k_n)
-    inclination_weight: float = 0.5  # rad per rad of inclination deviation (k_I)
-    # heading filter
-    sigma_init: float = math.radians(30.0)  # rad, P0 around the first compass epoch
-    sigma_rw: float = math.radians(2.5)  # rad/√s, random walk of δ (residual bias, grip changes)
-    scale_error: float = 0.02  # fraction of each turn (gyro scale factor)
-    gate_sigmas: float = 3.0  # innovation gate, in standard deviations
-    gate_recover_s: float = 20.0  # s of consistently gated-out compass epochs after which δ is re-decided (inf: never)
-    gate_recover_spread: float = math.radians(20.0)  # rad, their circular spread must stay below this
-    # changes of grip (walking direction − device heading as a jump state; pdr.grip)
-    grip: GripSettings = dataclasses.field(default_factory=GripSettings)
-    # per-step outputs
-    max_step_duration: float = 1.5  # s, a step never spans more than this
-    sigma_arw: float = math.radians(0.5)  # rad/√s, gyro angle random walk
-    sigma_bias: float = math.radians(0.1)  # rad/s, residual bias after standstill estimation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -378,9 +337,12 @@ class HeadingEstimator:
             dt = t_end - self._kf_t
             dpsi = psi_end - self._kf_psi
             self._P += s.sigma_rw**2 * dt + (s.scale_error * dpsi) ** 2
+            if dt > 1.5 * s.epoch:  # epochs without a sample between: a gap the gyro did not see
+                self._P += (s.gap_turn_rate * (dt - s.epoch)) ** 2
             if np.isfinite(sig):
                 nu = float(wrap(dm - self._delta))
-                self._gate(t_end, dm, nu * nu <= s.gate_sigmas**2 * (self._P + sig**2))
+                if self._gate(t_end, dm, nu * nu <= s.gate_sigmas**2 * (self._P + sig**2)):
+                    nu = float(wrap(dm - self._delta))
                 S = self._P + sig**2
                 if nu * nu <= s.gate_sigmas**2 * S:
                     K = self._P / S
@@ -389,17 +351,18 @@ class HeadingEstimator:
         self._kf_t, self._kf_psi = t_end, psi_end
         self._hist.append((t_end, math.nan if self._delta is None else self._delta, self._P))
 
-    def _gate(self, t_end, dm, passes: bool) -> None:
+    def _gate(self, t_end, dm, passes: bool) -> bool:
         """The innovation gate must not lock the compass out for good: a streak of gated-out
         epochs that agree among themselves (circular spread below ``gate_recover_spread``) for
         ``gate_recover_s`` seconds means δ itself is wrong (a gyro drift while the field was
-        rejected, a frame that moved): ``P`` is raised to ``σ_init²``, and the caller gates
-        the epoch again with it."""
+        rejected, a frame that moved, a first epoch next to steel): δ restarts from the streak's
+        circular mean, ``P = max(P, σ_init²)``, and the caller gates the epoch again (raising ``P``
+        alone cannot accept an error beyond the gate, 127°). Returns whether δ restarted."""
         s = self.settings
         r = self._rejected
         if passes:
             self._rejected = [math.nan, 0.0, 0.0, 0]
-            return
+            return False
         if r[3] == 0:
             r[0] = t_end
         r[1] += math.cos(dm)
@@ -408,10 +371,13 @@ class HeadingEstimator:
         rho = min(max(math.hypot(r[1], r[2]) / r[3], 1e-12), 1.0)
         if math.sqrt(-2.0 * math.log(rho)) > s.gate_recover_spread:  # not one consistent offset: start over
             self._rejected = [t_end, math.cos(dm), math.sin(dm), 1]
-            return
+            return False
         if t_end - r[0] >= s.gate_recover_s:
+            self._delta = math.atan2(r[2], r[1])
             self._P = max(self._P, s.sigma_init**2)
             self._rejected = [math.nan, 0.0, 0.0, 0]
+            return True
+        return False
 
     def _grip_step(self, t, f, l, z) -> tuple[float, bool]:
         """The walking offset ω after one step whose window holds samples ``t``, ``f``, ``l``, ``z``
@@ -489,8 +455,8 @@ class HeadingEstimator:
             else:
                 dt = tk - self._prev_step[0]
                 dch = psi_g - self._prev_step[1]
-                # after a change of grip the gyro's turn is the phone's, not the walker's: unknown
-                dsig = math.inf if jumped else math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
+                unknown = jumped or spans_gap(bt, self._prev_step[0], tk, s.epoch)  # a grip's turn; one unseen in a gap
+                dsig = math.inf if unknown else math.sqrt(s.sigma_arw**2 * dt + (s.sigma_bias * dt) ** 2 + (s.scale_error * dch) ** 2)
             self._prev_step = (tk, psi_g)
             rows.append((tk, float(wrap(dev + off)), math.sqrt(P), float(wrap(dch)), dsig, magh, sig_m, dev, off))
         if not rows:

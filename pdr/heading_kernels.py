@@ -13,6 +13,8 @@ import numpy as np
 from numba import njit
 
 TWO_PI = 2.0 * math.pi
+TIP_FROM = math.sin(math.radians(15.0))  # the back's elevation over which a tipped phone's g takes the lead
+TIP_OPPOSITE = math.cos(math.radians(45.0))  # f_h and g_h count as opposite from 135° apart (a pitch: 180°)
 
 
 @njit(cache=True)
@@ -27,7 +29,15 @@ def level_and_compass(q, fwd, acc, mag, use_mag, declination):  # pragma: no cov
       ill-conditioned: an inclination error ε across it turns it by about ε / cos(elevation))
       ``g`` (the back of the phone, −z, for a screen facing the walker) takes over; both point
       the same way for a phone pitched in the hand, so the heading is continuous, and a phone
-      rolled on its side keeps ``f``. ``g = 0`` gives the yaw of ``f`` alone;
+      rolled on its side keeps ``f``. ``g = 0`` gives the yaw of ``f`` alone. Tipped past
+      vertical (``f`` over the walker's shoulder, the back of the phone above the horizon), both
+      the back and the reverse of ``f`` point forward, ``h = R g − R f`` (a roll about ``f``
+      leaves ``−f`` where it was), blended in by ``b = a · clip((R g)_z / sin 15°, 0, 1)``
+      with ``a = clip((−cos ∠(f_h, g_h) − cos 45°) / (1 − cos 45°), 0, 1)`` (1 when the
+      horizontal parts point opposite ways, as for a pitch; 0 from 135° apart down, as for a
+      phone rolled on its side): the heading stays continuous
+      through the pitch, where the yaw of ``f + w g`` alone flipped by 180° from 108° of
+      elevation on (issue 27's ``grip_x``);
     * ``af``, ``al``, ``az`` — the specific force ``acc`` (n, 3) levelled, ``R a``, and turned
       into the device-heading frame: along the forward axis's yaw, to its left, and up (m/s²;
       for the walking direction, :func:`pdr.walking_direction.walking_angle`);
@@ -60,8 +70,13 @@ def level_and_compass(q, fwd, acc, mag, use_mag, declination):  # pragma: no cov
         r22 = 1.0 - 2.0 * (x * x + y * y)
         up = r20 * fx + r21 * fy + r22 * fz
         wu = min(max((up * up - s0) / (1.0 - s0), 0.0), 1.0)
-        yaw = math.atan2(r10 * fx + r11 * fy + r12 * fz + wu * (r10 * gx + r11 * gy + r12 * gz),
-                         r00 * fx + r01 * fy + r02 * fz + wu * (r00 * gx + r01 * gy + r02 * gz))
+        fe, fn = r00 * fx + r01 * fy + r02 * fz, r10 * fx + r11 * fy + r12 * fz
+        ge, gn, gu = r00 * gx + r01 * gy + r02 * gz, r10 * gx + r11 * gy + r12 * gz, r20 * gx + r21 * gy + r22 * gz
+        # tipped past vertical (the back points up, f's horizontal part against g's): g leads
+        fg = math.sqrt((fe * fe + fn * fn) * (ge * ge + gn * gn))
+        a = min(max((-(fe * ge + fn * gn) / fg - TIP_OPPOSITE) / (1.0 - TIP_OPPOSITE), 0.0), 1.0) if fg > 1e-12 else 0.0
+        b = a * min(max(gu / TIP_FROM, 0.0), 1.0)
+        yaw = math.atan2((1.0 - b) * (fn + wu * gn) + b * (gn - fn), (1.0 - b) * (fe + wu * ge) + b * (ge - fe))
         raw[i] = yaw
         ax, ay, azb = acc[i, 0], acc[i, 1], acc[i, 2]
         ex = r00 * ax + r01 * ay + r02 * azb

@@ -28,4 +28,13 @@ def unwrap_turns(angle: np.ndarray, last_angle: float | None, last_turns: int) -
     return last_turns + np.cumsum(step), int(last_turns + step.sum())
 
 
-__all__ = ["norm3", "unwrap_turns"]
+def spans_gap(t: np.ndarray, t_prev: float, t_now: float, longest: float) -> bool:
+    """Whether the sorted sample times ``t`` leave a hole longer than ``longest`` (s) between
+    ``t_prev`` and ``t_now``, counting from the last sample at or before ``t_prev``: a step across
+    it turned by what the gyro did not see (a paused sensor service, lost frames)."""
+    i0 = max(int(np.searchsorted(t, t_prev, side="right")) - 1, 0)
+    i1 = int(np.searchsorted(t, t_now, side="right"))
+    return i1 - i0 > 1 and float(np.max(np.diff(t[i0:i1]))) > longest
+
+
+__all__ = ["norm3", "spans_gap", "unwrap_turns"]

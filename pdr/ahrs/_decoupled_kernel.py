@@ -38,7 +38,8 @@ P_BIAS_SIGMA_FORGET = 22
 P_ACC_RATE_FAST = 23
 P_ACC_TRUST_SIGMA = 24
 P_ACC_TRUST_NORM = 25
-N_PARAMS = 26
+P_ACC_RELEVEL_ANGLE = 26
+N_PARAMS = 27
 
 # -- state vector ------------------------------------------------------------------------------
 S_STARTED = 0  # 0 before the first sample, 1 after
@@ -179,6 +180,7 @@ def decoupled_run(s, p, t, acc, gyr, mag, use_mag, turn, out):  # pragma: no cov
     tau_acc = p[P_TAU_ACC]
     tau_rest = p[P_TAU_REST]
     rate_limit = p[P_ACC_RATE_MAX]
+    relevel = p[P_ACC_RELEVEL_ANGLE]
     rate_fast = p[P_ACC_RATE_FAST]
     trust_w = -0.5 / (p[P_ACC_TRUST_SIGMA] * p[P_ACC_TRUST_SIGMA])
     trust_n = -0.5 / (p[P_ACC_TRUST_NORM] * p[P_ACC_TRUST_NORM])
@@ -297,6 +299,15 @@ def decoupled_run(s, p, t, acc, gyr, mag, use_mag, turn, out):  # pragma: no cov
                 if hn > 1e-12 * an:
                     # turn about (e × z)/|e × z| = (e_y, −e_x, 0)/h by ∠(e, z), at most the rate limit
                     turn_angle = math.atan2(hn, ez)
+                    if not starting and turn_angle > relevel:
+                        # a tilt error no sustained acceleration explains: the attitude was lost
+                        # (a fast wave, a gyro scale error); levelled at once, and the memory of
+                        # gravity starts again as after a gap (it lags the truth by tau_acc)
+                        s[S_ACC_INIT_T] = 0.0
+                        s[S_ACC_INIT_N] = 0.0
+                        s[S_ACC_MEAN], s[S_ACC_MEAN + 1], s[S_ACC_MEAN + 2] = 0.0, 0.0, 0.0
+                        s[S_Q0_GIVEN] = 0.0
+                        starting = True
                     if rate_limit > 0.0 and not starting and turn_angle > rate_limit * dt:
                         turn_angle = rate_limit * dt  # the start levels at once, later tilts are slewed
                     sh = math.sin(0.5 * turn_angle) / hn

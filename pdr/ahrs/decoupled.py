@@ -19,7 +19,12 @@ be trusted. Quaternions are scalar first, Hamilton, body -> frame. Per sample, w
    correction ``q_a`` (I -> E6, a turn about a horizontal axis) is then turned so that
    ``R(q_a) ā_I`` points up: by the whole angle ∠(R(q_a) ā_I, z) (VQF), but by at most
    ``acc_rate_max·dt`` (ours: a long, one-sided acceleration, e.g. a lift or a car, can
-   then tilt the estimate only that fast). The first ``tau_acc`` seconds use the running
+   then tilt the estimate only that fast), unless that angle passes ``acc_relevel_angle``:
+   a tilt error of tens of degrees is no sustained acceleration (30° would take g·tan 30° =
+   5.7 m/s² held for seconds) but a lost attitude, e.g. after a fast wave of a sensor whose
+   gyroscope scale is 2 % off (200 rad of rotation: 4 rad of attitude error), and slewed at
+   ``acc_rate_max`` it would take a minute to level: the inclination then starts again as
+   after a gap, below (default ∞: always slewed). The first ``tau_acc`` seconds use the running
    mean of ``a_I`` instead, turned onto z in full (no rate limit), so the start needs no
    settling; so do the ``tau_acc`` seconds after a gap longer than ``max_dt`` (how the
    sensor turned in it is unknown, and the low-passed ``a_I`` would point the wrong way); a filter given a start orientation ``q0`` instead starts the low-pass at
@@ -105,6 +110,9 @@ class DecoupledSettings(FilterSettings):
     acc_rate_fast: float = 0.2  # rad/s, fast inclination correction towards a trusted specific force (0: off)
     acc_trust_sigma: float = 1.0  # m/s², innovation |R(q_a) a_I − |ā_I| z| at which the fast step is weighted exp(−½)
     acc_trust_norm: float = 1.0  # m/s², | |a| − |ā_I| | at which the fast step is weighted exp(−½) (inf: not used)
+    # rad; a tilt error beyond this (low-passed specific force against the believed vertical) skips
+    # the rate limit and is levelled at once (inf: always slewed; the PDR sets it, see pdr.heading)
+    acc_relevel_angle: float = math.inf
     # -- rest detection and bias (VQF defaults) --
     tau_rest: float = 0.5  # s, low-pass of the rest detector
     rest_gyr: float = math.radians(2.0)  # rad/s, largest gyroscope deviation at rest
@@ -213,7 +221,7 @@ class Decoupled(OrientationFilter):
 
 def _check(s: DecoupledSettings) -> None:
     """Settings that would divide by zero or run backwards get a clear error."""
-    positive = ("max_dt", "tau_acc", "tau_mag", "acc_trust_sigma", "acc_trust_norm", "tau_rest", "rest_time", "bias_sigma_init", "bias_forget",
+    positive = ("max_dt", "tau_acc", "tau_mag", "acc_relevel_angle", "acc_trust_sigma", "acc_trust_norm", "tau_rest", "rest_time", "bias_sigma_init", "bias_forget",
                 "bias_sigma_rest", "bias_sigma_forget", "mag_tau_current", "mag_tau_ref", "mag_norm_th", "mag_dip_th", "mag_reject_factor")
     for name in positive:
         if not getattr(s, name) > 0:
