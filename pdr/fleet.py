@@ -181,7 +181,8 @@ class PdrFleet:
         R.bias[slot] = m.heading.bias
         R.det[slot, [DK.D_ZI_SET, DK.D_NEXT, DK.D_PEAK_ON, DK.D_NSWING, DK.D_BOUT, DK.D_NBOUT]] = [0, 1, 0, 0, 0, 0]
         R.det[slot, [DK.D_LAST_STEP, DK.D_LAST_PEAK]] = -np.inf
-        R.mot[slot, [K.M_LAST_MOVING, K.M_GRID_K, K.M_STATE, K.M_TLAST]] = [-np.inf, 1, K.STILL, -np.inf]
+        R.mot[slot, [K.M_LAST_MOVING, K.M_GRID_K, K.M_STATE, K.M_TLAST, K.M_JUDGED]] = [-np.inf, 1, K.STILL, -np.inf,
+                                                                                      -np.inf]
         R.alt[slot] = ALTIMETER_START
         R.h0[slot] = self.floors.elevation(start_floor)
         for row, value in zip(R.floor_rows(slot), m.floor_tracker.rows()):
@@ -306,7 +307,8 @@ class PdrFleet:
                 heading.prune_history(float(first[j]))
                 heading.take_epochs(ep_rows[lo:hi])
         K.motion_windows(slots, off, T, GYR, AN, R.mot, R.mot_tails, R.lms, s.motionless_window_s,
-                         0.9 * s.motionless_window_s, s.motionless_acc_std, s.motionless_gyr)
+                         0.9 * s.motionless_window_s, s.motionless_acc_std, s.motionless_gyr,
+                         s.motionless_pause_s)
         # step detection
         A = AN - GRAVITY
         ready = DK.detector_buffer(slots, off, T, A, R.det, R.raws, self._rate_window)

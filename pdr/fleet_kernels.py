@@ -29,12 +29,12 @@ from pdr.fleet_buffers import keep_after
 from pdr.floor_kernels import track_run
 from pdr.heading_kernels import close_epochs, level_and_compass
 from pdr.height import altimeter_run
-from pdr.window_kernels import motionless_windows, still_bias
+from pdr.window_kernels import MOVING, UNKNOWN, motionless_windows, still_bias
 
 TWO_PI = 2.0 * np.pi  # pdr.windows.unwrap_turns' constant
 # motion state columns
-M_FIRST, M_LAST_MOVING, M_GRID_K, M_STATE, M_SINCE, M_T0, M_TLAST = range(7)
-M_STATE_N = 7
+M_FIRST, M_LAST_MOVING, M_GRID_K, M_STATE, M_SINCE, M_T0, M_TLAST, M_JUDGED = range(8)
+M_STATE_N = 8
 WALKING, STILL, NO_MOTION = 0, 1, 2
 
 
@@ -139,10 +139,31 @@ def heading_stage(slots, off, T, ACC, GYR, MAG, has_mag, AN,
 
 
 @njit(cache=True)
-def motion_windows(slots, off, T, GYR, AN, mot, tails, lms, window, full_frac, acc_std, gyr_max):  # pragma: no cover - compiled
-    """Per sample: was the trailing ``window`` motionless; per responder the time each sample
-    last moved, kept for the state grid (:mod:`pdr.pipeline`, 7: motionless windows).
-    ``full_frac`` = 0.9·window."""
+def motion_windows(slots, off, T, GYR, AN, mot, tails, lms, window, full_frac, acc_std, gyr_max,
+                   pause_max):  # pragma: no cover - compiled
+    """Per sample: the verdict on its trailing ``window`` (:func:`pdr.window_kernels.motionless_windows`);
+    per responder the time each sample last moved, kept for the state grid (:mod:`pdr.pipeline`,
+    7: motionless windows). ``full_frac`` = 0.9·window: the span of samples a window needs to
+    prove stillness.
+
+    The stillness clock (the time of the last motion, ``M_LAST_MOVING``) across sensor pauses:
+
+    * a **moving** window restarts it at its sample;
+    * a **motionless** window leaves it;
+    * an **unknown** window (too few samples to judge, after a pause in the samples) leaves it
+      too, while the pause is short: the samples before it and after it (which prove motion
+      from any number of them) decide, and a pause proves neither motion nor stillness;
+    * a pause of more than ``pause_max`` between two samples, or unknown windows for more than
+      ``pause_max + window`` since the last judged one (a stream too sparse to show motion),
+      restart it at the sample: a gap is not stillness, the stillness after it counts from its
+      end (the service's own rule for longer gaps, :mod:`service.core.alarms`, is the same).
+
+    A pause of up to ``pause_max`` inside a stillness therefore counts as still: the stillness
+    seen on both sides of it. It moves the man-down time by at most ``pause_max`` (a movement
+    wholly inside the pause, ending in the same still pose, is not seen) and never delays it;
+    counting it as motion (the rule before) kept a still phone whose browser pauses its sensors
+    every few seconds from ever reaching no motion, and leaving the pause out of the count would
+    delay man-down by the sum of the pauses (a third of 30 s at 0.9 s every 3 s)."""
     for j in range(slots.shape[0]):
         r = slots[j]
         a0, a1 = off[j], off[j + 1]
@@ -176,14 +197,18 @@ def motion_windows(slots, off, T, GYR, AN, mot, tails, lms, window, full_frac, a
         nl = np.empty((lm_old.shape[0] + n, 2))
         nl[:lm_old.shape[0]] = lm_old
         last = mot[r, M_LAST_MOVING]
+        judged = mot[r, M_JUDGED]
         for i in range(n):
-            still = motionless[i]
-            mv = -np.inf if still else TT[m + i]
-            if mv > last:
-                last = mv
+            t, verdict = TT[m + i], motionless[i]
+            paused = m + i > 0 and t - TT[m + i - 1] > pause_max
+            if verdict != UNKNOWN:
+                judged = t
+            if verdict == MOVING or paused or t - judged > pause_max + window:
+                if t > last:
+                    last = t
             nl[lm_old.shape[0] + i, 0] = TT[m + i]
             nl[lm_old.shape[0] + i, 1] = last
-        mot[r, M_LAST_MOVING] = last
+        mot[r, M_LAST_MOVING], mot[r, M_JUDGED] = last, judged
         lms[r] = nl
 
 
@@ -245,18 +270,15 @@ def motion_grid(slots, mot, lms, step_times, new_steps, new_off, cfg, out, out_s
             out_slot[n_out] = j
             n_out += 1
         mot[r, M_GRID_K] = k_hi + 1
+        # the rows the next grid times can look up: from the newest at or before g_last - 1 s
+        # on (that one too: across a pause in the samples it is the row a grid time finds, and
+        # without it the time of the last motion would be lost, the stillness counted from the
+        # first sample)
         lim = g_last - 1.0
-        k = 0
-        for i in range(lm.shape[0]):
-            if not lm[i, 0] < lim:
-                k += 1
-        nl = np.empty((k, 2))
-        k = 0
-        for i in range(lm.shape[0]):
-            if not lm[i, 0] < lim:
-                nl[k] = lm[i]
-                k += 1
-        lms[r] = nl
+        k0 = 0
+        while k0 < lm.shape[0] and lm[k0, 0] < lim:
+            k0 += 1
+        lms[r] = lm[max(k0 - 1, 0):].copy()
     return n_out
 
 

@@ -35,7 +35,11 @@ Per frame:
    * ``no_motion`` — the device has been motionless for ``no_motion_after_s`` (30 s, as a
      PASS device — NFPA 1982 — alarms after 30 s without motion): over every
      ``motionless_window_s`` window the specific-force norm varies less than
-     ``motionless_acc_std`` and the gyro stays below ``motionless_gyr``;
+     ``motionless_acc_std`` and the gyro stays below ``motionless_gyr``. A window short of
+     samples (a pause in the sensor feed) proves neither motion nor stillness: a pause of up to
+     ``motionless_pause_s`` inside a stillness neither starts it again nor breaks it; a longer
+     one is a gap, and the stillness counts from its end
+     (:func:`pdr.fleet_kernels.motion_windows`);
    * ``still`` — otherwise.
 
    A :class:`MotionEvent` is emitted at each change, with the time the new state began.

@@ -35,6 +35,7 @@ class PipelineSettings:
     motionless_window_s: float = 1.0  # s
     motionless_acc_std: float = 0.25  # m/s², std of ‖f‖ over the window
     motionless_gyr: float = 0.15  # rad/s, largest gyro norm in the window
+    motionless_pause_s: float = 2.0  # s, a longer pause in the samples is a gap: stillness counts from its end
 
     def __post_init__(self) -> None:
         # one engine (pdr.fleet) runs the PDR, compiled for these two; the other step detectors

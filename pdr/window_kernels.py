@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit
 
 _RANGE_MARGIN = 1.01  # the bound's safety factor against rounding (relative errors of ~1e-13)
+MOVING, MOTIONLESS, UNKNOWN = 0, 1, 2  # a window's verdict (motionless_windows)
 
 
 @njit(cache=True, inline="always")
@@ -145,11 +146,24 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
 
 @njit(cache=True)
 def motionless_windows(T, X, start, window, full_s, acc_std, gyr_max):  # pragma: no cover - compiled
-    """Per sample ``start..n-1``: the trailing ``window`` is full (``full_s``), σ of column 0 is
-    below ``acc_std`` and the maximum of column 1 below ``gyr_max`` (the motionless windows of
-    :mod:`pdr.pipeline`, 7)."""
+    """Per sample ``start..n-1``, the verdict on its trailing ``window`` (the motionless windows
+    of :mod:`pdr.pipeline`, 7): :data:`MOVING`, :data:`MOTIONLESS` or :data:`UNKNOWN`.
+
+    * **moving** — its samples prove motion, however few they are: a gyro norm (column 1) of
+      ``gyr_max`` or more, or σ of the specific-force norm (column 0) of ``acc_std`` or more;
+    * **motionless** — they prove none, and they span at least ``full_s`` of the window
+      (``T[i] − T[j0] ≥ full_s``);
+    * **unknown** — they prove none but span less: a sensor pause (a throttled or busy browser,
+      a backgrounded page) or the first samples of a stream. Too few samples prove no motion,
+      and they do not prove stillness either: what the motion state makes of an unknown window
+      (neither restart nor proof of the stillness, up to a bound) is
+      :func:`pdr.fleet_kernels.motion_windows`'.
+
+    Before this rule a short window counted as moving, so that any pause of more than
+    ``window − full_s`` (0.1 s) in the samples started the stillness, and the man-down clock,
+    again: a still phone whose sensor service hiccups every few seconds never reached no motion."""
     n = T.shape[0]
-    still = np.zeros(n - start, np.bool_)
+    still = np.zeros(n - start, np.int8)  # MOVING
     if n > start:  # the samples every window holds: a gyro peak there rules them all out
         a = _first_in_window(T, n - 1, window)
         top = -np.inf
@@ -172,8 +186,6 @@ def motionless_windows(T, X, start, window, full_s, acc_std, gyr_max):  # pragma
             j0 += 1
         if i < start:
             continue
-        if not T[i] - T[j0] >= full_s:
-            continue
         while dqmax1[h2] < j0:
             h2 += 1
         if not X[dqmax1[h2], 1] < gyr_max:
@@ -194,5 +206,5 @@ def motionless_windows(T, X, start, window, full_s, acc_std, gyr_max):  # pragma
             d = X[j, 0] - mu
             ss += d * d
         if np.sqrt(ss / cnt) < acc_std:
-            still[i - start] = True
+            still[i - start] = MOTIONLESS if T[i] - T[j0] >= full_s else UNKNOWN
     return still

@@ -103,9 +103,8 @@ def test_orders_and_the_man_down_prompt_on_a_phone_are_recorded_and_reprocess_ag
             countdown = phone.js("document.getElementById('prompt-count').textContent")
             assert countdown.startswith("MAN DOWN IN ")
             first_due = asked.man_down_at
-            # the tap, with as short a pause in the sensor feed as a tap can be: a pause over 0.1 s
-            # leaves the PDR's 1 s motionless windows short of data, which it counts as motion
-            phone.page.click("#prompt-ok", force=True, no_wait_after=True)
+            # the tap (the sensor feed pauses while it is made: a pause proves no motion, pdr.fleet_kernels.motion_windows)
+            phone.page.click("#prompt-ok")
             answered = still.hold(lambda: phone.js("__wear.prompt.log[0].answered_at"), 5, "the answer sent")
             still.hold(lambda: phone.js("document.getElementById('prompt').hidden"), 5, "the prompt gone")
             # past the time man-down was due: the answer cancelled it
@@ -118,14 +117,13 @@ def test_orders_and_the_man_down_prompt_on_a_phone_are_recorded_and_reprocess_ag
             if shots:
                 phone.page.screenshot(path=f"{shots}/phone-man-down-prompt.png")
             down = still.hold(lambda: "man_down" in still.status().alarms and still.status(), 60, "MAN DOWN at the console")
-            # counted from the answer: 30 s still + the state's 4 s lag; from later only when the feed
-            # paused after it (the no-motion state's own start, motion_since, says when stillness began)
-            assert down.motion == "no_motion" and again.man_down_at is not None
-            assert down.man_down_at == pytest.approx(max(answered, down.motion_since) + 34.0, abs=0.6), (
+            # counted from the answer: 30 s still + the state's 4 s lag (the motion state's grid: 0.5 s)
+            assert down.motion == "no_motion" and again.man_down_at == down.man_down_at
+            assert down.man_down_at == pytest.approx(answered + 34.0, abs=0.6), (
                 f"answered {answered:.1f}; {still.diagnosis()}")
             still.hold(lambda: phone.js("document.getElementById('prompt-count').textContent") == "MAN DOWN SENT TO THE CONSOLE",
                        5, "the page says man-down was raised")
-            log = phone.js("__wear.prompt.log")
+            log, phone_gaps = phone.js("__wear.prompt.log"), phone.js("__wear.gaps")
             # the readings stop changing (no more sensor events): the frame in progress goes out
             # and the service takes every frame; man-down stays raised (the prompt covers the page)
             time.sleep(0.5)  # the page sends its frame in progress once the sensors are quiet for 0.2 s
@@ -140,8 +138,8 @@ def test_orders_and_the_man_down_prompt_on_a_phone_are_recorded_and_reprocess_ag
         assert srv.stop() == 0, srv.log.read_text()[-2000:]
     print(f"\norders on the phone {shown['par']:.2f} s (PAR) and {shown['evacuate']:.2f} s (EVACUATE) after the "
           f"console's; prompts {[{k: round(v, 1) for k, v in p.items() if isinstance(v, float)} for p in log]}; "
-          f"answered at {answered:.1f} s, man-down first due {first_due:.1f} s, raised for {down.man_down_at:.1f} s "
-          f"(stillness counted from {max(answered, down.motion_since):.1f} s)")
+          f"answered at {answered:.1f} s, man-down first due {first_due:.1f} s, raised for {down.man_down_at:.1f} s; "
+          f"sensor pauses on the page {[round(g['to'] - g['from'], 1) for g in phone_gaps]}")
     # in the recording: both orders, both ACKs and the answer, as the phone sent them
     acks = [wire.decode(m.payload) for m in read_recording(recording, kinds=["ack"], responders=[RID])]
     orders = [wire.decode(m.payload) for m in read_recording(recording, kinds=["command"], responders=[RID])]
