@@ -387,7 +387,7 @@ def reject_cost_us(messages: int = 100_000, incident=None) -> dict:
                                     "not_admitted": (None, 100), "oversize": (f"firetrack/{cfg.id}/honest/imu", 1 << 21)}.items():
             it = IncidentCore(cfg)
             it.intake.settings = type(it.intake.settings)(max_responders=1, source_rate=1.0, source_burst=1.0)
-            it.intake.admit(f"firetrack/{cfg.id}/honest/imu", 10, 0.0)
+            it.intake.admit(wire.read_key(f"firetrack/{cfg.id}/honest/imu"), 10, 0.0)
             t0 = time.perf_counter()
             for j in range(20_000):
                 it.admit("imu", key or f"firetrack/{cfg.id}/n{j}/imu", size, 1.0 + j * 1e-6)

@@ -30,42 +30,47 @@ def key(rid, kind="imu"):
     return f"firetrack/{CFG.id}/{rid}/{kind}"
 
 
+def parts(rid, kind="imu"):
+    """The key as the shell reads it at its edge (what the intake takes)."""
+    return wire.read_key(key(rid, kind))
+
+
 # --------------------------------------------------------------------------------------
 # The intake on its own
 # --------------------------------------------------------------------------------------
 def test_size_and_keys_are_judged_before_anything_else():
     it = Intake()
-    assert it.admit(key("ff1"), wire.MAX_PAYLOAD_BYTES + 1, 0.0) == ("oversize", "ff1")
-    assert it.admit(key("x" * 10_000), 10, 0.0) == ("bad_key", BAD_KEY)
-    assert it.admit(key("a b"), 10, 0.0) == ("bad_key", BAD_KEY)
-    assert it.admit(key("ff1"), 100, 0.0) == (None, "ff1")
+    assert it.admit(parts("ff1"), wire.MAX_PAYLOAD_BYTES + 1, 0.0) == ("oversize", "ff1")
+    assert it.admit(parts("x" * 10_000), 10, 0.0) == ("bad_key", BAD_KEY)
+    assert it.admit(parts("a b"), 10, 0.0) == ("bad_key", BAD_KEY)
+    assert it.admit(parts("ff1"), 100, 0.0) == (None, "ff1")
     assert it.counts == {"oversize": 1, "bad_key": 2}
 
 
 def test_new_ids_are_admitted_within_the_budget_and_the_cap():
     it = Intake(IntakeSettings(admit_burst=10, admit_per_s=2.0, max_responders=15))
-    verdicts = [it.admit(key(f"r{i}"), 100, 0.0)[0] for i in range(50)]
+    verdicts = [it.admit(parts(f"r{i}"), 100, 0.0)[0] for i in range(50)]
     assert verdicts.count(None) == 10 and verdicts.count("not_admitted") == 40
-    assert it.admit(key("r0"), 100, 0.1) == (None, "r0")  # an admitted id stays admitted
-    later = [it.admit(key(f"s{i}"), 100, 2.0)[0] for i in range(10)]  # 2 s at 2 ids/s
+    assert it.admit(parts("r0"), 100, 0.1) == (None, "r0")  # an admitted id stays admitted
+    later = [it.admit(parts(f"s{i}"), 100, 2.0)[0] for i in range(10)]  # 2 s at 2 ids/s
     assert later.count(None) == 4
-    much_later = [it.admit(key(f"t{i}"), 100, 100.0)[0] for i in range(10)]
+    much_later = [it.admit(parts(f"t{i}"), 100, 100.0)[0] for i in range(10)]
     assert much_later.count(None) == 1 and it.responders == 15  # the cap
     it.forget("r1")  # a responder that left frees its place
-    assert it.admit(key("u0"), 100, 100.0)[0] is None
+    assert it.admit(parts("u0"), 100, 100.0)[0] is None
 
 
 def test_the_roster_is_always_admitted_and_roster_only_admits_nobody_else():
     it = Intake(IntakeSettings(admit_burst=1, roster=frozenset({"alpha", "bravo"}), roster_only=True))
-    assert it.admit(key("alpha"), 1, 0.0)[0] is None and it.admit(key("bravo"), 1, 0.0)[0] is None
-    assert it.admit(key("mallory"), 1, 0.0) == ("not_admitted", NEW_IDS)
+    assert it.admit(parts("alpha"), 1, 0.0)[0] is None and it.admit(parts("bravo"), 1, 0.0)[0] is None
+    assert it.admit(parts("mallory"), 1, 0.0) == ("not_admitted", NEW_IDS)
 
 
 def test_a_flooding_source_is_throttled_named_and_the_others_are_not():
     it = Intake(IntakeSettings(source_rate=100.0, source_burst=200.0, flood_alarm_s=30.0))
     t = np.arange(30_000) * 1e-3  # 1000 messages/s for 30 s from one source ...
-    flood = [it.admit(key("evil"), 200, float(x))[0] for x in t]
-    honest = [it.admit(key("ff1"), 800, float(x))[0] for x in t[::100]]  # ... and 10/s from another
+    flood = [it.admit(parts("evil"), 200, float(x))[0] for x in t]
+    honest = [it.admit(parts("ff1"), 800, float(x))[0] for x in t[::100]]  # ... and 10/s from another
     assert flood.count(None) == pytest.approx(200 + 100 * 30, abs=2) and flood.count("throttled") > 26_000
     assert honest.count(None) == len(honest)
     assert it.flooding("evil", 30.0) and not it.flooding("ff1", 30.0)
@@ -76,12 +81,12 @@ def test_a_sender_of_garbage_gets_the_small_budget_until_it_behaves():
     s = IntakeSettings(source_rate=100.0, source_burst=100.0, bad_after=5, bad_window_s=10.0, bad_rate=2.0, bad_burst=2.0)
     it = Intake(s)
     for i in range(5):
-        assert it.admit(key("noisy"), 10, i * 0.01)[0] is None
+        assert it.admit(parts("noisy"), 10, i * 0.01)[0] is None
         it.note_reject("noisy", i * 0.01)
-    taken = [it.admit(key("noisy"), 10, 0.1 + i * 0.01)[0] for i in range(100)]
+    taken = [it.admit(parts("noisy"), 10, 0.1 + i * 0.01)[0] for i in range(100)]
     assert taken.count(None) <= 3  # 2 at once, then 2/s
     # quiet and clean for the window: the ordinary budget again
-    assert [it.admit(key("noisy"), 10, 30.0 + i * 0.001)[0] for i in range(50)].count(None) == 50
+    assert [it.admit(parts("noisy"), 10, 30.0 + i * 0.001)[0] for i in range(50)].count(None) == 50
 
 
 # --------------------------------------------------------------------------------------
@@ -380,9 +385,9 @@ def test_garbage_fixes_on_a_responders_key_never_throttle_its_frames():
 
 def test_budgets_are_per_lane():
     it = Intake(IntakeSettings(source_rate=10.0, source_burst=10.0))
-    assert it.admit(key("ff1"), 10, 0.0)[0] is None  # its wearable's first frame (a fix alone makes nobody)
-    assert [it.admit(key("ff1", "fix"), 10, 0.0)[0] for _ in range(20)].count("throttled") == 10
-    assert [it.admit(key("ff1"), 10, 0.0)[0] for _ in range(9)] == [None] * 9
+    assert it.admit(parts("ff1"), 10, 0.0)[0] is None  # its wearable's first frame (a fix alone makes nobody)
+    assert [it.admit(parts("ff1", "fix"), 10, 0.0)[0] for _ in range(20)].count("throttled") == 10
+    assert [it.admit(parts("ff1"), 10, 0.0)[0] for _ in range(9)] == [None] * 9
     assert it.flooding("ff1", 0.0, lane="fix") and not it.flooding("ff1", 0.0)
     assert it.flooding_sources(0.0) == ["ff1/fix"] and it.dropped_of("ff1") == {"fix_throttled": 10}
 
@@ -431,5 +436,5 @@ def test_a_source_pickled_before_lanes_resumes_as_its_frames_lane():
                          "last_throttled": 5.0, "dropped": {"throttled": 3}})
     it.sources["ff2"] = old
     back = pickle.loads(pickle.dumps(it))
-    assert back.flooding("ff2", 10.0) and back.admit(key("ff2"), 10, 11.0) == (None, "ff2")
+    assert back.flooding("ff2", 10.0) and back.admit(parts("ff2"), 10, 11.0) == (None, "ff2")
     assert back.dropped_of("ff2") == {"throttled": 3}

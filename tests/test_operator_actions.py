@@ -171,13 +171,15 @@ def test_operator_action_messages_say_what_is_missing():
 
 
 def test_the_core_parses_each_messages_key_once(monkeypatch):
-    """Frames, fixes, presence, orders, acknowledgements and actions: one parse of the key per
-    message in the core, whichever part takes it (the access policy's key names no one: none)."""
-    import service.core.incident_core as incident_core
+    """Frames, fixes, presence, orders, acknowledgements and actions fed without their key's
+    parts (a replay): one parse of the key per message in the core, whichever part takes it
+    (the access policy's key names no one: none). The live path, where the shell reads the key
+    and the core none: tests/test_key_once.py."""
+    from service.protocol import keys
 
     calls = []
-    real = wire.parse_key
-    monkeypatch.setattr(incident_core.wire, "parse_key", lambda k: calls.append(k) or real(k))
+    real = keys._parse_key
+    monkeypatch.setattr(keys, "_parse_key", lambda k: calls.append(k) or real(k))
     core = IncidentCore(default_incident())
     frames = walking_frames("ff1", 4.0)
     fix = wire.Fix.checkpoint("ff1", float(frames[5].t[-1]), x=0.0, y=0.0, floor=0, sigma=0.5)

@@ -15,12 +15,16 @@ MAX_EARLY_ACKS = 8  # acknowledgements kept per responder while their order has 
 
 
 class Inbound(NamedTuple):
-    """A message as the shell took it: ``received`` is the service's wall clock (unix s) then."""
+    """A message as the shell took it: ``received`` is the service's wall clock (unix s) then;
+    ``parts`` its key as the shell read it at its edge (:func:`service.protocol.keys.read_key`:
+    the parts, or why the key is not one), which the intake and the core take without reading
+    the key again. None: nobody read it yet (a recording replayed, a test), the core reads it."""
 
     kind: str
     key: str
     payload: bytes
     received: float
+    parts: wire.KeyParts | ValueError | None = None
 
 
 class Outbound(NamedTuple):

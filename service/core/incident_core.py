@@ -2,7 +2,7 @@
 
 ::
 
-    Inbound(kind, key, payload, received)  ──►  IncidentCore  ──►  Outbound(key, Pose | Status)
+    Inbound(kind, key, payload, received, parts)  ──►  IncidentCore  ──►  Outbound(key, Pose | Status)
         imu       firetrack/{incident}/{responder}/imu        decode ─► FrameGate ─► ResponderTracker ─► pose
         fix       firetrack/{incident}/{responder}/fix        decode ─► by role ─► to the local frame ─┘
                   firetrack/{incident}/{responder}/fix-{anchor}  (an anchor's: its own UWB ranges only)
@@ -214,14 +214,19 @@ class IncidentCore:
         self.status.due(self.roster, now, lambda what: self.rejects.error(what, now))
         return self.outbox.take()
 
-    def admit(self, kind: str, key: str, size: int, now: float) -> str | None:
+    def admit(self, kind: str, key: str, size: int, now: float,
+              parts: wire.KeyParts | ValueError | None = None) -> str | None:
         """May a message (of ``size`` bytes, on ``key``) enter? None, or the reason it may not
         (:data:`service.core.intake.INTAKE_REASONS`), counted and logged per source. The shell
-        asks before copying, recording or feeding it (see :mod:`service.core.intake`)."""
+        asks before copying, recording or feeding it (see :mod:`service.core.intake`), with the
+        key's ``parts`` as it read them (the same go into the message's :class:`Inbound`); a
+        caller holding only the key (a test, a benchmark) leaves them out and they are read here."""
         if kind == "op":  # an operator's action: its actor is no responder; operators share one budget
             reason, source = self.intake.admit_shared(OPERATORS, size, now), OPERATORS
         else:
-            reason, source = self.intake.admit(key, size, now, self.roster.responders)
+            if parts is None:
+                parts = wire.read_key(key)
+            reason, source = self.intake.admit(parts, size, now, self.roster.responders)
         if reason is not None:
             self.reject_log.note(source, reason, f"{kind} of {size} bytes on {key[:120]!r}", now)
             r = self.roster.changing(source) if reason == "oversize" else None
@@ -281,8 +286,9 @@ class IncidentCore:
 
     # ------------------------------------------------------------------ per message
     def _take(self, item: Inbound) -> None:
-        """One message: its key parsed (once, here), then to the part that takes its kind."""
-        kind, key, payload, now = item
+        """One message: its key as the shell read it (read here only when nobody did: a replay,
+        a test), then to the part that takes its kind."""
+        kind, key, payload, now, parts = item
         self.clock.now = now
         self.lags.took(now)  # input: a tick right after this round counts its work in the lags
         self.intake.in_hand = kind  # a reject of this message is charged to its lane (service.core.intake)
@@ -295,13 +301,14 @@ class IncidentCore:
         if kind == "access":
             self.desk.access_policy(payload)
             return
-        try:
-            _, rid, _ = wire.parse_key(key)
-        except ValueError as e:
-            self._bad_key(kind, key, e, now)
+        if parts is None:
+            parts = wire.read_key(key)
+        if isinstance(parts, ValueError):
+            self._bad_key(kind, key, parts, now)
             return
+        rid = parts.responder
         if kind in ("imu", "fix"):
-            self._from_wearable(kind, rid, key, payload, now)
+            self._from_wearable(kind, rid, key, payload, now, parts.sender)
         elif kind == "presence":
             self.desk.presence(rid, key, payload)
         elif kind in ("command", "ack"):
@@ -319,8 +326,9 @@ class IncidentCore:
             self.rejects.count("bad_key")
             log.warning("rejected an action on %r: %s", key, e)
 
-    def _from_wearable(self, kind: str, rid: str, key: str, payload: bytes, now: float) -> None:
-        """A frame or a fix for ``rid``: decoded; a frame through the gate, a fix to the fix desk."""
+    def _from_wearable(self, kind: str, rid: str, key: str, payload: bytes, now: float, anchor: str | None) -> None:
+        """A frame or a fix for ``rid``: decoded; a frame through the gate, a fix to the fix desk
+        (``anchor``: the anchor an anchor's fix key names, fix-{anchor}; None for the wearable's own)."""
         if self.desk.refuses(rid, key):
             return
         r = self.roster.changing(rid)
@@ -329,7 +337,6 @@ class IncidentCore:
         elif kind != "fix":  # a fix for nobody keeps no state (see _decode_for)
             self.roster.newcomer(rid, now).last_input = now
         expect = wire.ImuBatch if kind == "imu" else wire.Fix
-        anchor = wire.fix_sender(key) if kind == "fix" else None  # an anchor's key names it (fix-{anchor})
         msg, r = self._decode_for(rid, r, payload, expect, now, anchor)
         if msg is None:
             return

@@ -1,7 +1,8 @@
 """The intake: what may enter the incident at all, decided before a payload is copied, decoded or recorded.
 
 Every message is charged to a **source**: the responder id its key names
-(``firetrack/{incident}/{responder}/{kind}``); keys whose id is not a valid id are one source,
+(``firetrack/{incident}/{responder}/{kind}``), which the shell read once at its edge
+(:class:`service.protocol.keys.KeyParts`); keys that are not keys (a bad id) are one source,
 ``<bad key>``, new ids refused by the admission budget another, ``<new ids>``, and operator
 actions (``.../{actor}/op``: an actor is not a responder) share ``<operators>``. Each of these
 checks is a few dictionary look-ups and a little arithmetic, so a flood costs microseconds per
@@ -45,12 +46,11 @@ recording sees exactly the messages the core saw live.
 from __future__ import annotations
 
 import math
-import re
 from collections import deque
 from collections.abc import Container
 from dataclasses import dataclass, field
 
-from service.protocol.keys import ANCHOR_FIX, ID_PATTERN
+from service.protocol.keys import KeyParts
 from service.protocol.schema import MAX_PAYLOAD_BYTES
 
 BAD_KEY = "<bad key>"
@@ -61,7 +61,6 @@ LANES = ("imu", "fix", "anchor", "ack", "command", "op")  # the kinds with a bud
 _LANE_SET = frozenset(LANES)
 _UNLANED = frozenset(("bad_key", "not_admitted"))  # reasons counted under their own name whatever the lane
 ALARM_LANE = "imu"  # the lane whose flooding is the responder's own ``flooding`` alarm (its wearable's frames)
-_ID_RE = re.compile(ID_PATTERN)
 
 
 @dataclass(frozen=True)
@@ -166,19 +165,21 @@ class Intake:
         self.in_hand = ALARM_LANE  # the lane of the message the core is processing (its rejects go there)
 
     # ------------------------------------------------------------------ the check
-    def admit(self, key: str, size: int, now: float, known: Container[str] = ()) -> tuple[str | None, str]:
-        """``(None, source)`` when the message may go on, else ``(reason, source)``. ``known``
-        holds the responders the core has (restored from a snapshot, or fed without the
-        intake); an id neither there nor admitted before is new."""
-        parts = key.split("/")
-        rid = parts[2] if len(parts) == 4 else ""
+    def admit(self, parts: KeyParts | ValueError, size: int, now: float,
+              known: Container[str] = ()) -> tuple[str | None, str]:
+        """``(None, source)`` when the message may go on, else ``(reason, source)``. ``parts``:
+        its key as the shell read it (:func:`service.protocol.keys.read_key`; a ValueError, a
+        key that is not one, is ``bad_key``). ``known`` holds the responders the core has
+        (restored from a snapshot, or fed without the intake); an id neither there nor admitted
+        before is new."""
+        if isinstance(parts, ValueError):  # (a pseudo-source's name is no id: never a key's)
+            return self._refuse(BAD_KEY, "bad_key", now), BAD_KEY
+        rid = parts.responder
         src = self.sources.get(rid)
         if src is None:
             if rid in known:
                 src = self._source(rid)
-            elif not _ID_RE.match(rid) or rid in self.pseudo:
-                return self._refuse(BAD_KEY, "bad_key", now), BAD_KEY
-            elif parts[3].startswith("fix"):  # a fix for an id nobody has made yet: it makes nobody
+            elif parts.kind == "fix":  # a fix for an id nobody has made yet: it makes nobody
                 pseudo = self.sources.get(NEW_IDS) or self._source(NEW_IDS)
                 return self._charge(pseudo, "fix", size, now), NEW_IDS
             else:
@@ -186,7 +187,7 @@ class Intake:
                     return self._refuse(NEW_IDS, "not_admitted", now), NEW_IDS
                 src = self._source(rid)
                 self.admitted += 1
-        lane = parts[3] if parts[3] in _LANE_SET else ("anchor" if parts[3].startswith(ANCHOR_FIX) else "other")
+        lane = "anchor" if parts.sender is not None else (parts.kind if parts.kind in _LANE_SET else "other")
         if size > self.settings.max_payload_bytes:
             return self._drop(src, "oversize", lane), rid
         ln = src.lanes.get(lane) or self._lane(src, lane, now)  # _charge, inlined: the flood's hot path

@@ -48,12 +48,13 @@ def _walk(incident, settings, seconds: float, started: float) -> WarmUp:
     rid = "warm-up"
     walker = SimulatedWalker(rid, attitude=False)
     key = {k: wire.key(incident.id, rid, k) for k in ("imu", "fix")}
+    parts = {k: wire.read_key(v) for k, v in key.items()}  # each key read once, as the shell reads a message's
     frames = int(seconds * 10)
     for k in range(frames):
         b = walker.next_batch(int(round(walker.settings.rate_hz / 10)))
         msg = wire.ImuBatch(responder=rid, device="warm-up", seq=k, t=b.t, acc=b.acc, gyr=b.gyr, mag=b.mag,
                             pressure_t=b.pressure_t, pressure=b.pressure)
-        core.feed(Inbound("imu", key["imu"], wire.encode(msg), 0.0))
+        core.feed(Inbound("imu", key["imu"], wire.encode(msg), 0.0, parts["imu"]))
         t, x, y = float(b.t[-1]), float(b.x[-1]), float(b.y[-1])
         if k == 0:
             fix = wire.Fix.checkpoint(rid, float(b.t[0]), x=float(b.x[0]), y=float(b.y[0]), floor=incident.start_floor,
@@ -69,7 +70,7 @@ def _walk(incident, settings, seconds: float, started: float) -> WarmUp:
             fix = wire.Fix.checkpoint(rid, t, x=x, y=y, floor=incident.start_floor, sigma=0.5)
         else:
             continue
-        core.feed(Inbound("fix", key["fix"], wire.encode(fix), 0.0))
+        core.feed(Inbound("fix", key["fix"], wire.encode(fix), 0.0, parts["fix"]))
     for o in core.tick(1.0):
         wire.encode(o.message)
     t = core.track(rid)

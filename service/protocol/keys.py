@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import re
 from functools import lru_cache
+from typing import NamedTuple
 
 KEY_KINDS = ("imu", "fix", "pose", "status", "track", "presence", "truth", "command", "ack", "op", "audit",
              "access")
@@ -74,7 +75,19 @@ def fix_sender(k: str) -> str | None:
     return kind[len(ANCHOR_FIX):] if kind.startswith(ANCHOR_FIX) else None
 
 
-PARSED_KEYS_KEPT = 8192  # keys whose parse is remembered (a service sees a few per responder, every frame)
+PARSED_KEYS_KEPT = 4096  # keys whose parse is remembered: the hot ones, a frame key and a fix key for each of
+# the 1024 responders an intake keeps at most, twice over; bounded whatever keys a flood of new ids brings
+# (the shell reads every key it hears, refused or not: about 0.4 kB an entry)
+
+
+class KeyParts(NamedTuple):
+    """A key read once, at the shell's edge, and carried with its message to the core
+    (:class:`service.core.core_types.Inbound`): nothing after the edge splits the key again."""
+
+    incident: str
+    responder: str  # the id chunk: a responder, or the actor for op, audit and access (ACTOR_KINDS)
+    kind: str  # an anchor's fix-{anchor} is kind "fix"
+    sender: str | None  # the anchor of a fix-{anchor} key; None for every other key
 
 
 def parse_key(k: str) -> tuple[str, str, str]:
@@ -83,19 +96,30 @@ def parse_key(k: str) -> tuple[str, str, str]:
     for anything else (wrong root, wrong number of chunks, bad id, unknown kind). Valid keys'
     parses are remembered (the service parses the same few keys for every frame); a bad key
     is checked again each time."""
-    return _parse_key(str(k))
+    return tuple(_parse_key(str(k))[:3])
+
+
+def read_key(k: str) -> KeyParts | ValueError:
+    """The key's :class:`KeyParts`, or the ValueError that says why it is not a key (returned,
+    not raised: the shell reads every message's key once and carries the verdict, good or bad,
+    to the intake and the core)."""
+    try:
+        return _parse_key(str(k))
+    except ValueError as e:
+        return e
 
 
 @lru_cache(maxsize=PARSED_KEYS_KEPT)
-def _parse_key(k: str) -> tuple[str, str, str]:
+def _parse_key(k: str) -> KeyParts:
     parts = k.split("/")
     if len(parts) != 4 or parts[0] != KEY_ROOT:
         raise ValueError(f"key {k!r} is not {KEY_ROOT}/{{incident}}/{{responder}}/{{kind}}")
     _, incident, responder, kind = parts
+    sender = None
     if kind.startswith(ANCHOR_FIX):
-        check_id("anchor", kind[len(ANCHOR_FIX):])
+        sender = check_id("anchor", kind[len(ANCHOR_FIX):])
         kind = "fix"
-    return check_id("incident", incident), check_id("responder", responder), check_kind(kind)
+    return KeyParts(check_id("incident", incident), check_id("responder", responder), check_kind(kind), sender)
 
 
 def is_valid_id(value: str) -> bool:

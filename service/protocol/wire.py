@@ -69,10 +69,12 @@ from service.protocol.keys import (  # noqa: F401
     ID_PATTERN,
     KEY_KINDS,
     KEY_ROOT,
+    KeyParts,
     is_valid_id,
     key,
     key_all,
     parse_key,
+    read_key,
 )
 from service.protocol.schema import (  # noqa: F401
     CARRY_POSITIONS,

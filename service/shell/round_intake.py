@@ -12,7 +12,8 @@ import queue
 import zenoh
 
 from service.core.incident_core import Inbound
-from service.shell.sharding import in_shard
+from service.protocol.keys import read_key
+from service.shell.sharding import owns
 
 log = logging.getLogger("firetrack.service")
 
@@ -48,14 +49,15 @@ class RoundIntake:
             if sample is None:
                 break
             key = str(sample.key_expr)
-            own = n == 1 or in_shard(key, k, n)  # the key is split once, and remembered (in_shard's cache)
+            parts = read_key(key)  # the one reading of this message's key: the intake and the core take its parts
+            own = owns(parts, k, n)
             heard["own" if own else "others"] += 1
             if not own or (not routed and key in routed_keys):  # another's, or its route brings it
                 continue
             payload = sample.payload
             now = clock()
-            if admit(kind, key, len(payload), now) is None:
-                out.append(Inbound(kind, key, payload.to_bytes(), now))
+            if admit(kind, key, len(payload), now, parts) is None:
+                out.append(Inbound(kind, key, payload.to_bytes(), now, parts))
 
     def take_queued(self, items: list[Inbound], wait: float) -> tuple[int, int, bool]:
         """Append what the callbacks queued to ``items``, waiting up to ``wait`` s for the
@@ -75,16 +77,17 @@ class RoundIntake:
         for p in pending:
             if p is None:
                 continue
-            if p[0] == "tick":
+            kind, key, payload, parts = p  # parts: the key as the callback read it (None: this process's own)
+            if kind == "tick":
                 ticks += 1
-            elif p[0] in ("command", "ack", "op"):  # from the network: through the intake like frames
+            elif kind in ("command", "ack", "op"):  # from the network: through the intake like frames
                 now = self.clock()
-                if self.core.admit(p[0], p[1], len(p[2]), now) is None:
-                    items.append(Inbound(*p, now))
-            else:  # presence (liveliness), access (this process's own policy)
-                if p[0] == "presence" and self.routes.sharded:  # one of this worker's own: its route
-                    self.routes.presence(p[1], p[2] == b"1", self.core.responders)
-                items.append(Inbound(*p, self.clock()))
+                if self.core.admit(kind, key, len(payload), now, parts) is None:
+                    items.append(Inbound(kind, key, payload, now, parts))
+            else:  # presence (liveliness), anchors' fixes, access (this process's own policy)
+                if kind == "presence" and self.routes.sharded:  # one of this worker's own: its route
+                    self.routes.presence(parts, payload == b"1", self.core.responders)
+                items.append(Inbound(kind, key, payload, self.clock(), parts))
         if stop:
             items += self.take_frames(None)
         return len(pending), ticks, stop

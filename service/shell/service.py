@@ -58,7 +58,7 @@ from service.protocol import wire
 from service.protocol.incident import IncidentConfig
 from service.shell.round_intake import RoundIntake
 from service.shell.shard_routes import ShardRoutes
-from service.shell.sharding import in_shard
+from service.shell.sharding import in_shard, owns
 from service.shell.snapshots import SnapshotWriter, fix_mmap_threshold, return_memory
 
 log = logging.getLogger("firetrack.service")
@@ -226,15 +226,18 @@ class IncidentService(SnapshotWriter):
         return False
 
     # ------------------------------------------------------------------ zenoh callbacks
-    def _mine(self, key: str) -> bool:
-        return self.shard[1] == 1 or in_shard(key, *self.shard)
-
     def _enqueue(self, sample: zenoh.Sample) -> None:
-        """Fixes, orders and acknowledgements: few, so they come by callback (kind from the key)."""
+        """Anchors' fixes, orders and acknowledgements: few, so they come by callback. The key is
+        read here, once (kind and responder from it); its parts go with the message to the core."""
         key = str(sample.key_expr)
-        if self._mine(key):
-            kind = key.rsplit("/", 1)[-1]
-            self._put_nowait(("fix" if kind.startswith(wire.ANCHOR_FIX) else kind, key, sample.payload.to_bytes()))
+        parts = wire.read_key(key)
+        if owns(parts, *self.shard):
+            if isinstance(parts, ValueError):  # not a key: its kind is the subscriber's (the intake refuses it)
+                last = key.rsplit("/", 1)[-1]
+                kind = "fix" if last.startswith(wire.ANCHOR_FIX) else last
+            else:
+                kind = parts.kind
+            self._put_nowait((kind, key, sample.payload.to_bytes(), parts))
 
     def _put_nowait(self, item) -> None:
         """A callback's message to the worker's queue; a storm of them must not block zenoh's
@@ -260,21 +263,22 @@ class IncidentService(SnapshotWriter):
             mine = in_shard(about, *self.shard) if isinstance(about, str) else self.shard[0] == 0
             if not mine:
                 return
-        self._put_nowait(("op", key, payload))
+        self._put_nowait(("op", key, payload, wire.read_key(key)))
 
     def update_access(self, access: wire.Access) -> None:
         """A new access policy (the roster changed): the core enforces it from the next round on."""
         self.access = access
-        self._queue.put(("access", self._access_key(), wire.encode(access)))
+        self._queue.put(("access", self._access_key(), wire.encode(access), None))
 
     def _access_key(self) -> str:
         return wire.key(self.id, self.actor, "access")
 
     def _on_presence(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
-        if self._mine(key):
+        parts = wire.read_key(key)
+        if owns(parts, *self.shard):
             try:
-                self._queue.put_nowait(("presence", key, b"1" if sample.kind == zenoh.SampleKind.PUT else b"0"))
+                self._queue.put_nowait(("presence", key, b"1" if sample.kind == zenoh.SampleKind.PUT else b"0", parts))
             except queue.Full:  # a storm of liveliness tokens must not block zenoh's threads
                 log.warning("presence of %s dropped: the worker's queue is full", key[:120])
 
@@ -285,7 +289,7 @@ class IncidentService(SnapshotWriter):
 
     def _tick_loop(self) -> None:
         while not self._stop.wait(self.settings.status_period_s):
-            self._queue.put(("tick", "", b""))
+            self._queue.put(("tick", "", b"", None))
 
     # ------------------------------------------------------------------ worker
     def _work(self) -> None:

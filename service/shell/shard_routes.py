@@ -102,14 +102,14 @@ class ShardRoutes:
             yield "imu", imu, True
             yield "fix", fix, True
 
-    def presence(self, key: str, present: bool, tracked) -> None:
+    def presence(self, parts, present: bool, tracked) -> None:
         """A token of one of this worker's responders came or went (the worker's thread): its
-        route is declared when it comes; when it goes, :meth:`forget` decides later.
+        route is declared when it comes; when it goes, :meth:`forget` decides later. ``parts``:
+        the token's key as the shell read it (:class:`service.protocol.keys.KeyParts`).
         ``tracked``: the responders the core holds (their fixes are not fetched again)."""
-        try:
-            _, rid, _ = wire.parse_key(key)
-        except ValueError:  # not a responder's token: the core says so when it takes it
+        if isinstance(parts, ValueError):  # not a responder's token: the core says so when it takes it
             return
+        rid = parts.responder
         if present:
             self.present.add(rid)
             if rid not in self.routes:
