@@ -80,11 +80,12 @@ class RoundIntake:
             kind, key, payload, parts = p  # parts: the key as the callback read it (None: this process's own)
             if kind == "tick":
                 ticks += 1
-            elif kind in ("command", "ack", "op"):  # from the network: through the intake like frames
+            elif kind in ("command", "ack", "op", "fix"):  # from the network (a fix here: an anchor's): through the
+                # intake like frames, each in its sender's lane (service.core.intake)
                 now = self.clock()
                 if self.core.admit(kind, key, len(payload), now, parts) is None:
                     items.append(Inbound(kind, key, payload, now, parts))
-            else:  # presence (liveliness), anchors' fixes, access (this process's own policy)
+            else:  # presence (liveliness), access (this process's own policy)
                 if kind == "presence" and self.routes.sharded:  # one of this worker's own: its route
                     self.routes.presence(parts, payload == b"1", self.core.responders)
                 items.append(Inbound(kind, key, payload, self.clock(), parts))
