@@ -93,14 +93,15 @@ class ShardRoutes:
         return zext.declare_advanced_subscriber(self.session, key, zenoh.handlers.FifoChannel(size), history=hist,
                                                 recovery=recovery, subscriber_detection=True)
 
-    def subscribers(self):
-        """``(kind, subscriber, routed)`` for every subscriber frames wait in (the worker's thread)."""
+    def wildcards(self):
+        """``(kind, subscriber)`` of the incident's wildcard subscribers (one worker, or the catch-all)."""
         for kind, sub in (("imu", self.imu), ("fix", self.fix)):
             if sub is not None:
-                yield kind, sub, False
-        for imu, fix, _ in list(self.routes.values()):
-            yield "imu", imu, True
-            yield "fix", fix, True
+                yield kind, sub
+
+    def route_pairs(self) -> list[tuple]:
+        """``(imu, fix)`` subscribers of every route (the worker's thread takes frames from them)."""
+        return [(imu, fix) for imu, fix, _ in self.routes.values()]
 
     def presence(self, parts, present: bool, tracked) -> None:
         """A token of one of this worker's responders came or went (the worker's thread): its
