@@ -62,16 +62,13 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
                ready, go, start_spread_s: float, tls_dir: str | None = None, foot: float = 0.0) -> None:  # pragma: no cover - child
 
     from client.simulate import SimulationPublisher
-    from client.wearable import KEEP_FRAMES
     from service.protocol.session import open_client
     from service.protocol.tls import TlsIdentity
 
     session = open_client(endpoint, tls=TlsIdentity.load(tls_dir) if tls_dir else None)
-    # each wearable keeps what a real one keeps (KEEP_FRAMES, 5 min), so that a service behind recovers from the
-    # keeps as at an incident: zenoh's keep holds at most the run's frames (974 B each: ~0.3 GB for N = 1000 and
-    # 30 s), the wearable's own is a view of the precomputed table (client.simulate.PrecomputedKeep)
-    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s, foot=foot,
-                              keep_frames=KEEP_FRAMES)
+    # each wearable keeps what a real one keeps (KEEP_FRAMES, 5 min) for the service's requests (Status.missing): a
+    # view of the precomputed table (client.simulate.PrecomputedKeep, no copy); zenoh's keep stays SIM_KEEP_FRAMES
+    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s, foot=foot)
     frames = int(seconds * 10) + 20
     send_t = np.full((n, frames), np.nan)
 

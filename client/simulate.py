@@ -17,7 +17,7 @@ import msgpack
 import numpy as np
 import zenoh
 
-from client.wearable import Wearable
+from client.wearable import KEEP_FRAMES, Wearable
 from pdr.simulation import WalkerFleet, WalkerSettings
 from service.protocol import wire
 from service.protocol.messages import FRAMES_PER_SECOND
@@ -34,8 +34,8 @@ def building_bounds(incident, margin: float = 5.0) -> tuple[float, float, float,
     return (-20.0, 20.0, -10.0, 10.0)
 
 
-SIM_KEEP_FRAMES = 100  # frames each wearable of `firetrack simulate` keeps (10 s at 10 frames/s: many in one process,
-# each frame encoded afresh and copied into zenoh's keep); the benchmark's keep as many as real ones (load_bench.py)
+SIM_KEEP_FRAMES = 100  # frames each simulated wearable keeps in zenoh's keep (10 s at 10 frames/s: many in one
+# process); precomputed frames (the benchmark's) are also kept as a real wearable keeps them (PrecomputedKeep)
 
 
 class BootStreams:
@@ -212,7 +212,7 @@ class SimulationPublisher:
                                                      **self.boots.signals(i, b))))  # as Wearable.send stamps it
             out.append(row)
         for i, w in enumerate(self.wearables):  # each keeps what it sent of them, as Wearable.send would
-            w.keep_sent(PrecomputedKeep(out, i, int(self.seq[i]), self.seq, w.keep_frames))
+            w.keep_sent(PrecomputedKeep(out, i, int(self.seq[i]), self.seq, KEEP_FRAMES))
         return out
 
     def run_precomputed(self, frames: list[list[bytes]], stop: threading.Event | None = None,

@@ -2,7 +2,7 @@
 frames older than the old 10 s keep, and they come.
 
 A real router on loopback; :class:`client.simulate.SimulationPublisher` as the benchmark runs
-it (frames precomputed, then put in real time) with ``KEEP_FRAMES``; a Status naming missing
+it (frames precomputed, then put in real time); a Status naming missing
 frames, as the service's gate puts it, on the wearable's status key.
 """
 from __future__ import annotations
@@ -27,7 +27,7 @@ def test_a_precomputed_run_resends_frames_beyond_the_old_simulator_keep():
     heard: list[int] = []
     sub = svc.declare_subscriber(wire.key(cfg.id, "sim-000", "imu"),
                                  lambda s: heard.append(wire.decode(s.payload.to_bytes(), expect=wire.ImuBatch).seq))
-    pub = SimulationPublisher(pub_s, cfg.id, 2, 100.0, 0, truth=False, keep_frames=KEEP_FRAMES)
+    pub = SimulationPublisher(pub_s, cfg.id, 2, 100.0, 0, truth=False)
     try:
         assert SECONDS * 10 > SIM_KEEP_FRAMES
         pub.step(1)
