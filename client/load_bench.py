@@ -66,6 +66,8 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
     from service.protocol.tls import TlsIdentity
 
     session = open_client(endpoint, tls=TlsIdentity.load(tls_dir) if tls_dir else None)
+    # each wearable keeps what a real one keeps (KEEP_FRAMES, 5 min) for the service's requests (Status.missing): a
+    # view of the precomputed table (client.simulate.PrecomputedKeep, no copy); zenoh's keep stays SIM_KEEP_FRAMES
     pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s, foot=foot)
     frames = int(seconds * 10) + 20
     send_t = np.full((n, frames), np.nan)

@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import msgpack
 import numpy as np
 import zenoh
 
-from client.wearable import Wearable
+from client.wearable import KEEP_FRAMES, Wearable
 from pdr.simulation import WalkerFleet, WalkerSettings
 from service.protocol import wire
 from service.protocol.messages import FRAMES_PER_SECOND
@@ -34,7 +34,8 @@ def building_bounds(incident, margin: float = 5.0) -> tuple[float, float, float,
     return (-20.0, 20.0, -10.0, 10.0)
 
 
-SIM_KEEP_FRAMES = 100  # frames each simulated wearable keeps to resend (10 s at 10 frames/s: many in one process)
+SIM_KEEP_FRAMES = 100  # frames each simulated wearable keeps in zenoh's keep (10 s at 10 frames/s: many in one
+# process); precomputed frames (the benchmark's) are also kept as a real wearable keeps them (PrecomputedKeep)
 
 
 class BootStreams:
@@ -78,6 +79,32 @@ class BootStreams:
         idx = (self._cursor[i] + np.arange(len(b.t))) % len(acc)
         self._cursor[i] += len(b.t)
         return {"acc": acc[idx], "gyr": gyr[idx], "carry": "foot"}
+
+
+class PrecomputedKeep(Mapping):
+    """Walker ``i``'s keep of the frames :meth:`SimulationPublisher.precompute` made: seq ->
+    encoded frame for the newest ``keep`` of those already sent (``next_seq[i]``, the publisher's
+    own counter, says how far it got). A view of the precomputed table, not a copy: a thousand
+    wearables keep 5 minutes each as a real one does (:data:`client.wearable.KEEP_FRAMES`) at no
+    cost in memory beyond the table the run holds anyway."""
+
+    def __init__(self, frames: list[list[bytes]], i: int, seq0: int, next_seq: np.ndarray, keep: int):
+        self.frames, self.i, self.seq0, self.next_seq, self.keep = frames, i, seq0, next_seq, keep
+
+    def _window(self) -> range:
+        sent = min(int(self.next_seq[self.i]), self.seq0 + len(self.frames))
+        return range(max(self.seq0, sent - self.keep), sent)
+
+    def __getitem__(self, seq: int) -> bytes:
+        if seq not in self._window():
+            raise KeyError(seq)
+        return self.frames[seq - self.seq0][self.i]
+
+    def __iter__(self):
+        return iter(self._window())
+
+    def __len__(self) -> int:
+        return len(self._window())
 
 
 class SimulationPublisher:
@@ -184,6 +211,8 @@ class SimulationPublisher:
                                                      seq=int(self.seq[i]) + k, t=b.t, utc_offset=offset[i],
                                                      **self.boots.signals(i, b))))  # as Wearable.send stamps it
             out.append(row)
+        for i, w in enumerate(self.wearables):  # each keeps what it sent of them, as Wearable.send would
+            w.keep_sent(PrecomputedKeep(out, i, int(self.seq[i]), self.seq, KEEP_FRAMES))
         return out
 
     def run_precomputed(self, frames: list[list[bytes]], stop: threading.Event | None = None,

@@ -99,6 +99,7 @@ class Wearable:
         self._lock = threading.Lock()
         self._seqs: list[int] = []  # seq of every frame sent, in order (device, boot) of this wearable
         self._kept: dict[int, bytes] = {}  # the last keep_frames encoded frames by seq, oldest first
+        self._kept_since = None  # seq -> frame of the frames sent by other means than send() (keep_sent)
         self._resent_at: dict[int, float] = {}  # seq -> when it was last resent (not again within RESEND_EVERY_S)
         self.resent = 0  # frames put again on the service's request
         self._resends: queue.Queue = queue.Queue(maxsize=8)
@@ -166,10 +167,12 @@ class Wearable:
         now = time.monotonic()
         if len(self._resent_at) > self.keep_frames:
             self._resent_at = {q: at for q, at in self._resent_at.items() if now - at < RESEND_EVERY_S}
-        seqs = [q for q in self._kept if first <= q <= last and now - self._resent_at.get(q, -math.inf) >= RESEND_EVERY_S]
-        for q in seqs:
-            self._resent_at[q] = now
-        payloads = [self._kept[q] for q in seqs]
+        payloads = []
+        for kept in (self._kept, self._kept_since or {}):
+            due = [q for q in kept if first <= q <= last and now - self._resent_at.get(q, -math.inf) >= RESEND_EVERY_S]
+            for q in due:
+                self._resent_at[q] = now
+                payloads.append(kept[q])
         if payloads and not self._closing.is_set():
             try:
                 self._resends.put_nowait(payloads)
@@ -222,6 +225,14 @@ class Wearable:
             self.unheard[kind] += 1
         self._pub[kind].put(payload)
         self.sent[kind] += 1
+
+    def keep_sent(self, kept) -> None:
+        """Frames this wearable sent by other means than :meth:`send` (a load generator's
+        :meth:`client.simulate.SimulationPublisher.run_precomputed` puts them itself): ``kept``,
+        a mapping seq -> encoded frame that holds at most ``keep_frames`` of the newest, is its
+        keep for resending from now on (the frames sent before it stay kept beside it)."""
+        with self._lock:
+            self._kept_since = kept
 
     def delivery(self) -> dict:
         """What the service has acknowledged of the frames sent: ``unacknowledged`` frames sent

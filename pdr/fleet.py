@@ -159,9 +159,16 @@ class PdrFleet:
         self.rows = FleetRows(d.filter_sections(100.0).shape[0], self._bout_n, self._elev.shape[0], capacity)
         self.members: list[FleetMember] = []
         self._floor_work: set[int] = set()  # slots with floor changes queued or steps held behind one
+        self._designs: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # rate -> (sos, zi): designed once
+
+    def __getstate__(self) -> dict:
+        d = dict(self.__dict__)
+        d.pop("_designs", None)  # a cache, designed again on demand
+        return d
 
     def __setstate__(self, d: dict) -> None:
         self.__dict__.update(d)
+        self._designs = {}
         self._attach()  # pickled with the fleet, the trackers' views came back as copies: views again
 
     def _attach(self) -> None:
@@ -212,9 +219,13 @@ class PdrFleet:
         R = self.rows
         results: list = [[] for _ in items]
         imu, pres = [], []  # (item index, member, t, frame) / (item index, member, pt, p)
+        times = [np.asarray(f.t, float).reshape(-1) for _, f in items]
+        # the order check for the whole round at once: a frame's first sample after the member's last
+        firsts = np.array([t[0] if t.size else np.inf for t in times])
+        late = (firsts <= R.mot[np.array([m.slot for m, _ in items], np.int64), K.M_TLAST]).tolist()
         for k, (m, f) in enumerate(items):
-            t = np.asarray(f.t, float).reshape(-1)
-            if t.size and t[0] <= R.mot[m.slot, K.M_TLAST]:
+            t = times[k]
+            if late[k]:
                 results[k] = ValueError(f"frame starts at {t[0]:.6f} s, not after the previous sample at "
                                         f"{R.mot[m.slot, K.M_TLAST]:.6f} s")
                 continue
@@ -342,9 +353,14 @@ class PdrFleet:
 
     def _design(self, slot: int) -> None:
         R = self.rows
-        sos = self._detector.filter_sections(float(R.det[slot, DK.D_RATE]))
-        R.sos[slot] = sos
-        R.zi_unit[slot] = signal.sosfilt_zi(sos)
+        rate = float(R.det[slot, DK.D_RATE])
+        design = self._designs.get(rate)
+        if design is None:  # the same rate, the same filter: scipy's design (~1.5 ms) once per rate
+            sos = self._detector.filter_sections(rate)
+            design = self._designs[rate] = (sos, signal.sosfilt_zi(sos))
+            if len(self._designs) > 64:  # estimated rates vary: keep the cache small
+                self._designs.pop(next(iter(self._designs)))
+        R.sos[slot], R.zi_unit[slot] = design
 
     def _steps(self, m: FleetMember, found: list[StepDetection], horizon: float) -> list:
         """Detected steps -> their headings, lengths, dz, floors and the floor events around them."""

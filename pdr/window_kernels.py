@@ -15,7 +15,9 @@ A window's standard deviation is needed only where it could pass: a window whose
 least √(2n)·σ_max cannot have σ < σ_max (σ ≥ range/√(2n) for any n samples), and a window
 whose maximum passes a limit fails whatever its σ. Those are decided from exact sliding minima
 and maxima (monotone deques, O(1) per sample), so the sums are paid only while the device is
-nearly still.
+nearly still. Conversely σ ≤ range/2 for any samples (Popoviciu's inequality), so a window
+whose range is below 2·0.999·σ_max passes without its σ (the margin dwarfs the rounding of
+the two-pass sums): only the means that are used are summed.
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ from numba import njit
 
 _RANGE_MARGIN = 1.01  # the bound's safety factor against rounding (relative errors of ~1e-13)
 MOVING, MOTIONLESS, UNKNOWN = 0, 1, 2  # a window's verdict (motionless_windows)
+_SURE_RANGE = 2.0 * 0.999  # a range below this many σ_max: σ < σ_max certainly, rounding included
 
 
 @njit(cache=True, inline="always")
@@ -98,6 +101,8 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
     tmin = np.zeros(4, np.int64)
     j0 = 0
     full_s = 0.9 * window
+    g = np.empty(4)
+    sd = np.empty(4)
     for i in range(n):
         for c in range(4):
             tmax[c] = _push(dqmax[c], hmax[c], tmax[c], X, c, i, 1.0)
@@ -114,30 +119,34 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
         cnt = i + 1 - j0
         bound = _RANGE_MARGIN * math.sqrt(2.0 * cnt)
         hopeless = False
+        sure = True  # every σ certainly below its limit (σ ≤ range/2): only the gyro means are summed
         for c in range(4):
             while dqmax[c, hmax[c]] < j0:
                 hmax[c] += 1
             while dqmin[c, hmin[c]] < j0:
                 hmin[c] += 1
             spread = X[dqmax[c, hmax[c]], c] - X[dqmin[c, hmin[c]], c]
-            if spread >= bound * (gyr_std if c < 3 else acc_std):
+            lim_c = gyr_std if c < 3 else acc_std
+            if spread >= bound * lim_c:
                 hopeless = True
+            if not spread < _SURE_RANGE * lim_c:
+                sure = False
         if hopeless:
             continue
-        g = np.empty(4)
-        sd = np.empty(4)
-        for c in range(4):
+        for c in range(3 if sure else 4):
             s = 0.0
             for j in range(j0, i + 1):
                 s += X[j, c]
             mu = s / cnt
+            g[c] = mu
+            if sure:
+                continue
             ss = 0.0
             for j in range(j0, i + 1):
                 d = X[j, c] - mu
                 ss += d * d
-            g[c] = mu
             sd[c] = np.sqrt(ss / cnt)
-        if (sd[0] < gyr_std and sd[1] < gyr_std and sd[2] < gyr_std and sd[3] < acc_std
+        if ((sure or (sd[0] < gyr_std and sd[1] < gyr_std and sd[2] < gyr_std and sd[3] < acc_std))
                 and math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) < gyr_max):
             still[r] = True
             cur[0], cur[1], cur[2] = g[0], g[1], g[2]
@@ -195,7 +204,11 @@ def motionless_windows(T, X, start, window, full_s, acc_std, gyr_max):  # pragma
         while dqmin0[h1] < j0:
             h1 += 1
         cnt = i + 1 - j0
-        if X[dqmax0[h0], 0] - X[dqmin0[h1], 0] >= _RANGE_MARGIN * math.sqrt(2.0 * cnt) * acc_std:
+        spread = X[dqmax0[h0], 0] - X[dqmin0[h1], 0]
+        if spread >= _RANGE_MARGIN * math.sqrt(2.0 * cnt) * acc_std:
+            continue
+        if spread < _SURE_RANGE * acc_std:  # σ ≤ range/2: certainly below the limit
+            still[i - start] = MOTIONLESS if T[i] - T[j0] >= full_s else UNKNOWN
             continue
         s = 0.0
         for j in range(j0, i + 1):

@@ -17,6 +17,21 @@ from service.shell.sharding import owns
 
 log = logging.getLogger("firetrack.service")
 
+ROUTE_SHARE_MIN = 2  # frames a route may give a round in one pass, at least (service.shell.shard_routes)
+
+
+def _received(sub) -> list:
+    """Every sample waiting in a subscriber's channel (none once it is undeclared)."""
+    got = []
+    while True:
+        try:
+            sample = sub.try_recv()
+        except zenoh.ZError:
+            return got
+        if sample is None:
+            return got
+        got.append(sample)
+
 
 class RoundIntake:
     """What a worker takes into a round (frames of its shard, then the queued messages)."""
@@ -25,39 +40,82 @@ class RoundIntake:
         self.core, self.clock, self.shard, self.routes = core, clock, shard, routes
         self.inbox, self.max_round = inbox, max_round
         self.heard = {"own": 0, "others": 0}  # samples taken from the frames' subscribers, by owner (this worker or not)
+        self._turn = 0  # rounds taken from the routes (the route a round starts at turns with it)
 
     def take_frames(self, limit: int | None) -> list[Inbound]:
         """Frames, then fixes, waiting in zenoh's channels for this worker's responders, each
-        through the intake (by key and size, before its payload is copied) and stamped as taken."""
+        through the intake (by key and size, before its payload is copied) and stamped as taken:
+        the incident's wildcard (one worker, or the catch-all), then a fair share of every route
+        (:meth:`_take_routes`)."""
         out: list[Inbound] = []
-        for kind, sub, routed in self.routes.subscribers():
+        for kind, sub in self.routes.wildcards():
             if limit is not None and len(out) >= limit:
                 break
-            self._take_from(kind, sub, out, limit, routed)
+            self._take_from(kind, sub, out, limit)
+        routes = self.routes.route_pairs()
+        if routes and (limit is None or len(out) < limit):
+            self._take_routes(routes, out, limit)
         return out
 
-    def _take_from(self, kind: str, sub, out: list[Inbound], limit: int | None, routed: bool = False) -> None:
-        """From one subscriber: a route's samples are this worker's; the incident's wildcard
-        (one worker, or the catch-all) gives the ids of its shard that have no route."""
-        admit, clock, heard, k, n = self.core.admit, self.clock, self.heard, *self.shard
-        routed_keys = self.routes.routed_keys
+    def _take_routes(self, routes: list, out: list[Inbound], limit: int | None) -> None:
+        """A round is a cross-section of the worker's responders, not a run of a few: in each
+        pass every route gives at most an equal share of the room left (at least
+        ``ROUTE_SHARE_MIN`` frames), starting one route further each round, until the round is
+        full or every channel is empty. Drained one route after another instead, a worker
+        behind its input filled its rounds with the backlogs of the first routes (their
+        frames then ran a responder at a time, ``max_coalesce`` at once, not a column of the
+        fleet) while the last routes waited rounds for their turn (issue 29: N = 1000 fell
+        to a fifth of its throughput, and the last responders' frames were lost).
+
+        A route's fixes come after the frames that waited before them: a fix found in its
+        channel first takes the rest of the route's frames (fixes are few, so the round's
+        bound is passed by at most one route's channel)."""
+        n = len(routes)
+        start = self._turn % n
+        self._turn += 1
+        order = routes[start:] + routes[:start]
+        while limit is None or len(out) < limit:
+            before = len(out)
+            share = None if limit is None else max(ROUTE_SHARE_MIN, (limit - len(out)) // n)
+            for imu, fix in order:
+                if limit is not None and len(out) >= limit:
+                    break
+                emptied = self._take_from("imu", imu, out, None if share is None else len(out) + share, True)
+                fixes = _received(fix)
+                if fixes:
+                    if not emptied:  # the frames sent before these fixes go first
+                        self._take_from("imu", imu, out, None, True)
+                    for sample in fixes:
+                        self._admit("fix", sample, out, True)
+            if limit is None or len(out) == before:
+                return
+
+    def _take_from(self, kind: str, sub, out: list[Inbound], limit: int | None, routed: bool = False) -> bool:
+        """From one subscriber, until ``out`` holds ``limit`` items; True when its channel was
+        found empty (or closed)."""
         while limit is None or len(out) < limit:
             try:
                 sample = sub.try_recv()
             except zenoh.ZError:  # undeclared (closing)
-                break
+                return True
             if sample is None:
-                break
-            key = str(sample.key_expr)
-            parts = read_key(key)  # the one reading of this message's key: the intake and the core take its parts
-            own = owns(parts, k, n)
-            heard["own" if own else "others"] += 1
-            if not own or (not routed and key in routed_keys):  # another's, or its route brings it
-                continue
-            payload = sample.payload
-            now = clock()
-            if admit(kind, key, len(payload), now, parts) is None:
-                out.append(Inbound(kind, key, payload.to_bytes(), now, parts))
+                return True
+            self._admit(kind, sample, out, routed)
+        return False
+
+    def _admit(self, kind: str, sample, out: list[Inbound], routed: bool) -> None:
+        """One sample through the intake: a route's samples are this worker's; the incident's
+        wildcard (one worker, or the catch-all) gives the ids of its shard that have no route."""
+        key = str(sample.key_expr)
+        parts = read_key(key)  # the one reading of this message's key: the intake and the core take its parts
+        own = owns(parts, *self.shard)
+        self.heard["own" if own else "others"] += 1
+        if not own or (not routed and key in self.routes.routed_keys):  # another's, or its route brings it
+            return
+        payload = sample.payload
+        now = self.clock()
+        if self.core.admit(kind, key, len(payload), now, parts) is None:
+            out.append(Inbound(kind, key, payload.to_bytes(), now, parts))
 
     def take_queued(self, items: list[Inbound], wait: float) -> tuple[int, int, bool]:
         """Append what the callbacks queued to ``items``, waiting up to ``wait`` s for the

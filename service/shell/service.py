@@ -76,6 +76,8 @@ class ServiceSettings:
     snapshot_every_s: float = 5.0  # s between snapshots of the core beside the recording (with a state file)
     snapshot_batch: int = 32  # responders pickled afresh per round while a snapshot waits (service/shell/snapshots.py)
     idle_poll_s: tuple[float, float] = (0.001, 0.01)  # s the worker waits between looks when frames flow / when quiet
+    look_every_s: float = 0.005  # s between the starts of two looks at least: a look at a worker's routes tries
+    # every route's channel (500 routes: ~1 ms), so looks back to back would spend the core on empty channels
     warm_up: bool = True  # run a simulated responder through the core before subscribing (service/core/warmup.py)
     catch_all: bool = False  # --workers > 1: also the incident's wildcard, for sources without a presence token
     mmap_threshold_bytes: int | None = 128 * 1024  # bytes: larger blocks mapped alone, returned when freed (None: glibc's)
@@ -308,8 +310,13 @@ class IncidentService(SnapshotWriter):
         go through its pipeline as one batch, which costs far less per frame, so the worker
         catches up instead of falling further behind."""
         quick, slow = self.settings.idle_poll_s
-        last_frame = -math.inf
+        last_frame = last_look = -math.inf
         while True:
+            if self.routes.routes:  # many channels to look at: at most one look per look_every_s
+                rest = self.settings.look_every_s - (time.monotonic() - last_look)
+                if rest > 0:
+                    self._stop.wait(rest)
+                last_look = time.monotonic()
             items = self.rounds.take_frames(self.settings.max_round)
             wait = 0.0 if items else quick if time.monotonic() - last_frame < 1.0 else slow
             taken, ticks, stop = self.rounds.take_queued(items, wait)

@@ -36,7 +36,6 @@ Held by :class:`service.shell.service.IncidentService` (``svc.routes``).
 """
 from __future__ import annotations
 
-import datetime
 import logging
 
 import zenoh
@@ -88,19 +87,23 @@ class ShardRoutes:
         # asks for those (a gap, or a stream first heard above seq 0: service/core/gate.py).
         hist = zext.HistoryConfig(detect_late_publishers=True, max_samples=st.history_frames if kind == "imu"
                                   else None) if history else None
-        recovery = (zext.RecoveryConfig(periodic_queries=datetime.timedelta(seconds=1)) if routed
-                    else zext.RecoveryConfig(heartbeat=True))
+        # Recovery follows the wearables' heartbeats (their newest seq, sent when it changed), as the
+        # wildcard's does. Periodic queries (one per route per second) made a thousand queries a
+        # second at N = 1000, through the router and into the wearables' keeps, and stalled the
+        # frames' delivery: 909 of 101 000 frames reached idle workers (issue 29, docs/capacity.md).
+        recovery = zext.RecoveryConfig(heartbeat=True)
         return zext.declare_advanced_subscriber(self.session, key, zenoh.handlers.FifoChannel(size), history=hist,
                                                 recovery=recovery, subscriber_detection=True)
 
-    def subscribers(self):
-        """``(kind, subscriber, routed)`` for every subscriber frames wait in (the worker's thread)."""
+    def wildcards(self):
+        """``(kind, subscriber)`` of the incident's wildcard subscribers (one worker, or the catch-all)."""
         for kind, sub in (("imu", self.imu), ("fix", self.fix)):
             if sub is not None:
-                yield kind, sub, False
-        for imu, fix, _ in list(self.routes.values()):
-            yield "imu", imu, True
-            yield "fix", fix, True
+                yield kind, sub
+
+    def route_pairs(self) -> list[tuple]:
+        """``(imu, fix)`` subscribers of every route (the worker's thread takes frames from them)."""
+        return [(imu, fix) for imu, fix, _ in self.routes.values()]
 
     def presence(self, parts, present: bool, tracked) -> None:
         """A token of one of this worker's responders came or went (the worker's thread): its
