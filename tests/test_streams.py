@@ -93,6 +93,15 @@ def test_an_honest_stream_silent_for_3_s_keeps_its_track_from_a_stream_sending_m
     assert [(b.boot, b.seq) for b in released] == [("honest", k) for k in range(200)]
     assert gate.boot == "honest" and gate.streams == 1 and gate.lost == 0 and gate.gaps == 0
     assert gate.counts == {"other_stream": 30} and gate.contested == 30 and not gate.waiting
+    assert gate.last_contested == 118.0  # the last held frame (105.9) turned away 2 * takeover_after_s after it ...
+    probe = FrameGate()
+    for k in range(30):
+        probe.offer(frame(k, boot="honest"), 100.0 + 0.1 * k)
+    probe.offer(frame(0, t0=9000.0, boot="forged"), 103.0)
+    probe.offer(frame(30, boot="honest"), 103.2)  # an honest frame still in flight: no restart yet told apart
+    assert probe.last_contested == -math.inf
+    probe.offer(frame(31, boot="honest"), 106.0)  # ... but the alarm is on once the honest stream speaks again
+    assert probe.last_contested == 106.0 and probe.boot == "honest"
 
 
 def test_a_candidate_that_does_not_fit_is_asked_for_again_after_it_takes_over():

@@ -79,21 +79,19 @@ candidate at a time, at most ``max_candidate`` frames and ``max_held_samples`` s
 at most ``2 * takeover_after_s``), so a restart that comes sooner than the old stream's silence
 is proven loses nothing; they are released in order when it takes over, and whatever of it did
 not fit is asked for again like any gap (``Status.missing`` names the new boot; the wearable
-resends from its keep).
+resends from its keep). The current stream speaking ``restart_quiet_s`` or more after a
+candidate's first frame (no restart does that) sets ``last_contested`` at once.
 Frames of any other stream, and candidate frames that age out or do not fit, are turned away
 (``other_stream``) and counted in :attr:`FrameGate.contested` (``last_contested``: the core's
 ``stream_contested`` alarm); the real stream keeps being tracked. The counter restarts and jumps
 within one ``(device, boot)`` need ``restart_quiet_s`` of quiet; before that they are turned
 away (``seq_jump``, or as duplicates).
 
-Every new stream is a gap (``gaps``); its receive-time gap adds to ``gap_s``. Within an epoch
-released times strictly increase; the incident core continues the responder's track across
-epochs (:mod:`service.core.incident_core`).
+Every new stream is a gap (``gaps``, ``gap_s``); the core continues the track across epochs.
 
 Counts. ``lost`` frames (seq never released), ``gaps`` (runs of lost frames, device-time jumps
-over ``max_gap_s``, new streams) and ``gap_s`` (the seconds they span: the device-time jump
-across lost frames or a jump, the receive-time gap before a new stream) are what ``Status``
-reports, so a loss is never silent.
+over ``max_gap_s``, new streams) and ``gap_s`` (the seconds they span: across lost frames or a
+jump, the receive-time gap before a new stream) are what ``Status`` reports: no silent loss.
 """
 from __future__ import annotations
 
@@ -254,6 +252,9 @@ class FrameGate:
                 self._hold_candidate(batch, receive_time)
                 return out
             out += self._take_over(stream, receive_time)
+        elif self._candidate_held and receive_time - min(rt for _, rt in self._candidate_held.values()) \
+                >= self.restart_quiet_s:  # the live stream speaks while another waits: contested at once
+            self.last_contested = receive_time
         return out + self._offer_in_stream(batch, receive_time)
 
     def _proves_itself(self, batch: ImuBatch, now: float) -> bool:
