@@ -2,10 +2,20 @@
 
 OpenBLAS picks its kernel from the CPU at start-up; ``OPENBLAS_CORETYPE`` overrides that
 choice. A result that depends on the kernel (a BLAS product on a streaming path) passed on
-the developer's machine and failed on an AVX-512 one. Here every test marked ``bitexact``
-runs in a fresh interpreter under each kernel the CPU supports, with 1 and 2 BLAS threads,
+the developer's machine and failed on an AVX-512 one. Here the tests marked ``bitexact``
+run in a fresh interpreter under each kernel the CPU supports, with 1 and 2 BLAS threads,
 so CI on any machine exercises the kernels that machine can run. The static guard that
 fails everywhere is ``tests/test_fixed_order.py``.
+
+Every kernel of the matrix runs every bit-exact test except the long ones in :data:`SHARED`,
+which are dealt out over the kernels instead (each runs under one of them, and all of them run
+under the machine's own kernel in the suite itself). What the matrix looks for, a BLAS product
+whose bits depend on the kernel or on the shape of the batch, lives in the arithmetic those
+long tests share with the short ones each kernel runs: the fleet against a fleet of one in
+rounds of random size (``test_a_floor_anchored_mid_walk_is_anchored_the_same_in_the_fleet``),
+the core in rounds of any size (``test_rounds_of_any_size_give_the_same_poses_bit_for_bit``),
+live frames against one batch (``test_pipeline.py``) and each stage alone in any batching.
+This took the matrix from 4 full runs (58 tests each, about 218 s on CI) to one full run's worth.
 """
 from __future__ import annotations
 
@@ -64,6 +74,37 @@ def kernel_taken(core: str) -> str | None:
     return m.group(1) if m else None
 
 
+# The long bit-exact tests (seconds of CPU each, measured under Prescott with 1 thread on the
+# 2-core machine under load), dealt out over the matrix in this order: each runs under one kernel.
+SHARED = [
+    "tests/test_fleet.py::test_simulated_walkers_alone_and_in_a_fleet_give_the_same_events",  # 37.6 s
+    "tests/test_fleet.py::test_real_walks_alone_and_in_a_fleet_give_the_same_events",  # 14.3 s
+    "tests/test_review.py::test_handheld_and_boot_mounted_wearers_live_then_reprocessed_give_identical_poses",  # 11.8
+    "tests/test_fleet.py::test_the_service_gives_a_responder_the_same_poses_alone_or_beside_others",  # 9.9 s
+    "tests/test_review.py::test_four_person_exercise_recorded_live_then_reprocessed_gives_identical_poses",  # 5.2 s
+    "tests/test_fleet.py::test_a_released_slot_serves_a_new_member_as_a_fresh_pipeline",  # 4.9 s
+    "tests/test_fleet.py::test_a_crowd_that_leaves_gives_its_rows_back_and_the_fleet_goes_on",  # 4.3 s
+    "tests/test_fleet.py::test_a_pickled_fleet_goes_on_like_the_original",  # 3.9 s
+    "tests/test_service.py::test_replay_through_zenoh_equals_the_offline_pipeline",  # 3.1 s with its router
+    "tests/test_ipin_eval.py::test_replayed_dead_reckoning_gives_the_same_tracks_bit_for_bit[2]",  # 1.6 s
+    "tests/test_ipin_eval.py::test_replayed_dead_reckoning_gives_the_same_tracks_bit_for_bit[0]",  # 1.5 s
+]
+
+
+def bitexact_files() -> list[Path]:
+    """The test files that hold bit-exact tests (the inner run collects only these)."""
+    return sorted(p for p in (ROOT / "tests").glob("test_*.py")
+                  if p.name != Path(__file__).name and "mark.bitexact" in p.read_text())
+
+
+def inner_command(index: int, entries: int) -> list[str]:
+    """pytest over the bit-exact tests for matrix entry ``index`` of ``entries``: all of them
+    but the :data:`SHARED` ones dealt to the other entries."""
+    skip = [nodeid for i, nodeid in enumerate(SHARED) if i % entries != index]
+    return ([sys.executable, "-m", "pytest", "-q", "-m", "bitexact", "-p", "no:cacheprovider", "-x"]
+            + [a for nodeid in skip for a in ("--deselect", nodeid)] + [str(p.relative_to(ROOT)) for p in bitexact_files()])
+
+
 def _matrix() -> list[tuple[str, int]]:
     # every distinct kernel once, alternating 1 and 2 threads; the widest kernel with both
     if os.environ.get("FIRETRACK_BLAS_MATRIX") == "inner":
@@ -80,12 +121,15 @@ def _matrix() -> list[tuple[str, int]]:
     return out
 
 
+MATRIX = _matrix()
+
+
 @pytest.mark.skipif(os.environ.get("FIRETRACK_BLAS_MATRIX") == "inner", reason="already inside the kernel matrix")
-@pytest.mark.parametrize("core,threads", _matrix(), ids=lambda v: str(v))
-def test_bit_exact_results_hold_under_this_blas_kernel(core, threads):
+@pytest.mark.parametrize("index,core,threads", [(i, c, t) for i, (c, t) in enumerate(MATRIX)], ids=lambda v: str(v))
+def test_bit_exact_results_hold_under_this_blas_kernel(index, core, threads):
     env = dict(os.environ, OPENBLAS_CORETYPE=core, OPENBLAS_NUM_THREADS=str(threads), FIRETRACK_BLAS_MATRIX="inner")
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-m", "bitexact", "-p", "no:cacheprovider",
-                           "-x", str(ROOT / "tests")], cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    proc = subprocess.run(inner_command(index, len(MATRIX)), cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=900)
     summary = (proc.stdout.strip().splitlines() or ["(no output)"])[-1]
     assert proc.returncode == 0, f"OPENBLAS_CORETYPE={core} threads={threads}: {summary}\n" \
                                  + proc.stdout[-4000:] + proc.stderr[-2000:]
@@ -98,4 +142,15 @@ def test_the_kernel_matrix_is_not_empty_on_a_known_cpu():
         pytest.skip(f"no kernel list for {platform.machine()}")
     if os.environ.get("FIRETRACK_BLAS_MATRIX") == "inner":
         pytest.skip("inside the matrix")
-    assert len({k for k, _ in _matrix()}) >= 2, _matrix()
+    assert len({k for k, _ in MATRIX}) >= 2, MATRIX
+
+
+def test_every_shared_test_is_a_bit_exact_test_that_exists():
+    """A renamed long test would otherwise silently run under no kernel of the matrix."""
+    files = {p.name: p.read_text() for p in bitexact_files()}
+    for nodeid in SHARED:
+        path, name = nodeid.split("::")
+        text = files.get(Path(path).name, "")
+        at = text.find(f"def {name.split('[')[0]}(")
+        assert at >= 0 and "mark.bitexact" in text[max(0, text.rfind("\n\n\n", 0, at)):at], nodeid
+    assert len(set(SHARED)) == len(SHARED)

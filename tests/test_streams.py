@@ -37,6 +37,7 @@ def test_frames_of_another_stream_cannot_take_a_live_stream_over():
             released += [(b.device, b.seq) for b in gate.offer(frame(s % 3, t0=1e6 + s, device="evil"), s * 0.05 + 0.01)]
             released += [(b.device, b.seq) for b in gate.offer(frame(s, t0=1e6 + s, boot="honest"), s * 0.05 + 0.02)]
     assert released == [("phone-A", s) for s in range(200)] and gate.epoch == 0
+    gate.expire(13.0)  # 2 * takeover_after_s after the first injected frames, 3 s after the honest stream's last
     # the injected frames were held as a candidate (3 of them) or turned away; the held ones too, in time
     assert gate.counts == {"other_stream": 100, "duplicate": 100} and gate.contested == 100
 
@@ -46,7 +47,7 @@ def test_a_burst_of_new_streams_is_refused_while_the_real_one_speaks_and_a_quick
     at 50 frames/s while the real wearable goes on at 10 frames/s: every real frame is taken,
     the burst is turned away (counted, ``contested``). Then the real wearable restarts 1 s after
     its last frame (sooner than ``takeover_after_s``): its frames wait as the candidate and are
-    all released once the old stream's 2 s of silence prove it gone."""
+    all released once the old stream's ``takeover_after_s`` of silence prove it gone."""
     gate = FrameGate()
     released = []
     for k in range(100):  # 10 s of the real stream
@@ -54,31 +55,86 @@ def test_a_burst_of_new_streams_is_refused_while_the_real_one_speaks_and_a_quick
         if 30 <= k < 80:
             for j in range(5):
                 gate.offer(frame(j + 5 * (k - 30), t0=7.0 + 0.05 * j, boot=f"fake{k % 2}"), 100.0 + 0.1 * k + 0.01 * (j + 1))
-    gate.expire(115.0)
+    gate.expire(120.0)  # the candidate's frames held 2 * takeover_after_s, while the real stream spoke
     assert released == [("real", k) for k in range(100)] and gate.boot == "real" and gate.streams == 1
     assert gate.contested == 250 and gate.counts == {"other_stream": 250}
     # the real wearable restarts: new boot, seq from 0, first frame 1 s after its last one
-    last = 115.0
-    gate.offer(frame(100, boot="real"), 115.0)
+    last = 120.0
+    gate.offer(frame(100, boot="real"), last)
     out = []
     for k in range(40):
         out += gate.offer(frame(k, t0=50.0 + 0.05 * k, boot="again"), last + 1.0 + 0.1 * k)
-    assert [b.seq for b in out] == list(range(40)) and gate.boot == "again" and gate.lost == 0
+    assert out == [] and gate.boot == "real"  # 4.9 s of silence: not yet proof of a restart
+    for k in range(40, 80):
+        out += gate.offer(frame(k, t0=50.0 + 0.05 * k, boot="again"), last + 1.0 + 0.1 * k)
+    assert [b.seq for b in out] == list(range(80)) and gate.boot == "again" and gate.lost == 0
     assert gate.contested == 250 and gate.streams == 2
+    assert min(rt for rt, why, _ in gate.events if why == "restart") == last + 1.0  # the gap ends at its first frame
+
+
+def test_an_honest_stream_silent_for_3_s_keeps_its_track_from_a_stream_sending_meanwhile():
+    """A phone's Wi-Fi stalls 3 s in a building (or the service is starved under load) while
+    frames of another boot arrive on its key: the other stream waits as the candidate, the
+    honest one resumes (its frames from the stall arrive in a burst) and keeps its identity,
+    loses nothing, and the candidate is turned away and counted. With 2 s of silence taken as
+    proof of a restart, the other stream took over and the honest frames were ``old_stream``."""
+    gate = FrameGate()
+    released = []
+    for k in range(30):  # 3 s of the honest stream at 10 frames/s
+        released += gate.offer(frame(k, boot="honest"), 100.0 + 0.1 * k)
+    for j in range(30):  # 3 s of silence of the honest stream; the other stream sends meanwhile
+        released += gate.offer(frame(j, t0=9000.0 + 0.05 * j, boot="forged"), 103.0 + 0.1 * j)
+        released += gate.expire(103.05 + 0.1 * j)  # the core's ticks
+    for k in range(30, 60):  # the stall ends: its frames in a burst, then live again
+        released += gate.offer(frame(k, boot="honest"), 106.0 + 0.001 * (k - 30))
+    for k in range(60, 200):
+        released += gate.offer(frame(k, boot="honest"), 100.0 + 0.1 * k)
+    released += gate.expire(121.0)
+    assert [(b.boot, b.seq) for b in released] == [("honest", k) for k in range(200)]
+    assert gate.boot == "honest" and gate.streams == 1 and gate.lost == 0 and gate.gaps == 0
+    assert gate.counts == {"other_stream": 30} and gate.contested == 30 and not gate.waiting
+    assert gate.last_contested == 118.0  # the last held frame (105.9) turned away 2 * takeover_after_s after it ...
+    probe = FrameGate()
+    for k in range(30):
+        probe.offer(frame(k, boot="honest"), 100.0 + 0.1 * k)
+    probe.offer(frame(0, t0=9000.0, boot="forged"), 103.0)
+    probe.offer(frame(30, boot="honest"), 103.2)  # an honest frame still in flight: no restart yet told apart
+    assert probe.last_contested == -math.inf
+    probe.offer(frame(31, boot="honest"), 106.0)  # ... but the alarm is on once the honest stream speaks again
+    assert probe.last_contested == 106.0 and probe.boot == "honest"
+
+
+def test_a_candidate_that_does_not_fit_is_asked_for_again_after_it_takes_over():
+    """A restart sends more than ``max_candidate`` frames before the old stream's silence is
+    proven: the first are held, the rest turned away, and once it takes over the gap in front of
+    its next live frame is asked for (the wearable resends it from its keep): nothing lost."""
+    gate = FrameGate(max_candidate=8, takeover_after_s=6.0)
+    for k in range(10):
+        gate.offer(frame(k, boot="old"), 0.1 * k)
+    out = []
+    for j in range(50):  # the restarted wearable from 1 s after the old one's last frame
+        out += gate.offer(frame(j, t0=50.0 + 0.05 * j, boot="new"), 1.9 + 0.1 * j)
+    assert out == [] and gate.boot == "old" and gate.counts == {"other_stream": 42}
+    out += gate.offer(frame(50, t0=50.0 + 0.05 * 50, boot="new"), 6.95)  # 6 s after the old one's last frame
+    assert gate.boot == "new" and [b.seq for b in out] == list(range(8))
+    assert gate.ask() == (8, 49) and gate.missing == (8, 49)
+    for j in range(8, 50):  # the resend
+        out += gate.offer(frame(j, t0=50.0 + 0.05 * j, boot="new"), 7.0 + 0.001 * j)
+    assert [b.seq for b in out] == list(range(51)) and gate.lost == 0 and gate.epoch == 1
 
 
 def test_a_new_boot_is_a_new_stream_at_once_and_the_old_one_is_retired():
     gate = FrameGate()
     for s in range(50):
         gate.offer(frame(s, boot="A"), s * 0.05)
-    # the wearable restarted 2 s later: seq from 0 again, its clock restarted too
-    out = gate.offer(frame(0, t0=0.0, boot="B"), 4.5)
+    # the wearable restarted 6 s later (takeover_after_s): seq from 0 again, its clock restarted too
+    out = gate.offer(frame(0, t0=0.0, boot="B"), 8.5)
     assert [b.seq for b in out] == [0] and gate.epoch == 1 and gate.streams == 2
     assert gate.boot == "B" and gate.last_seq == 0
-    assert gate.gaps == 1 and gate.gap_s == pytest.approx(4.5 - 49 * 0.05)
+    assert gate.gaps == 1 and gate.gap_s == pytest.approx(8.5 - 49 * 0.05)
     # a frame of the old start still in flight is turned away, not switched back to
-    assert gate.offer(frame(50, boot="A"), 4.6) == [] and gate.counts == {"old_stream": 1}
-    assert [b.seq for b in gate.offer(frame(1, t0=N * DT, boot="B"), 4.7)] == [1]
+    assert gate.offer(frame(50, boot="A"), 8.6) == [] and gate.counts == {"old_stream": 1}
+    assert [b.seq for b in gate.offer(frame(1, t0=N * DT, boot="B"), 8.7)] == [1]
 
 
 def test_a_counter_that_restarts_while_time_goes_on_is_a_new_stream_without_a_boot():

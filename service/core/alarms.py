@@ -8,8 +8,8 @@
 ``disconnected``    the wearable's liveliness token is gone
 ``recording_failed`` the incident is no longer being recorded (disk full, ...)
 ``flooding``        the responder's key sent more than its budget (:mod:`service.core.intake`)
-``stream_contested`` frames of another stream (boot) turned away within ``rejected_window_s``
-                    while the real one spoke (:class:`service.core.gate.FrameGate`)
+``stream_contested`` frames of another stream (boot) turned away, or waiting while the real one
+                    spoke, within ``rejected_window_s`` (:class:`service.core.gate.FrameGate`)
 ``par_unanswered``  a roll call (PAR) unanswered after ``command_answer_s``
 ``evacuation_unacknowledged`` an evacuation order unacknowledged after ``command_answer_s``
 ``track_degraded``  the estimator could not take an input and restarted the track from dead

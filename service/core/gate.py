@@ -65,26 +65,33 @@ forgotten) when
 
 **A stream cannot be taken over.** A new ``(device, boot)`` must prove itself: it replaces the
 current stream only once the current one has been silent (no frame naming it heard) for
-``takeover_after_s`` (2 s: a wearable that restarts goes quiet first, and starting again takes
-it longer than that), or when it *continues* the current one (its seq is the next one and its
-first sample follows the last released one within ``max_gap_s``) after ``restart_quiet_s`` of
-quiet. Until then its frames are a **candidate**: held (one candidate at a time, at most
-``max_held`` frames, for at most ``2 * takeover_after_s``), so a restart that comes sooner than
-the old stream's silence is proven loses nothing; they are released in order when it takes over.
+``takeover_after_s`` (6 s), or when it *continues* the current one (its seq is the next one and
+its first sample follows the last released one within ``max_gap_s``) after ``restart_quiet_s`` of
+quiet. Silence is weak proof of a restart: an honest wearable whose phone's Wi-Fi stalls in a
+building, or a service starved under load, is silent for seconds (2.4 s seen in CI, where a
+forged boot took the track over with the old 2 s and the real frames after it were refused as
+``old_stream``). 6 s covers such stalls and stays below ``lost_contact_s`` (10 s), so a genuine
+restart is tracked again before its silence is an alarm; it costs a restarted wearable at most
+6 s of delay once (its frames are held, then released with their own times: the track, and
+man-down, which needs the motion model's own stillness *after* a new stream, are decided in
+device time and come out the same). Until then its frames are a **candidate**: held (one
+candidate at a time, at most ``max_candidate`` frames and ``max_held_samples`` samples, each for
+at most ``2 * takeover_after_s``), so a restart that comes sooner than the old stream's silence
+is proven loses nothing; they are released in order when it takes over, and whatever of it did
+not fit is asked for again like any gap (``Status.missing`` names the new boot; the wearable
+resends from its keep). The current stream speaking ``restart_quiet_s`` or more after a
+candidate's first frame (no restart does that) sets ``last_contested`` at once.
 Frames of any other stream, and candidate frames that age out or do not fit, are turned away
 (``other_stream``) and counted in :attr:`FrameGate.contested` (``last_contested``: the core's
 ``stream_contested`` alarm); the real stream keeps being tracked. The counter restarts and jumps
 within one ``(device, boot)`` need ``restart_quiet_s`` of quiet; before that they are turned
 away (``seq_jump``, or as duplicates).
 
-Every new stream is a gap (``gaps``); its receive-time gap adds to ``gap_s``. Within an epoch
-released times strictly increase; the incident core continues the responder's track across
-epochs (:mod:`service.core.incident_core`).
+Every new stream is a gap (``gaps``, ``gap_s``); the core continues the track across epochs.
 
 Counts. ``lost`` frames (seq never released), ``gaps`` (runs of lost frames, device-time jumps
-over ``max_gap_s``, new streams) and ``gap_s`` (the seconds they span: the device-time jump
-across lost frames or a jump, the receive-time gap before a new stream) are what ``Status``
-reports, so a loss is never silent.
+over ``max_gap_s``, new streams) and ``gap_s`` (the seconds they span: across lost frames or a
+jump, the receive-time gap before a new stream) are what ``Status`` reports: no silent loss.
 """
 from __future__ import annotations
 
@@ -97,7 +104,8 @@ GATE_REASONS = ("duplicate", "late", "time_order", "old_stream", "other_stream",
 RESEND_WAIT_S = 2.0  # s an asked-for gap is waited for
 MAX_HELD = 64  # frames held while an asked-for gap is waited for
 MAX_HELD_SAMPLES = 8192  # and samples in them (a frame holds up to MAX_SAMPLES)
-TAKEOVER_AFTER_S = 2.0  # s of silence of the current stream before another (device, boot) may replace it
+TAKEOVER_AFTER_S = 6.0  # s of silence of the current stream before another (device, boot) may replace it
+MAX_CANDIDATE = 128  # frames of a candidate stream held meanwhile (10 frames/s for 2 * TAKEOVER_AFTER_S, and more)
 RESTART_QUIET_S = 0.5  # s of quiet before a counter restart, or a stream that continues the current one
 
 
@@ -107,7 +115,7 @@ class FrameGate:
     # class defaults: gates restored from a snapshot taken before resends (and candidates) existed
     _asked: tuple[int, int] | None = None  # the run last asked for
     resend_wait_s, max_held, max_held_samples = RESEND_WAIT_S, MAX_HELD, MAX_HELD_SAMPLES
-    restart_quiet_s = RESTART_QUIET_S
+    restart_quiet_s, max_candidate = RESTART_QUIET_S, MAX_CANDIDATE
     _stream_heard: float | None = None  # receive time of the newest frame naming the current stream
     _candidate: tuple[str, str | None] | None = None  # the stream that waits to take over ...
     _candidate_held: dict | None = None  # ... its frames: seq -> (frame, receive time)
@@ -119,7 +127,7 @@ class FrameGate:
                  restart_after_s: float = 30.0, max_events: int = 256, max_seq_jump: int = 100_000,
                  max_retired: int = 16, takeover_after_s: float = TAKEOVER_AFTER_S, resend_wait_s: float = RESEND_WAIT_S,
                  max_held: int = MAX_HELD, max_held_samples: int = MAX_HELD_SAMPLES,
-                 restart_quiet_s: float = RESTART_QUIET_S, ask_from_start: int = 0):
+                 restart_quiet_s: float = RESTART_QUIET_S, ask_from_start: int = 0, max_candidate: int = MAX_CANDIDATE):
         if reorder_window < 0:
             raise ValueError(f"reorder_window must be >= 0, got {reorder_window}")
         if not max_gap_s > 0 or not max_hold_s > 0 or not restart_after_s > 0:
@@ -137,6 +145,10 @@ class FrameGate:
         self.restart_after_s = float(restart_after_s)
         self.max_seq_jump = int(max_seq_jump)
         self.takeover_after_s = float(takeover_after_s)
+        if not takeover_after_s > 0 or max_candidate < 1:
+            raise ValueError(f"takeover_after_s must be positive and max_candidate >= 1, got {takeover_after_s}, "
+                             f"{max_candidate}")
+        self.max_candidate = int(max_candidate)
         self.restart_quiet_s = float(restart_quiet_s)
         if ask_from_start < 0:
             raise ValueError(f"ask_from_start must be >= 0 frames, got {ask_from_start}")
@@ -240,6 +252,9 @@ class FrameGate:
                 self._hold_candidate(batch, receive_time)
                 return out
             out += self._take_over(stream, receive_time)
+        elif self._candidate_held and receive_time - min(rt for _, rt in self._candidate_held.values()) \
+                >= self.restart_quiet_s:  # the live stream speaks while another waits: contested at once
+            self.last_contested = receive_time
         return out + self._offer_in_stream(batch, receive_time)
 
     def _proves_itself(self, batch: ImuBatch, now: float) -> bool:
@@ -255,12 +270,15 @@ class FrameGate:
 
     def _hold_candidate(self, batch: ImuBatch, now: float) -> None:
         """A frame of a stream that has not proven itself: held as the candidate's (the first
-        such stream, within ``max_held`` frames), else turned away."""
+        such stream, within ``max_candidate`` frames and ``max_held_samples`` samples), else
+        turned away."""
         stream = (batch.device, batch.boot)
         if self._candidate is None or not self._candidate_held:
             self._candidate, self._candidate_held = stream, {}
         held = self._candidate_held
-        if stream == self._candidate and len(held) < self.max_held and batch.seq not in held:
+        fits = (len(held) < self.max_candidate
+                and sum(len(b.t) for b, _ in held.values()) + len(batch.t) <= self.max_held_samples)
+        if stream == self._candidate and fits and batch.seq not in held:
             held[batch.seq] = (batch, now)
             return
         self._contest(now, f"seq {batch.seq} of device {batch.device!r} boot {batch.boot!r} while {self._stream} "
