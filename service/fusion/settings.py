@@ -133,6 +133,7 @@ class FusionSettings:
     pdr_heading_kernel: str = "gaussian"  # kernel of the PDR heading factor (the offset state absorbs a bias)
     pdr_heading_time_s: float | None = 60.0  # s, correlation time of the PDR heading's error (None: independent factors)
     pdr_heading_white_rad: float = math.radians(3.0)  # rad, white part of the PDR heading factor with an offset state
+    pdr_heading_max_sigma_rad: float = math.radians(90.0)  # rad, a PDR heading it knows no better than this is no absolute evidence (no factor)
     mag_sigma_floor_rad: float = math.radians(3.0)  # rad, lower bound of the compass sigma
     mag_kernel: str = "cauchy"  # redescending: an undetected disturbance of many sigmas loses its pull
     mag_kernel_width: float = 1.345  # sigmas
@@ -178,6 +179,7 @@ class FusionSettings:
                     "unknown_turn_sigma_rad", "lateral_sigma_m", "mag_sigma_floor_rad", "mag_kernel_width",
                     "checkpoint_sigma_floor_m", "gnss_max_accuracy_m", "gnss_kernel_width", "uwb_sigma_floor_m",
                     "uwb_kernel_width", "uwb_anchor_sigma_m", "pdr_heading_sigma_rad", "pdr_heading_white_rad",
+                    "pdr_heading_max_sigma_rad",
                     "step_motion_s", "stop_turn_s", "divergence_m", "divergence_sigma_m", "restart_heading_sigma_rad")
         for name in positive:
             v = getattr(self, name)
