@@ -81,6 +81,15 @@ this round: K = 0 4.05 m and 12/40, K = 3 2.03 m and 3/40):
   3.54 m without, and 4 walks instead of 2 more than 0.5 m above dead reckoning (K = 3 1.922 vs
   1.921 m); a step-length bias is better met by a fix every few landmarks than by GNSS.
 
+Issue 27 (robustness suite, ``gaps`` and ``mag_steel``; docs/robustness.md, round 4):
+
+* ``pdr_heading_max_sigma_rad = 90°``: a PDR heading whose own sigma is larger (180° until a
+  compass epoch has passed the PDR's gates) gives no factor; before, a first leg 140° off held
+  the graph's heading and, through it, the walk gate's reference (mag_steel T04r03 live 18.1 m
+  against 9.6 m dead reckoning). A step with an unknown turn restarts the compass gate's window
+  and the PDR heading's offset (service/fusion/heading_evidence.py). No cross-validated figure
+  moved by more than noise (see the note).
+
 Issue 32 ("the estimator cannot crash and cannot hide"; service/fusion/walk_gate.py):
 
 * ``walk_gate_probability = 0.999`` (χ²₂ 13.8), ``walk_gate_drift = 0.05`` m/m,
