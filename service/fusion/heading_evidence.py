@@ -80,9 +80,15 @@ class CompassGate:
         self.last_spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
         return self.last_spread <= s.mag_window_gate_rad
 
+    def restart(self) -> None:
+        """Forget the window (the gyro chain behind its offsets broke: an unknown turn)."""
+        self._window.clear()
+
 
 class HeadingEvidence:
     """Per step, the absolute heading factors on its pose (module docstring)."""
+
+    _broken = False  # (class default: snapshots pickled before it existed)
 
     def __init__(self, settings):
         self.s = settings
@@ -93,12 +99,26 @@ class HeadingEvidence:
         self._n_offsets = 0
         self.offset: tuple[int, float] | None = None  # (key, t) of the newest offset variable
         self.offset_value = 0.0  # its latest estimate (the next one starts there)
+        self._broken = False  # the PDR heading's error chain broke since the newest offset (add)
 
     def add(self, ev, turn: float, row: int, graph, values, stamps) -> str | None:
         """Factors for the pose ``row`` made by step ``ev`` with turn ``turn`` (rad). Returns a
-        rejection detail when the compass reading was refused for disagreeing with the gyro."""
+        rejection detail when the compass reading was refused for disagreeing with the gyro.
+
+        A step whose turn the PDR does not know (``heading_change_sigma`` not finite: across a gap
+        in the samples, a grip jump) breaks both chains that assume one gyro from step to step: the
+        compass gate's window starts again (offsets on either side of an unknown turn are not
+        comparable), and so does the PDR heading's offset (its error after the break is a new one,
+        and the step's own PDR heading, still the one from before the break, gets no factor). A PDR
+        heading whose own sigma exceeds ``pdr_heading_max_sigma_rad`` (no compass epoch has passed
+        its gates yet) is no absolute evidence either: no factor, and the offset starts again after."""
         s = self.s
         self._chain += turn
+        if not (math.isfinite(ev.heading_change) and math.isfinite(ev.heading_change_sigma)):
+            self.gate.restart()
+            if self.offset is not None:  # not the first step: the PDR heading's chain breaks here
+                self._broken = True
+                self._last_pdr_t = ev.t  # its next factor one interval on, once its heading has settled
         refused = None
         if math.isfinite(ev.mag_heading) and math.isfinite(ev.mag_heading_sigma) and ev.mag_heading_sigma > 0:
             if not self.gate.agrees(ev.t, wrap(ev.mag_heading - self._chain)):
@@ -108,7 +128,9 @@ class HeadingEvidence:
                 noise = robust(s.mag_kernel, s.mag_kernel_width, gtsam.noiseModel.Isotropic.Sigma(1, sigma))
                 graph.add(gtsam.PoseRotationPrior2D(X(row), gtsam.Rot2(ev.mag_heading), noise))
                 self._last_mag_t = ev.t
-        if (s.pdr_heading_interval_s is not None and math.isfinite(ev.heading)
+        if ev.heading_sigma > s.pdr_heading_max_sigma_rad:
+            self._broken = True
+        elif (s.pdr_heading_interval_s is not None and math.isfinite(ev.heading)
                 and ev.t - self._last_pdr_t >= s.pdr_heading_interval_s):
             self._last_pdr_t = ev.t
             if s.pdr_heading_time_s is None:
@@ -124,12 +146,13 @@ class HeadingEvidence:
         sc, tau = s.pdr_heading_sigma_rad, s.pdr_heading_time_s
         key = C(self._n_offsets)
         prev = self.offset
-        if prev is not None and prev[1] >= ev.t - s.lag_s + 1.0:  # the previous offset is still in the window
+        if prev is not None and prev[1] >= ev.t - s.lag_s + 1.0 and not self._broken:  # the previous offset is still in the window
             dt = ev.t - prev[1]
             values.insert(key, self.offset_value)
             graph.add(gtsam.BetweenFactorDouble(prev[0], key, 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sc * math.sqrt(2.0 * dt / tau))))
             graph.add(gtsam.PriorFactorDouble(key, 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sc * math.sqrt(2.0 * tau / dt))))
-        else:  # the first, or after a stop longer than the window: the stationary prior
+        else:  # the first, after a stop longer than the window, or after a break: the stationary prior
+            self._broken = False
             values.insert(key, 0.0)
             graph.add(gtsam.PriorFactorDouble(key, 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sc)))
         stamps[key] = float(ev.t)
