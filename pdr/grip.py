@@ -28,6 +28,23 @@ has an unknown turn (its gyro turn is the phone's, not the walker's), so a fusio
 step's turn from the absolute heading instead of the gyro. The compass offset δ is left to the
 compass: a phone turned in the hand turns the gyro and the field alike, so δ stays right.
 
+**A re-grip seen as it happens.** The jump above needs ``n`` usable steps whose windows all
+lie after the change, about 10 s of walking (10 m off by 90° on IPIN trial 03 rep 02 turned
+to landscape). But a phone turned in the hand turns about an axis of its own, and unless that
+axis is vertical its attitude to gravity changes; a walker's turn is about the vertical and
+leaves it alone. Per step ``k`` the mean world-up axis in body coordinates ``u_k`` (the
+levelling's tilt) is compared with the oldest step ``j`` within ``regrip_span`` seconds:
+
+    ∠(u_j, u_k) ≥ θ_tilt,   ∠(u_{k−1}, u_k) < θ_settle,   both steps walking (σ_z ≤ max)
+        →  ω ← wrap(ω − (ψ_g,k − ψ_g,j))   (0 if within ``snap`` of 0),
+
+i.e. the device heading's turn during the re-grip is the phone's, not the walker's (``ψ_g``
+the step's mean device heading, unwrapped). The step reports a jump (its turn is unknown),
+the evidence is cleared, and measurements whose window reaches back before the re-grip are
+not used; from then on the walking axis confirms ω or, if the walker turned while re-gripping,
+corrects it by the ordinary jump. A phone lying flat turned about its vertical screen normal
+keeps its tilt: only the ordinary jump sees that.
+
 Limits: a phone turned by 180° about its screen normal (reversed) keeps its axis; only the
 gait's phase tells, and on stairs that phase turns round while the grip does not (trial 52 of
 the IPIN set: 20 steps at 130-170°), so a reversal alone is not a jump here.
@@ -37,6 +54,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
+
+import numpy as np
 
 from pdr.angles import wrap
 
@@ -52,6 +71,11 @@ class GripSettings:
     max_vertical_std: float = 2.5  # m/s², σ_z above this is not walking (a calibration wave: 3-7)
     consistency: float = 0.8  # R_min, mean resultant length of the n doubled angles
     jump: float = math.radians(50.0)  # θ_jump, rad
+    regrip_tilt: float = math.radians(20.0)  # θ_tilt, rad: a change of tilt within regrip_span that is a re-grip
+    regrip_span: float = 2.0  # s, the re-grip's reference step is at most this far back
+    regrip_settle: float = math.radians(10.0)  # θ_settle, rad: the tilt has settled (last step to this one)
+    snap: float = math.radians(30.0)  # rad, a predicted ω this close to 0 is the texting grip again
+    regrip_steps: int = 4  # measurements that must agree for a jump after a change of tilt
 
 
 class GripTracker:
@@ -62,23 +86,38 @@ class GripTracker:
         self.settings = settings or GripSettings()
         self.offset = 0.0  # ω, rad
         self.jumps = 0
+        self.regrips = 0  # jumps of ω from the tilt (counted in ``jumps`` too)
         self._recent: deque = deque(maxlen=self.settings.steps)
+        self._tilt: deque = deque()  # (t, ψ_g, unit up (3,), walking) of the last regrip_span seconds
+        self._since = -math.inf  # time of the last re-grip: windows reaching before it are not evidence
+        self._fast = False  # after a change of tilt: a jump needs only regrip_steps measurements
 
     def usable(self, m) -> bool:
         s = self.settings
         return (math.isfinite(m.angle) and m.anisotropy >= s.min_anisotropy and m.phase >= s.min_phase
                 and m.vertical_std <= s.max_vertical_std)
 
-    def step(self, m) -> tuple[float, bool]:
+    def step(self, m, t: float = math.nan, psi: float = math.nan, up=None) -> tuple[float, bool]:
+        """ω after a step at ``t`` (s) with measurement ``m``, mean device heading ``psi`` (rad,
+        unwrapped) and mean world-up axis in body coordinates ``up`` (without ``up``: the axis
+        alone decides)."""
         s = self.settings
-        if not s.enabled or not self.usable(m):
+        if not s.enabled:
+            return self.offset, False
+        if up is not None and self._regrip(m, t, psi, up):
+            return self.offset, True
+        if not self.usable(m) or t - s.window < self._since:
             return self.offset, False
         a = m.angle
         self._recent.append((math.cos(2.0 * a), math.sin(2.0 * a), math.cos(a), math.sin(a)))
-        if len(self._recent) < s.steps:
+        if len(self._recent) >= s.steps:
+            self._fast = False  # the ordinary count is there: no more need to hurry
+        n = s.regrip_steps if self._fast else s.steps
+        if len(self._recent) < n:
             return self.offset, False
-        c2 = sum(v[0] for v in self._recent) / s.steps
-        s2 = sum(v[1] for v in self._recent) / s.steps
+        recent = list(self._recent)[-n:]
+        c2 = sum(v[0] for v in recent) / n
+        s2 = sum(v[1] for v in recent) / n
         if math.hypot(c2, s2) < s.consistency:
             return self.offset, False
         axis = 0.5 * math.atan2(s2, c2)  # the walking axis, modulo π
@@ -89,12 +128,65 @@ class GripTracker:
             self.offset = _nearest(axis, self.offset)
             return self.offset, False
         # a new grip: the side from the gait's phase (the signed measurements' mean direction)
-        mean = math.atan2(sum(v[3] for v in self._recent), sum(v[2] for v in self._recent))
+        mean = math.atan2(sum(v[3] for v in recent), sum(v[2] for v in recent))
         target = _nearest(axis, mean)
         self.offset = 0.0 if abs(float(wrap(target))) < s.jump else target
         self.jumps += 1
         self._recent.clear()
+        self._fast = False
         return self.offset, True
+
+
+    def _regrip(self, m, t: float, psi: float, up) -> bool:
+        """The tilt test of the module docstring; True when ω jumped."""
+        s = self.settings
+        u = np.asarray(up, float)
+        n = float(np.linalg.norm(u))
+        if not (n > 0.0 and math.isfinite(t) and math.isfinite(psi)):
+            return False
+        entry = (t, psi, u / n, math.isfinite(m.vertical_std) and m.vertical_std <= s.max_vertical_std)
+        last = self._tilt[-1] if self._tilt else None
+        while self._tilt and t - self._tilt[0][0] > s.regrip_span:
+            self._tilt.popleft()
+        self._tilt.append(entry)
+        if last is not None and t - last[0] > s.regrip_span:  # a pause without steps
+            if last[3] and entry[3] and _angle(last[2], entry[2]) >= s.regrip_tilt:
+                self._suspect(last[0])  # turned while standing: the walking axis must tell
+            return False
+        if len(self._tilt) < 3 or not (self._tilt[0][3] and entry[3]):
+            return False
+        prev = self._tilt[-2]
+        if _angle(self._tilt[0][2], entry[2]) < s.regrip_tilt or _angle(prev[2], entry[2]) >= s.regrip_settle:
+            return False
+        # the reference: the newest step still in the old attitude (less of a walker's turn in ψ)
+        ref = self._tilt[0]
+        for e in list(self._tilt)[1:-1]:
+            if _angle(self._tilt[0][2], e[2]) >= s.regrip_settle:
+                break
+            ref = e
+        omega = float(wrap(self.offset - (psi - ref[1])))
+        omega = 0.0 if abs(omega) < s.snap else omega
+        self._tilt.clear()
+        self._tilt.append(entry)
+        self._suspect(t)
+        if omega == self.offset:
+            return False
+        self.offset = omega
+        self.jumps += 1
+        self.regrips += 1
+        return True
+
+    def _suspect(self, since: float) -> None:
+        """The grip may have changed at ``since``: older evidence is dropped, windows reaching
+        before it are not evidence, and the next jump needs only ``regrip_steps`` measurements."""
+        self._recent.clear()
+        self._since = since
+        self._fast = True
+
+
+def _angle(a, b) -> float:
+    """Angle between unit vectors (rad)."""
+    return math.acos(min(max(float(np.dot(a, b)), -1.0), 1.0))
 
 
 def _nearest(axis: float, ref: float) -> float:
