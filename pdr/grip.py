@@ -57,6 +57,7 @@ from collections import deque
 
 import numpy as np
 
+from pdr import quaternion as quat
 from pdr.angles import wrap
 
 
@@ -76,6 +77,8 @@ class GripSettings:
     regrip_settle: float = math.radians(10.0)  # θ_settle, rad: the tilt has settled (last step to this one)
     snap: float = math.radians(30.0)  # rad, a predicted ω this close to 0 is the texting grip again
     regrip_steps: int = 4  # measurements that must agree for a jump after a change of tilt
+    regrip_axis_tol: float = math.radians(10.0)  # rad: the turn's axis kept its elevation within this
+    regrip_lever: float = math.sin(math.radians(20.0))  # up's part across the axis, at least (else θ is ill-conditioned)
 
 
 class GripTracker:
@@ -97,14 +100,14 @@ class GripTracker:
         return (math.isfinite(m.angle) and m.anisotropy >= s.min_anisotropy and m.phase >= s.min_phase
                 and m.vertical_std <= s.max_vertical_std)
 
-    def step(self, m, t: float = math.nan, psi: float = math.nan, up=None) -> tuple[float, bool]:
-        """ω after a step at ``t`` (s) with measurement ``m``, mean device heading ``psi`` (rad,
-        unwrapped) and mean world-up axis in body coordinates ``up`` (without ``up``: the axis
-        alone decides)."""
+    def step(self, m, t: float = math.nan, q=None, yaw_of=None) -> tuple[float, bool]:
+        """ω after a step at ``t`` (s) with measurement ``m`` and attitude ``q`` (body -> ENU,
+        scalar first); ``yaw_of(q (n, 4))`` the device heading's yaw of attitudes. Without
+        ``q`` the walking axis alone decides."""
         s = self.settings
         if not s.enabled:
             return self.offset, False
-        if up is not None and self._regrip(m, t, psi, up):
+        if q is not None and yaw_of is not None and self._regrip(m, t, q, yaw_of):
             return self.offset, True
         if not self.usable(m) or t - s.window < self._since:
             return self.offset, False
@@ -137,44 +140,57 @@ class GripTracker:
         return self.offset, True
 
 
-    def _regrip(self, m, t: float, psi: float, up) -> bool:
+    def _regrip(self, m, t: float, q, yaw_of) -> bool:
         """The tilt test of the module docstring; True when ω jumped."""
         s = self.settings
-        u = np.asarray(up, float)
-        n = float(np.linalg.norm(u))
-        if not (n > 0.0 and math.isfinite(t) and math.isfinite(psi)):
+        q = np.asarray(q, float)
+        if not (math.isfinite(t) and np.all(np.isfinite(q))):
             return False
-        entry = (t, psi, u / n, math.isfinite(m.vertical_std) and m.vertical_std <= s.max_vertical_std)
+        entry = (t, q, _up(q), math.isfinite(m.vertical_std) and m.vertical_std <= s.max_vertical_std)
         last = self._tilt[-1] if self._tilt else None
         while self._tilt and t - self._tilt[0][0] > s.regrip_span:
             self._tilt.popleft()
         self._tilt.append(entry)
-        if last is not None and t - last[0] > s.regrip_span:  # a pause without steps
-            if last[3] and entry[3] and _angle(last[2], entry[2]) >= s.regrip_tilt:
-                self._suspect(last[0])  # turned while standing: the walking axis must tell
+        if last is not None and t - last[0] > s.regrip_span:  # a pause without steps: compare across it
+            ref = last
+        elif len(self._tilt) >= 3 and _angle(self._tilt[-2][2], entry[2]) < s.regrip_settle:
+            ref = self._tilt[0]
+        else:
             return False
-        if len(self._tilt) < 3 or not (self._tilt[0][3] and entry[3]):
+        if not (ref[3] and entry[3]) or _angle(ref[2], entry[2]) < s.regrip_tilt:
             return False
-        prev = self._tilt[-2]
-        if _angle(self._tilt[0][2], entry[2]) < s.regrip_tilt or _angle(prev[2], entry[2]) >= s.regrip_settle:
-            return False
-        # the reference: the newest step still in the old attitude (less of a walker's turn in ψ)
-        ref = self._tilt[0]
-        for e in list(self._tilt)[1:-1]:
-            if _angle(self._tilt[0][2], e[2]) >= s.regrip_settle:
-                break
-            ref = e
-        omega = float(wrap(self.offset - (psi - ref[1])))
-        omega = 0.0 if abs(omega) < s.snap else omega
         self._tilt.clear()
         self._tilt.append(entry)
-        self._suspect(t)
-        if omega == self.offset:
+        turn = self._grip_turn(ref[2], entry[2])
+        if turn is None:  # not a turn about one of the phone's axes: only the walking axis can tell
+            self._suspect(t)
             return False
+        q_before = quat.multiply(q, quat.conjugate(quat.from_axis_angle(*turn)))  # the walker's attitude, no re-grip
+        y = yaw_of(np.array([q, q_before]))
+        omega = float(wrap(self.offset - float(wrap(y[0] - y[1]))))
+        omega = 0.0 if abs(omega) < s.snap else omega
+        if abs(float(wrap(omega - self.offset))) < s.snap:  # a turn that leaves the heading (a pitch): nothing to do
+            return False
+        self._suspect(t)
         self.offset = omega
         self.jumps += 1
         self.regrips += 1
         return True
+
+    def _grip_turn(self, u0, u1):
+        """``(axis, θ)`` of a turn about one of the body axes that takes the body-frame up axis
+        ``u0`` to ``u1`` (``u1 = R(axis, θ)ᵀ u0``), or None: the axis is the one whose elevation
+        kept within ``regrip_axis_tol``, θ from where up moved around it."""
+        s = self.settings
+        best = None
+        for a in np.eye(3):
+            keep = abs(math.asin(min(max(float(u0 @ a), -1.0), 1.0)) - math.asin(min(max(float(u1 @ a), -1.0), 1.0)))
+            p0, p1 = u0 - (u0 @ a) * a, u1 - (u1 @ a) * a
+            if keep <= s.regrip_axis_tol and min(np.linalg.norm(p0), np.linalg.norm(p1)) >= s.regrip_lever:
+                if best is None or keep < best[0]:
+                    beta = math.atan2(float(a @ np.cross(p0, p1)), float(p0 @ p1))
+                    best = (keep, a, -beta)
+        return None if best is None else (best[1], best[2])
 
     def _suspect(self, since: float) -> None:
         """The grip may have changed at ``since``: older evidence is dropped, windows reaching
@@ -182,6 +198,12 @@ class GripTracker:
         self._recent.clear()
         self._since = since
         self._fast = True
+
+
+def _up(q) -> np.ndarray:
+    """The world's up axis in body coordinates, ``R(q)ᵀ e_z`` (the third row of R)."""
+    w, x, y, z = q
+    return np.array([2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)])
 
 
 def _angle(a, b) -> float:

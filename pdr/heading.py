@@ -125,7 +125,7 @@ from pdr.windows import norm3, spans_gap, unwrap_turns
 TWO_PI = 2.0 * math.pi
 # per-sample columns kept for the steps: time, gyro heading, compass offset, |B|, dip, and the
 # levelled specific force along the device's heading, to its left and up (the walking direction)
-BUF_COLUMNS = ("t", "psi", "d", "norm", "inc", "af", "al", "az", "ux", "uy", "uz")  # u: world up, body axes
+BUF_COLUMNS = ("t", "psi", "d", "norm", "inc", "af", "al", "az", "qw", "qx", "qy", "qz")  # q: levelling attitude
 
 
 @dataclasses.dataclass(frozen=True)
@@ -212,7 +212,7 @@ class HeadingEstimator:
         bias = self._bias_per_sample(t, an, gyr) if s.estimate_bias else np.tile(self.bias, (len(t), 1))
         q = self._ahrs.update(t, acc, gyr - bias)
         mag = np.ascontiguousarray(mag, float).reshape(-1, 3) if use_mag else np.empty((0, 3))
-        raw, d, norm, inc, af, al, az, up = level_and_compass(np.ascontiguousarray(q), self._fwd, np.ascontiguousarray(acc),
+        raw, d, norm, inc, af, al, az = level_and_compass(np.ascontiguousarray(q), self._fwd, np.ascontiguousarray(acc),
                                                           mag, use_mag, s.declination)
         turns, self._turns = unwrap_turns(raw, self._raw_last, self._turns)
         self._raw_last = float(raw[-1])
@@ -222,7 +222,7 @@ class HeadingEstimator:
         # older samples leave before the new ones come in: steps found in this batch later (or
         # held back by the detector, a few steps before it) still find their samples
         keep = self._buf[:, 0] > (t[0] - 4 * s.max_step_duration)
-        self._buf = np.concatenate([self._buf[keep], np.column_stack((t, psi, d, norm, inc, af, al, az, up))])
+        self._buf = np.concatenate([self._buf[keep], np.column_stack((t, psi, d, norm, inc, af, al, az, q))])
         return self.answer_steps(self._buf)
 
     # ---------------------------------------------------------------- what a columnar engine calls
@@ -379,13 +379,18 @@ class HeadingEstimator:
             return True
         return False
 
-    def _grip_step(self, t, f, l, z, tk: float, psi_g: float, up) -> tuple[float, bool]:
+    def _grip_step(self, t, f, l, z, tk: float, q) -> tuple[float, bool]:
         """The walking offset ω after the step at ``tk`` whose window holds samples ``t``, ``f``,
-        ``l``, ``z``; ``psi_g`` and ``up`` the step's mean device heading and tilt (:mod:`pdr.grip`)."""
+        ``l``, ``z``; ``q`` the attitude at its last sample (:mod:`pdr.grip`)."""
         g = self.settings.grip
         if not g.enabled or len(t) < 3:
             return self.grip.offset, False
-        return self.grip.step(walking_angle(t, f, l, z, g.lag), tk, psi_g, up)
+        return self.grip.step(walking_angle(t, f, l, z, g.lag), tk, q, self.device_yaw)
+
+    def device_yaw(self, q) -> np.ndarray:
+        """Yaw (rad) of the device's heading vector for attitudes ``q`` (n, 4), as the steps get it."""
+        return level_and_compass(np.ascontiguousarray(q, float), self._fwd, np.zeros((len(q), 3)), np.empty((0, 3)),
+                                 False, 0.0)[0]
 
     # ---------------------------------------------------------------- steps
     def steps(self, step_times, walking_offset=None) -> StepHeadings:
@@ -426,8 +431,8 @@ class HeadingEstimator:
                 i0, i1 = (i1 - 1, i1) if i1 > 0 else (0, 1)
             psi_g = float(np.mean(buf[i0:i1, 1]))  # unwrapped: the arithmetic mean is circular
             w0 = int(np.searchsorted(bt, tk - s.grip.window, side="right"))  # samples in (tk − window, tk]
-            omega, jumped = self._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7], tk, psi_g,
-                                            buf[i0:i1, 8:11].mean(axis=0))
+            omega, jumped = self._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7], tk,
+                                            buf[i1 - 1, 8:12])
             off = off + omega
             k = bisect.bisect_right(hist_t, tk) - 1
             _, delta, P = hist[max(k, 0)]

@@ -44,9 +44,7 @@ def level_and_compass(q, fwd, acc, mag, use_mag, declination):  # pragma: no cov
     * ``d`` — compass offset, ``wrap(π/2 − D − atan2(m_y, m_x))`` with ``m = R b`` the field
       levelled into ENU and ``D`` the declination: what to add to the gyro heading to point
       the device's x axis at true north (NaN without a magnetometer);
-    * ``norm`` — ``|b|`` (µT), ``inc`` — dip ``atan2(−m_z, √(m_x² + m_y²))`` (positive down);
-    * ``up`` (n, 3) — the world's up axis in body coordinates, ``Rᵀ e_z`` (the attitude's tilt;
-      a change of it is a rotation of the device about a non-vertical axis, :mod:`pdr.grip`).
+    * ``norm`` — ``|b|`` (µT), ``inc`` — dip ``atan2(−m_z, √(m_x² + m_y²))`` (positive down).
     """
     n = q.shape[0]
     raw = np.empty(n)
@@ -56,7 +54,6 @@ def level_and_compass(q, fwd, acc, mag, use_mag, declination):  # pragma: no cov
     af = np.empty(n)
     al = np.empty(n)
     az = np.empty(n)
-    upb = np.empty((n, 3))
     fx, fy, fz = fwd[0], fwd[1], fwd[2]
     gx, gy, gz = fwd[3], fwd[4], fwd[5]
     s0 = fwd[6]
@@ -88,7 +85,6 @@ def level_and_compass(q, fwd, acc, mag, use_mag, declination):  # pragma: no cov
         af[i] = cy * ex + sy * ny
         al[i] = cy * ny - sy * ex
         az[i] = r20 * ax + r21 * ay + r22 * azb
-        upb[i, 0], upb[i, 1], upb[i, 2] = r20, r21, r22
         if use_mag:
             bx, by, bz = mag[i, 0], mag[i, 1], mag[i, 2]
             mx = r00 * bx + r01 * by + r02 * bz
@@ -98,7 +94,7 @@ def level_and_compass(q, fwd, acc, mag, use_mag, declination):  # pragma: no cov
             d[i] = math.pi - ((math.pi - a) % TWO_PI)
             norm[i] = math.sqrt(bx * bx + by * by + bz * bz)
             inc[i] = math.atan2(-mz, math.sqrt(mx * mx + my * my))
-    return raw, d, norm, inc, af, al, az, upb
+    return raw, d, norm, inc, af, al, az
 
 
 # running sums of the open epoch: index, count, Σcos d, Σsin d, Σ|b|, ΣI, Σ|ω|, last ψ
