@@ -32,18 +32,27 @@ compass: a phone turned in the hand turns the gyro and the field alike, so δ st
 lie after the change, about 10 s of walking (10 m off by 90° on IPIN trial 03 rep 02 turned
 to landscape). But a phone turned in the hand turns about an axis of its own, and unless that
 axis is vertical its attitude to gravity changes; a walker's turn is about the vertical and
-leaves it alone. Per step ``k`` the mean world-up axis in body coordinates ``u_k`` (the
-levelling's tilt) is compared with the oldest step ``j`` within ``regrip_span`` seconds:
+leaves it alone. Per step ``k`` the levelling's attitude ``q_k`` (body -> ENU) gives the world's
+up axis in body coordinates, ``u_k = R(q_k)ᵀ e_z``. Against the oldest step ``j`` within
+``regrip_span`` seconds (or the last step before a pause without steps):
 
-    ∠(u_j, u_k) ≥ θ_tilt,   ∠(u_{k−1}, u_k) < θ_settle,   both steps walking (σ_z ≤ max)
-        →  ω ← wrap(ω − (ψ_g,k − ψ_g,j))   (0 if within ``snap`` of 0),
+    ∠(u_j, u_k) ≥ θ_tilt,   ∠(u_{k−1}, u_k) < θ_settle,   both steps walking (ρ ≥ ρ_min, σ_z ≤ max)
 
-i.e. the device heading's turn during the re-grip is the phone's, not the walker's (``ψ_g``
-the step's mean device heading, unwrapped). The step reports a jump (its turn is unknown),
-the evidence is cleared, and measurements whose window reaches back before the re-grip are
-not used; from then on the walking axis confirms ω or, if the walker turned while re-gripping,
-corrects it by the ordinary jump. A phone lying flat turned about its vertical screen normal
-keeps its tilt: only the ordinary jump sees that.
+is a rotation of the device about a non-vertical axis. A re-grip turns the phone about one of
+its own axes ``a`` (the screen normal: portrait to landscape; x: the screen raised; y: rolled),
+so ``u_k = R(a, θ)ᵀ u_j``: ``a`` is the body axis whose elevation kept (within
+``regrip_axis_tol``), and θ is where ``u`` moved around it (the signed angle β from ``u_j``'s
+part across ``a`` to ``u_k``'s, θ = −β). The device's attitude without the re-grip is
+``q_k ⊗ q(a, θ)*`` (the walker's turn in between, about the vertical, is in both), so
+
+    ω ← wrap(ω − (yaw(q_k) − yaw(q_k ⊗ q(a, θ)*)))   (0 if within ``snap`` of 0),
+
+with ``yaw`` the device heading vector's (:func:`pdr.heading_kernels.level_and_compass`). A turn
+that leaves the heading vector where it was (a pitch, whose heading the vector keeps) changes
+nothing. After a jump (or a tilt change that no single axis explains) older evidence is
+dropped, windows reaching back before it are not used, and the next jump needs only
+``regrip_steps`` measurements: the walking axis confirms ω or corrects it. A phone lying flat
+turned about its vertical screen normal keeps its tilt: only the ordinary jump sees that.
 
 Limits: a phone turned by 180° about its screen normal (reversed) keeps its axis; only the
 gait's phase tells, and on stairs that phase turns round while the grip does not (trial 52 of
@@ -100,6 +109,11 @@ class GripTracker:
         return (math.isfinite(m.angle) and m.anisotropy >= s.min_anisotropy and m.phase >= s.min_phase
                 and m.vertical_std <= s.max_vertical_std)
 
+    def walking(self, m) -> bool:
+        """The window looks like walking (the gait's phase shows, σ_z in range), whatever its axis."""
+        s = self.settings
+        return m.phase >= s.min_phase and m.vertical_std <= s.max_vertical_std
+
     def step(self, m, t: float = math.nan, q=None, yaw_of=None) -> tuple[float, bool]:
         """ω after a step at ``t`` (s) with measurement ``m`` and attitude ``q`` (body -> ENU,
         scalar first); ``yaw_of(q (n, 4))`` the device heading's yaw of attitudes. Without
@@ -128,7 +142,8 @@ class GripTracker:
         if same < s.jump:  # the same grip: ω follows its axis on the side it is on (0 while texting)
             if abs(float(wrap(self.offset))) < 1e-12 and abs(float(wrap(axis))) < s.jump:
                 return self.offset, False
-            self.offset = _nearest(axis, self.offset)
+            near = _nearest(axis, self.offset)
+            self.offset = 0.0 if abs(near) < s.snap else near  # back within snap of forward: the texting grip
             return self.offset, False
         # a new grip: the side from the gait's phase (the signed measurements' mean direction)
         mean = math.atan2(sum(v[3] for v in recent), sum(v[2] for v in recent))
@@ -141,12 +156,12 @@ class GripTracker:
 
 
     def _regrip(self, m, t: float, q, yaw_of) -> bool:
-        """The tilt test of the module docstring; True when ω jumped."""
+        """The re-grip test of the module docstring; True when ω jumped."""
         s = self.settings
         q = np.asarray(q, float)
         if not (math.isfinite(t) and np.all(np.isfinite(q))):
             return False
-        entry = (t, q, _up(q), math.isfinite(m.vertical_std) and m.vertical_std <= s.max_vertical_std)
+        entry = (t, q, _up(q), self.walking(m))
         last = self._tilt[-1] if self._tilt else None
         while self._tilt and t - self._tilt[0][0] > s.regrip_span:
             self._tilt.popleft()
