@@ -32,16 +32,18 @@ compass: a phone turned in the hand turns the gyro and the field alike, so δ st
 lie after the change, about 10 s of walking (10 m off by 90° on IPIN trial 03 rep 02 turned
 to landscape). But a phone turned in the hand turns about an axis of its own, and unless that
 axis is vertical its attitude to gravity changes; a walker's turn is about the vertical and
-leaves it alone. Per step ``k`` the levelling's attitude ``q_k`` (body -> ENU) gives the world's
-up axis in body coordinates, ``u_k = R(q_k)ᵀ e_z``. Against the oldest step ``j`` within
-``regrip_span`` seconds (or the last step before a pause without steps):
+leaves it alone. Per step ``k`` the levelling's mean attitude ``q_k`` (body -> ENU) gives the
+world's up axis in body coordinates, ``u_k = R(q_k)ᵀ e_z``. The reference ``u_r`` is the last
+step that was walking (gait phase ρ ≥ ρ_min, σ_z ≤ max) with a settled tilt
+(``∠(u_{k−1}, u_k) < θ_settle``); a step that is both, with
 
-    ∠(u_j, u_k) ≥ θ_tilt,   ∠(u_{k−1}, u_k) < θ_settle,   both steps walking (ρ ≥ ρ_min, σ_z ≤ max)
+    ∠(u_r, u_k) ≥ θ_tilt
 
+(however long since the reference: a phone turned while the walker stands counts as well)
 is a rotation of the device about a non-vertical axis. A re-grip turns the phone about one of
 its own axes ``a`` (the screen normal: portrait to landscape; x: the screen raised; y: rolled),
-so ``u_k = R(a, θ)ᵀ u_j``: ``a`` is the body axis whose elevation kept (within
-``regrip_axis_tol``), and θ is where ``u`` moved around it (the signed angle β from ``u_j``'s
+so ``u_k = R(a, θ)ᵀ u_r``: ``a`` is the body axis whose elevation kept (within
+``regrip_axis_tol``), and θ is where ``u`` moved around it (the signed angle β from ``u_r``'s
 part across ``a`` to ``u_k``'s, θ = −β). The device's attitude without the re-grip is
 ``q_k ⊗ q(a, θ)*`` (the walker's turn in between, about the vertical, is in both), so
 
@@ -81,8 +83,7 @@ class GripSettings:
     max_vertical_std: float = 2.5  # m/s², σ_z above this is not walking (a calibration wave: 3-7)
     consistency: float = 0.8  # R_min, mean resultant length of the n doubled angles
     jump: float = math.radians(50.0)  # θ_jump, rad
-    regrip_tilt: float = math.radians(20.0)  # θ_tilt, rad: a change of tilt within regrip_span that is a re-grip
-    regrip_span: float = 2.0  # s, the re-grip's reference step is at most this far back
+    regrip_tilt: float = math.radians(25.0)  # θ_tilt, rad: a change of tilt between settled walking steps that is a re-grip
     regrip_settle: float = math.radians(10.0)  # θ_settle, rad: the tilt has settled (last step to this one)
     snap: float = math.radians(30.0)  # rad, a predicted ω this close to 0 is the texting grip again
     regrip_steps: int = 4  # measurements that must agree for a jump after a change of tilt
@@ -100,7 +101,8 @@ class GripTracker:
         self.jumps = 0
         self.regrips = 0  # jumps of ω from the tilt (counted in ``jumps`` too)
         self._recent: deque = deque(maxlen=self.settings.steps)
-        self._tilt: deque = deque()  # (t, ψ_g, unit up (3,), walking) of the last regrip_span seconds
+        self._prev_up = None  # the last step's up axis in body coordinates
+        self._ref = None  # (t, up) of the last walking step with a settled tilt: the attitude before a re-grip
         self._since = -math.inf  # time of the last re-grip: windows reaching before it are not evidence
         self._fast = False  # after a change of tilt: a jump needs only regrip_steps measurements
 
@@ -161,22 +163,14 @@ class GripTracker:
         q = np.asarray(q, float)
         if not (math.isfinite(t) and np.all(np.isfinite(q))):
             return False
-        entry = (t, q, _up(q), self.walking(m))
-        last = self._tilt[-1] if self._tilt else None
-        while self._tilt and t - self._tilt[0][0] > s.regrip_span:
-            self._tilt.popleft()
-        self._tilt.append(entry)
-        if last is not None and t - last[0] > s.regrip_span:  # a pause without steps: compare across it
-            ref = last
-        elif len(self._tilt) >= 3 and _angle(self._tilt[-2][2], entry[2]) < s.regrip_settle:
-            ref = self._tilt[0]
-        else:
+        u = _up(q)
+        prev, self._prev_up = self._prev_up, u
+        if not self.walking(m) or prev is None or _angle(prev, u) >= s.regrip_settle:
+            return False  # not walking, or the tilt still moving: the reference stays where it was
+        ref, self._ref = self._ref, (t, u)
+        if ref is None or _angle(ref[1], u) < s.regrip_tilt:
             return False
-        if not (ref[3] and entry[3]) or _angle(ref[2], entry[2]) < s.regrip_tilt:
-            return False
-        self._tilt.clear()
-        self._tilt.append(entry)
-        turn = self._grip_turn(ref[2], entry[2])
+        turn = self._grip_turn(ref[1], u)
         if turn is None:  # not a turn about one of the phone's axes: only the walking axis can tell
             self._suspect(t)
             return False

@@ -381,7 +381,7 @@ class HeadingEstimator:
 
     def _grip_step(self, t, f, l, z, tk: float, q) -> tuple[float, bool]:
         """The walking offset ω after the step at ``tk`` whose window holds samples ``t``, ``f``,
-        ``l``, ``z``; ``q`` the attitude at its last sample (:mod:`pdr.grip`)."""
+        ``l``, ``z``; ``q`` the step's mean attitude (:mod:`pdr.grip`)."""
         g = self.settings.grip
         if not g.enabled or len(t) < 3:
             return self.grip.offset, False
@@ -431,8 +431,10 @@ class HeadingEstimator:
                 i0, i1 = (i1 - 1, i1) if i1 > 0 else (0, 1)
             psi_g = float(np.mean(buf[i0:i1, 1]))  # unwrapped: the arithmetic mean is circular
             w0 = int(np.searchsorted(bt, tk - s.grip.window, side="right"))  # samples in (tk − window, tk]
+            qs = buf[i0:i1, 8:12]
+            qm = (qs * np.sign(qs @ qs[-1])[:, None]).mean(axis=0)  # the step's mean attitude (one hemisphere)
             omega, jumped = self._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7], tk,
-                                            buf[i1 - 1, 8:12])
+                                            qm / np.linalg.norm(qm))
             off = off + omega
             k = bisect.bisect_right(hist_t, tk) - 1
             _, delta, P = hist[max(k, 0)]
