@@ -49,11 +49,13 @@ part across ``a`` to ``u_k``'s, θ = −β). The device's attitude without the r
 
     ω ← wrap(ω − (yaw(q_k) − yaw(q_k ⊗ q(a, θ)*)))   (0 if within ``snap`` of 0),
 
-with ``yaw`` the device heading vector's (:func:`pdr.heading_kernels.level_and_compass`). A turn
-that leaves the heading vector where it was (a pitch, whose heading the vector keeps) changes
-nothing. After a jump (or a tilt change that no single axis explains) older evidence is
-dropped, windows reaching back before it are not used, and the next jump needs only
-``regrip_steps`` measurements: the walking axis confirms ω or corrects it. A phone lying flat
+with ``yaw`` the device heading vector's (:func:`pdr.heading_kernels.level_and_compass`). Only a
+turn about the screen normal ``z`` acts: a pitch (about ``x``) is kept by the heading vector,
+a roll (about ``y``) leaves the forward axis, and a change no single axis explains is left to
+the walking axis (acting on them broke 4 walks of ``hold_x``, the screen raised by 60°, while
+the phone stood past vertical). After a jump older evidence is dropped, windows reaching back
+before it are not used, and the next jump needs only ``regrip_steps`` measurements: the
+walking axis confirms ω or corrects it. A phone lying flat
 turned about its vertical screen normal keeps its tilt: only the ordinary jump sees that.
 
 Limits: a phone turned by 180° about its screen normal (reversed) keeps its axis; only the
@@ -171,9 +173,8 @@ class GripTracker:
         if ref is None or _angle(ref[1], u) < s.regrip_tilt:
             return False
         turn = self._grip_turn(ref[1], u)
-        if turn is None:  # not a turn about one of the phone's axes: only the walking axis can tell
-            self._suspect(t)
-            return False
+        if turn is None or turn[0][2] != 1.0:  # only a turn about the screen normal moves the forward axis
+            return False  # sideways: a pitch is kept by the heading vector, a roll keeps y; else the axis tells
         q_before = quat.multiply(q, quat.conjugate(quat.from_axis_angle(*turn)))  # the walker's attitude, no re-grip
         y = yaw_of(np.array([q, q_before]))
         omega = float(wrap(self.offset - float(wrap(y[0] - y[1]))))
