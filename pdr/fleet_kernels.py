@@ -127,13 +127,14 @@ def heading_stage(slots, off, T, ACC, GYR, MAG, has_mag, AN,
             ep_rows[n_ep] = rows[i]
             ep_slot[n_ep] = j
             n_ep += 1
-        # 5. samples kept for the steps' headings: t, ψ, δ, |b|, I, levelled specific force (f, l, up)
+        # 5. samples kept for the steps' headings: t, ψ, δ, |b|, I, levelled specific force (f, l, up), attitude q
         buf = hbufs[r]
         nb = keep_after(buf, t[0] - hbuf_keep, n)
         k = nb.shape[0] - n
         for i in range(n):
             nb[k + i, 0], nb[k + i, 1], nb[k + i, 2], nb[k + i, 3], nb[k + i, 4] = t[i], psi[i], d[i], nrm[i], inc[i]
             nb[k + i, 5], nb[k + i, 6], nb[k + i, 7] = af[i], al[i], az[i]
+            nb[k + i, 8], nb[k + i, 9], nb[k + i, 10], nb[k + i, 11] = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
         hbufs[r] = nb
     return n_ep
 

@@ -28,6 +28,36 @@ has an unknown turn (its gyro turn is the phone's, not the walker's), so a fusio
 step's turn from the absolute heading instead of the gyro. The compass offset δ is left to the
 compass: a phone turned in the hand turns the gyro and the field alike, so δ stays right.
 
+**A re-grip seen as it happens.** The jump above needs ``n`` usable steps whose windows all
+lie after the change, about 10 s of walking (10 m off by 90° on IPIN trial 03 rep 02 turned
+to landscape). But a phone turned in the hand turns about an axis of its own, and unless that
+axis is vertical its attitude to gravity changes; a walker's turn is about the vertical and
+leaves it alone. Per step ``k`` the levelling's mean attitude ``q_k`` (body -> ENU) gives the
+world's up axis in body coordinates, ``u_k = R(q_k)ᵀ e_z``. The reference ``u_r`` is the last
+step that was walking (gait phase ρ ≥ ρ_min, σ_z ≤ max) with a settled tilt
+(``∠(u_{k−1}, u_k) < θ_settle``); a step that is both, with
+
+    ∠(u_r, u_k) ≥ θ_tilt
+
+(however long since the reference: a phone turned while the walker stands counts as well)
+is a rotation of the device about a non-vertical axis. A re-grip turns the phone about one of
+its own axes ``a`` (the screen normal: portrait to landscape; x: the screen raised; y: rolled),
+so ``u_k = R(a, θ)ᵀ u_r``: ``a`` is the body axis whose elevation kept (within
+``regrip_axis_tol``), and θ is where ``u`` moved around it (the signed angle β from ``u_r``'s
+part across ``a`` to ``u_k``'s, θ = −β). The device's attitude without the re-grip is
+``q_k ⊗ q(a, θ)*`` (the walker's turn in between, about the vertical, is in both), so
+
+    ω ← wrap(ω − (yaw(q_k) − yaw(q_k ⊗ q(a, θ)*)))   (0 if within ``snap`` of 0),
+
+with ``yaw`` the device heading vector's (:func:`pdr.heading_kernels.level_and_compass`). Only a
+turn about the screen normal ``z`` acts: a pitch (about ``x``) is kept by the heading vector,
+a roll (about ``y``) leaves the forward axis, and a change no single axis explains is left to
+the walking axis (acting on them broke 4 walks of ``hold_x``, the screen raised by 60°, while
+the phone stood past vertical). After a jump older evidence is dropped, windows reaching back
+before it are not used, and the next jump needs only ``regrip_steps`` measurements: the
+walking axis confirms ω or corrects it. A phone lying flat
+turned about its vertical screen normal keeps its tilt: only the ordinary jump sees that.
+
 Limits: a phone turned by 180° about its screen normal (reversed) keeps its axis; only the
 gait's phase tells, and on stairs that phase turns round while the grip does not (trial 52 of
 the IPIN set: 20 steps at 130-170°), so a reversal alone is not a jump here.
@@ -38,6 +68,9 @@ import dataclasses
 import math
 from collections import deque
 
+import numpy as np
+
+from pdr import quaternion as quat
 from pdr.angles import wrap
 
 
@@ -52,6 +85,12 @@ class GripSettings:
     max_vertical_std: float = 2.5  # m/s², σ_z above this is not walking (a calibration wave: 3-7)
     consistency: float = 0.8  # R_min, mean resultant length of the n doubled angles
     jump: float = math.radians(50.0)  # θ_jump, rad
+    regrip_tilt: float = math.radians(25.0)  # θ_tilt, rad: a change of tilt between settled walking steps that is a re-grip
+    regrip_settle: float = math.radians(10.0)  # θ_settle, rad: the tilt has settled (last step to this one)
+    snap: float = math.radians(30.0)  # rad, a predicted ω this close to 0 is the texting grip again
+    regrip_steps: int = 4  # measurements that must agree for a jump after a change of tilt
+    regrip_axis_tol: float = math.radians(10.0)  # rad: the turn's axis kept its elevation within this
+    regrip_lever: float = math.sin(math.radians(20.0))  # up's part across the axis, at least (else θ is ill-conditioned)
 
 
 class GripTracker:
@@ -62,23 +101,44 @@ class GripTracker:
         self.settings = settings or GripSettings()
         self.offset = 0.0  # ω, rad
         self.jumps = 0
+        self.regrips = 0  # jumps of ω from the tilt (counted in ``jumps`` too)
         self._recent: deque = deque(maxlen=self.settings.steps)
+        self._prev_up = None  # the last step's up axis in body coordinates
+        self._ref = None  # (t, up) of the last walking step with a settled tilt: the attitude before a re-grip
+        self._since = -math.inf  # time of the last re-grip: windows reaching before it are not evidence
+        self._fast = False  # after a change of tilt: a jump needs only regrip_steps measurements
 
     def usable(self, m) -> bool:
         s = self.settings
         return (math.isfinite(m.angle) and m.anisotropy >= s.min_anisotropy and m.phase >= s.min_phase
                 and m.vertical_std <= s.max_vertical_std)
 
-    def step(self, m) -> tuple[float, bool]:
+    def walking(self, m) -> bool:
+        """The window looks like walking (the gait's phase shows, σ_z in range), whatever its axis."""
         s = self.settings
-        if not s.enabled or not self.usable(m):
+        return m.phase >= s.min_phase and m.vertical_std <= s.max_vertical_std
+
+    def step(self, m, t: float = math.nan, q=None, yaw_of=None) -> tuple[float, bool]:
+        """ω after a step at ``t`` (s) with measurement ``m`` and attitude ``q`` (body -> ENU,
+        scalar first); ``yaw_of(q (n, 4))`` the device heading's yaw of attitudes. Without
+        ``q`` the walking axis alone decides."""
+        s = self.settings
+        if not s.enabled:
+            return self.offset, False
+        if q is not None and yaw_of is not None and self._regrip(m, t, q, yaw_of):
+            return self.offset, True
+        if not self.usable(m) or t - s.window < self._since:
             return self.offset, False
         a = m.angle
         self._recent.append((math.cos(2.0 * a), math.sin(2.0 * a), math.cos(a), math.sin(a)))
-        if len(self._recent) < s.steps:
+        if len(self._recent) >= s.steps:
+            self._fast = False  # the ordinary count is there: no more need to hurry
+        n = s.regrip_steps if self._fast else s.steps
+        if len(self._recent) < n:
             return self.offset, False
-        c2 = sum(v[0] for v in self._recent) / s.steps
-        s2 = sum(v[1] for v in self._recent) / s.steps
+        recent = list(self._recent)[-n:]
+        c2 = sum(v[0] for v in recent) / n
+        s2 = sum(v[1] for v in recent) / n
         if math.hypot(c2, s2) < s.consistency:
             return self.offset, False
         axis = 0.5 * math.atan2(s2, c2)  # the walking axis, modulo π
@@ -86,15 +146,79 @@ class GripTracker:
         if same < s.jump:  # the same grip: ω follows its axis on the side it is on (0 while texting)
             if abs(float(wrap(self.offset))) < 1e-12 and abs(float(wrap(axis))) < s.jump:
                 return self.offset, False
-            self.offset = _nearest(axis, self.offset)
+            near = _nearest(axis, self.offset)
+            self.offset = 0.0 if abs(near) < s.snap else near  # back within snap of forward: the texting grip
             return self.offset, False
         # a new grip: the side from the gait's phase (the signed measurements' mean direction)
-        mean = math.atan2(sum(v[3] for v in self._recent), sum(v[2] for v in self._recent))
+        mean = math.atan2(sum(v[3] for v in recent), sum(v[2] for v in recent))
         target = _nearest(axis, mean)
         self.offset = 0.0 if abs(float(wrap(target))) < s.jump else target
         self.jumps += 1
         self._recent.clear()
+        self._fast = False
         return self.offset, True
+
+
+    def _regrip(self, m, t: float, q, yaw_of) -> bool:
+        """The re-grip test of the module docstring; True when ω jumped."""
+        s = self.settings
+        q = np.asarray(q, float)
+        if not (math.isfinite(t) and np.all(np.isfinite(q))):
+            return False
+        u = _up(q)
+        prev, self._prev_up = self._prev_up, u
+        if not self.walking(m) or prev is None or _angle(prev, u) >= s.regrip_settle:
+            return False  # not walking, or the tilt still moving: the reference stays where it was
+        ref, self._ref = self._ref, (t, u)
+        if ref is None or _angle(ref[1], u) < s.regrip_tilt:
+            return False
+        turn = self._grip_turn(ref[1], u)
+        if turn is None or turn[0][2] != 1.0:  # only a turn about the screen normal moves the forward axis
+            return False  # sideways: a pitch is kept by the heading vector, a roll keeps y; else the axis tells
+        q_before = quat.multiply(q, quat.conjugate(quat.from_axis_angle(*turn)))  # the walker's attitude, no re-grip
+        y = yaw_of(np.array([q, q_before]))
+        omega = float(wrap(self.offset - float(wrap(y[0] - y[1]))))
+        omega = 0.0 if abs(omega) < s.snap else omega
+        if abs(float(wrap(omega - self.offset))) < s.snap:  # a turn that leaves the heading (a pitch): nothing to do
+            return False
+        self._suspect(t)
+        self.offset = omega
+        self.jumps += 1
+        self.regrips += 1
+        return True
+
+    def _grip_turn(self, u0, u1):
+        """``(axis, θ)`` of a turn about one of the body axes that takes the body-frame up axis
+        ``u0`` to ``u1`` (``u1 = R(axis, θ)ᵀ u0``), or None: the axis is the one whose elevation
+        kept within ``regrip_axis_tol``, θ from where up moved around it."""
+        s = self.settings
+        best = None
+        for a in np.eye(3):
+            keep = abs(math.asin(min(max(float(u0 @ a), -1.0), 1.0)) - math.asin(min(max(float(u1 @ a), -1.0), 1.0)))
+            p0, p1 = u0 - (u0 @ a) * a, u1 - (u1 @ a) * a
+            if keep <= s.regrip_axis_tol and min(np.linalg.norm(p0), np.linalg.norm(p1)) >= s.regrip_lever:
+                if best is None or keep < best[0]:
+                    beta = math.atan2(float(a @ np.cross(p0, p1)), float(p0 @ p1))
+                    best = (keep, a, -beta)
+        return None if best is None else (best[1], best[2])
+
+    def _suspect(self, since: float) -> None:
+        """The grip may have changed at ``since``: older evidence is dropped, windows reaching
+        before it are not evidence, and the next jump needs only ``regrip_steps`` measurements."""
+        self._recent.clear()
+        self._since = since
+        self._fast = True
+
+
+def _up(q) -> np.ndarray:
+    """The world's up axis in body coordinates, ``R(q)ᵀ e_z`` (the third row of R)."""
+    w, x, y, z = q
+    return np.array([2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)])
+
+
+def _angle(a, b) -> float:
+    """Angle between unit vectors (rad)."""
+    return math.acos(min(max(float(np.dot(a, b)), -1.0), 1.0))
 
 
 def _nearest(axis: float, ref: float) -> float:

@@ -125,7 +125,7 @@ from pdr.windows import norm3, spans_gap, unwrap_turns
 TWO_PI = 2.0 * math.pi
 # per-sample columns kept for the steps: time, gyro heading, compass offset, |B|, dip, and the
 # levelled specific force along the device's heading, to its left and up (the walking direction)
-BUF_COLUMNS = ("t", "psi", "d", "norm", "inc", "af", "al", "az")
+BUF_COLUMNS = ("t", "psi", "d", "norm", "inc", "af", "al", "az", "qw", "qx", "qy", "qz")  # q: levelling attitude
 
 
 @dataclasses.dataclass(frozen=True)
@@ -222,7 +222,7 @@ class HeadingEstimator:
         # older samples leave before the new ones come in: steps found in this batch later (or
         # held back by the detector, a few steps before it) still find their samples
         keep = self._buf[:, 0] > (t[0] - 4 * s.max_step_duration)
-        self._buf = np.concatenate([self._buf[keep], np.column_stack((t, psi, d, norm, inc, af, al, az))])
+        self._buf = np.concatenate([self._buf[keep], np.column_stack((t, psi, d, norm, inc, af, al, az, q))])
         return self.answer_steps(self._buf)
 
     # ---------------------------------------------------------------- what a columnar engine calls
@@ -379,13 +379,18 @@ class HeadingEstimator:
             return True
         return False
 
-    def _grip_step(self, t, f, l, z) -> tuple[float, bool]:
-        """The walking offset ω after one step whose window holds samples ``t``, ``f``, ``l``, ``z``
-        (:mod:`pdr.grip`)."""
+    def _grip_step(self, t, f, l, z, tk: float, q) -> tuple[float, bool]:
+        """The walking offset ω after the step at ``tk`` whose window holds samples ``t``, ``f``,
+        ``l``, ``z``; ``q`` the step's mean attitude (:mod:`pdr.grip`)."""
         g = self.settings.grip
         if not g.enabled or len(t) < 3:
             return self.grip.offset, False
-        return self.grip.step(walking_angle(t, f, l, z, g.lag))
+        return self.grip.step(walking_angle(t, f, l, z, g.lag), tk, q, self.device_yaw)
+
+    def device_yaw(self, q) -> np.ndarray:
+        """Yaw (rad) of the device's heading vector for attitudes ``q`` (n, 4), as the steps get it."""
+        return level_and_compass(np.ascontiguousarray(q, float), self._fwd, np.zeros((len(q), 3)), np.empty((0, 3)),
+                                 False, 0.0)[0]
 
     # ---------------------------------------------------------------- steps
     def steps(self, step_times, walking_offset=None) -> StepHeadings:
@@ -426,7 +431,10 @@ class HeadingEstimator:
                 i0, i1 = (i1 - 1, i1) if i1 > 0 else (0, 1)
             psi_g = float(np.mean(buf[i0:i1, 1]))  # unwrapped: the arithmetic mean is circular
             w0 = int(np.searchsorted(bt, tk - s.grip.window, side="right"))  # samples in (tk − window, tk]
-            omega, jumped = self._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7])
+            qs = buf[i0:i1, 8:12]
+            qm = (qs * np.sign(qs @ qs[-1])[:, None]).mean(axis=0)  # the step's mean attitude (one hemisphere)
+            omega, jumped = self._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7], tk,
+                                            qm / np.linalg.norm(qm))
             off = off + omega
             k = bisect.bisect_right(hist_t, tk) - 1
             _, delta, P = hist[max(k, 0)]

@@ -24,29 +24,46 @@ STEP_HZ = 1.8
 FIELD = np.array([0.0, 20.0, -45.0])  # µT, ENU: north and down
 
 
-def _walk(regrip_deg: float, seconds: float = 120.0, seed: int = 0):
+def _walker_yaw(t, t_grip: float, turn_deg: float):
+    """The walker's own heading: ``turn_deg`` in 1.5 s from half a second before the re-grip."""
+    r = np.clip((t - t_grip + 0.5) / 1.5, 0.0, 1.0)
+    return math.radians(turn_deg) * (3 * r**2 - 2 * r**3)
+
+
+def _walk(regrip_deg: float, seconds: float = 120.0, seed: int = 0, raised_deg: float = 0.0, axis=(0.0, 0.0, 1.0),
+          turn_deg: float = 0.0):
+    """``raised_deg``: the phone's long axis that far above the horizon (0: flat), so that its
+    screen normal, the axis of the re-grip, is tilted by as much from the vertical; ``axis``
+    the body axis of the re-grip; ``turn_deg`` a turn of the walker at the same time."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, seconds, 1.0 / RATE)
     w = 2.0 * math.pi * STEP_HZ
     t_grip = seconds / 2
     ramp = np.clip((t - t_grip) / 0.5, 0.0, 1.0)
-    dev_yaw = math.radians(regrip_deg) * (3 * ramp**2 - 2 * ramp**3)  # the phone's yaw in the hand (smooth)
+    dev_yaw = math.radians(regrip_deg) * (3 * ramp**2 - 2 * ramp**3)  # the phone's turn in the hand (smooth)
     yaw_rate = np.gradient(dev_yaw, t)
+    psi_w = _walker_yaw(t, t_grip, turn_deg)
     walking = t > 2.0
-    fwd = np.where(walking, 1.5 * np.sin(w * t + math.pi / 2), 0.0)  # along the walk (east)
+    fwd = np.where(walking, 1.5 * np.sin(w * t + math.pi / 2), 0.0)  # along the walk
     side = np.where(walking, 0.3 * np.sin(0.5 * w * t), 0.0)  # the body's sway, half the step rate
     up = 9.81 + np.where(walking, 1.4 * np.sin(w * t), 0.0)
-    f_nav = np.column_stack([fwd, side, up])
-    q = np.array([quat.from_yaw(y - math.pi / 2) for y in dev_yaw])  # body y along east at the start
+    c, sn = np.cos(psi_w), np.sin(psi_w)
+    f_nav = np.column_stack([c * fwd - sn * side, sn * fwd + c * side, up])
+    q_hand = quat.multiply(quat.from_yaw(-math.pi / 2), quat.from_axis_angle(np.array([1.0, 0.0, 0.0]), math.radians(raised_deg)))
+    a = np.asarray(axis, float)
+    q_in_hand = np.array([quat.multiply(q_hand, quat.from_axis_angle(a, y)) for y in dev_yaw])
+    q = np.array([quat.multiply(quat.from_yaw(p), qh) for p, qh in zip(psi_w, q_in_hand)])  # body y along the walk at the start
     acc = np.array([quat.rotate(quat.conjugate(qi), f) for qi, f in zip(q, f_nav)]) + rng.normal(0, 0.05, (t.size, 3))
     mag = np.array([quat.rotate(quat.conjugate(qi), FIELD) for qi in q]) + rng.normal(0, 0.3, (t.size, 3))
-    gyr = np.column_stack([np.zeros_like(t), np.zeros_like(t), yaw_rate]) + rng.normal(0, 0.002, (t.size, 3))
+    walker_rate = np.column_stack([np.zeros_like(t), np.zeros_like(t), np.gradient(psi_w, t)])
+    gyr = (np.array([quat.rotate(quat.conjugate(qh), wr) for qh, wr in zip(q_in_hand, walker_rate)])
+           + np.outer(yaw_rate, a) + rng.normal(0, 0.002, (t.size, 3)))
     steps = np.arange(3.0, seconds - 0.5, 1.0 / STEP_HZ)
     return t, acc, gyr, mag, steps, t_grip
 
 
-def _headings(settings: HeadingSettings, regrip_deg: float, batch: int = 10):
-    t, acc, gyr, mag, steps, t_grip = _walk(regrip_deg)
+def _headings(settings: HeadingSettings, regrip_deg: float, batch: int = 10, **walk):
+    t, acc, gyr, mag, steps, t_grip = _walk(regrip_deg, **walk)
     h = HeadingEstimator(settings)
     out = []
     for i in range(0, t.size, batch):
@@ -77,6 +94,37 @@ def test_without_detection_the_walk_goes_sideways():
     tk, hd, _, t_grip, h = _headings(s, 90.0)
     err = np.degrees(np.abs(wrap(hd[tk > t_grip + 15.0])))
     assert h.grip.jumps == 0 and np.median(err) > 70.0
+
+
+def test_a_phone_raised_in_the_hand_and_turned_to_landscape_is_caught_as_it_turns():
+    """The phone held as on the IPIN walks (long axis 55° up, so the screen normal, the axis of
+    the turn, is 35° from the vertical): the tilt changes by about 70° within the half second
+    and ω jumps then, instead of some 8 steps and a 3 s window later (the control below)."""
+    tk, hd, dsig, t_grip, h = _headings(HeadingSettings(), 90.0, raised_deg=55.0)
+    soon = (tk > t_grip + 1.5) & (tk < t_grip + 8.0)
+    err = np.degrees(np.abs(wrap(hd)))
+    assert h.grip.regrips == 1 and h.grip.jumps == 1
+    assert np.median(err[soon]) < 15.0 and np.median(err[tk > t_grip + 15.0]) < 10.0, (err[soon], err[tk > t_grip + 15.0])
+    assert np.isinf(dsig[tk > t_grip]).sum() == 1
+    control = HeadingSettings(grip=dataclasses.replace(GripSettings(), regrip_tilt=math.pi))
+    tk, hd, _, _, hc = _headings(control, 90.0, raised_deg=55.0)
+    assert hc.grip.regrips == 0 and np.median(np.degrees(np.abs(wrap(hd[soon])))) > 45.0
+
+
+def test_a_screen_raised_while_the_walker_turns_leaves_the_offset():
+    """The walker turns 90° left while raising the screen by 60° (about the phone's x axis): the
+    tilt changes, but a turn about x leaves the heading vector, so ω stays 0 and the walker's
+    own turn is not taken for the phone's (the re-grip's axis and angle come from the tilt)."""
+    tk, hd, _, t_grip, h = _headings(HeadingSettings(), 60.0, raised_deg=55.0, axis=(1.0, 0.0, 0.0), turn_deg=90.0)
+    err = np.degrees(np.abs(wrap(hd - _walker_yaw(tk, t_grip, 90.0))))
+    assert h.grip.jumps == 0 and h.grip.offset == 0.0
+    assert np.median(err[tk > t_grip + 2.0]) < 10.0, err[tk > t_grip + 2.0]
+
+
+def test_a_raised_phone_that_stays_in_the_hand_is_not_a_regrip():
+    tk, hd, _, _, h = _headings(HeadingSettings(), 0.0, raised_deg=55.0)
+    assert h.grip.jumps == 0 and h.grip.offset == 0.0
+    assert np.degrees(np.abs(wrap(hd[tk > 10.0]))).max() < 10.0
 
 
 def test_a_walk_without_a_change_keeps_the_texting_grip():
