@@ -72,6 +72,7 @@ import numpy as np
 
 from pdr import quaternion as quat
 from pdr.angles import wrap
+from pdr.fixed_order import row_dot
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,11 +195,12 @@ class GripTracker:
         s = self.settings
         best = None
         for a in np.eye(3):
-            keep = abs(math.asin(min(max(float(u0 @ a), -1.0), 1.0)) - math.asin(min(max(float(u1 @ a), -1.0), 1.0)))
-            p0, p1 = u0 - (u0 @ a) * a, u1 - (u1 @ a) * a
-            if keep <= s.regrip_axis_tol and min(np.linalg.norm(p0), np.linalg.norm(p1)) >= s.regrip_lever:
+            a0, a1 = _dot(u0, a), _dot(u1, a)
+            keep = abs(math.asin(min(max(a0, -1.0), 1.0)) - math.asin(min(max(a1, -1.0), 1.0)))
+            p0, p1 = u0 - a0 * a, u1 - a1 * a
+            if keep <= s.regrip_axis_tol and min(_norm(p0), _norm(p1)) >= s.regrip_lever:
                 if best is None or keep < best[0]:
-                    beta = math.atan2(float(a @ np.cross(p0, p1)), float(p0 @ p1))
+                    beta = math.atan2(_dot(a, np.cross(p0, p1)), _dot(p0, p1))
                     best = (keep, a, -beta)
         return None if best is None else (best[1], best[2])
 
@@ -218,7 +220,17 @@ def _up(q) -> np.ndarray:
 
 def _angle(a, b) -> float:
     """Angle between unit vectors (rad)."""
-    return math.acos(min(max(float(np.dot(a, b)), -1.0), 1.0))
+    return math.acos(min(max(_dot(a, b), -1.0), 1.0))
+
+
+def _dot(a, b) -> float:
+    """a · b summed left to right (``pdr.fixed_order``: no BLAS, the same bits on every CPU)."""
+    return float(row_dot(a, b))
+
+
+def _norm(a) -> float:
+    """‖a‖ = √(a · a), in the fixed order of :func:`_dot`."""
+    return math.sqrt(_dot(a, a))
 
 
 def _nearest(axis: float, ref: float) -> float:

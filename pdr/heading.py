@@ -117,6 +117,7 @@ from pdr.ahrs import make_filter
 from pdr.angles import wrap  # noqa: F401  (re-exported)
 from pdr.grip import GripTracker
 from pdr.heading_settings import HeadingSettings  # noqa: F401  (re-exported)
+from pdr.fixed_order import row_dot
 from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass
 from pdr.walking_direction import walking_angle
 from pdr.window_kernels import still_bias
@@ -432,9 +433,9 @@ class HeadingEstimator:
             psi_g = float(np.mean(buf[i0:i1, 1]))  # unwrapped: the arithmetic mean is circular
             w0 = int(np.searchsorted(bt, tk - s.grip.window, side="right"))  # samples in (tk − window, tk]
             qs = buf[i0:i1, 8:12]
-            qm = (qs * np.sign(qs @ qs[-1])[:, None]).mean(axis=0)  # the step's mean attitude (one hemisphere)
+            qm = (qs * np.sign(row_dot(qs, qs[-1]))[:, None]).mean(axis=0)  # the step's mean attitude (one hemisphere)
             omega, jumped = self._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7], tk,
-                                            qm / np.linalg.norm(qm))
+                                            qm / math.sqrt(float(row_dot(qm, qm))))
             off = off + omega
             k = bisect.bisect_right(hist_t, tk) - 1
             _, delta, P = hist[max(k, 0)]
