@@ -43,7 +43,7 @@ class HeadingSettings:
     learned_norm_gate: float = math.inf  # µT, the same against a learned reference
     inclination_gate: float = math.radians(15.0)  # rad, reject when |I − field_inclination| exceeds it (only when given)
     max_rate: float = 1.0  # rad/s, reject epochs whose mean |ω| exceeds it (phone waved: tilt, and so δ, unreliable)
-    norm_weight: float = math.radians(3.0)  # rad per µT of norm deviation (k_n; chosen by route CV, docs/heading.md §5)
+    norm_weight: float = math.radians(3.0)  # rad per µT of norm deviation (k_n; chosen by route CV, docs/heading.md §4)
     inclination_weight: float = 0.5  # rad per rad of inclination deviation (k_I)
     # heading filter
     sigma_init: float = math.radians(30.0)  # rad, P0 around the first compass epoch
