@@ -39,10 +39,7 @@ def test_a_bent_weak_field_is_weighed_down_before_the_reference_window_ends():
         r = HeadingEstimator(settings).update(t, acc, gyr, mag, steps)
         return np.abs(deg(wrap(r.heading - truth[0])))[inside].max()
 
-    # The weight k_n at 3°/µT against c065ffd's weighing (1°/µT, counted only after 60 s). The
-    # default k_n stays 1°/µT (3°/µT cost K = 3 cross-validated 1.94 m, docs/heading.md §4); what
-    # the default keeps of the mechanism is the reference counting from 10 s.
-    now = worst(HeadingSettings(norm_weight=math.radians(3.0)))
+    now = worst(HeadingSettings())
     before = worst(HeadingSettings(norm_weight=math.radians(1.0), reference_min_s=60.0))  # c065ffd's weighing
     assert now < 0.8 * before, (now, before)  # 31° against 42°
 
@@ -56,10 +53,7 @@ def test_steps_before_any_epoch_passes_take_the_least_disturbed_offset():
     steel = 1.5 * _rotated_field(120.0, 20.0)
     field = _field([(0.0, 20.0, wrong_dip), (20.0, 30.0, steel)])
     t, acc, gyr, mag, truth, steps = walk(lambda t: 0.0 * t, 40.0, field=field)
-    # at k_n = 3°/µT (the provisional offset weighs epochs by 1/σ_m²; at the default 1°/µT the
-    # steel's stronger field is weighed down too little here: up to 60° off, docs/heading.md §4)
-    r = HeadingEstimator(HeadingSettings(field_inclination=DIP, norm_weight=math.radians(3.0))).update(
-        t, acc, gyr, mag, steps)
+    r = HeadingEstimator(HeadingSettings(field_inclination=DIP)).update(t, acc, gyr, mag, steps)
     in_steel = (r.t > 21.0) & (r.t < 29.0)
     assert np.all(np.isnan(r.mag_heading[in_steel]))  # the compass of those steps is rejected ...
     err = np.abs(deg(wrap(r.heading - truth[0])))
