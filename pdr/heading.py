@@ -33,9 +33,7 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
    estimation for pedestrian navigation environments", IPIN 2011: a uniform field rotates
    with the device exactly as the gyro says, so δ stays constant). The norm and inclination are
    compared with a reference (``field_norm``/``field_inclination`` in the settings, e.g. the
-   WMM value, else learned: the running median of the usable epochs since the stream began,
-   counted from ``reference_min_s`` on and fixed after ``reference_seconds``; every epoch and
-   step is judged against the reference as it stood at its time). The
+   WMM value, else the median over the first ``reference_seconds`` of the stream). The
    measurement standard deviation is
 
        σ_m² = σ_mag² + s² + (k_n Δ|m|)² + (k_I ΔI)²,
@@ -57,11 +55,7 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
        update    K = P / S,  δ ← δ + K ν,  P ← (1 − K) P
 
    The filter starts from the first epoch's compass offset (only the initial position is
-   given, so the initial heading is the compass's) with ``P = max(σ_init, σ_m)²``. Steps before
-   it take a *provisional* offset: the circular mean of the epochs that failed only the norm
-   or dip gates, each weighed by 1/σ_m² without those gates and faded by exp(−age /
-   ``provisional_memory_s``) (``sigma_provisional`` its sigma), not the raw compass of the step (issue 27: with steel at the first landmark that
-   was 140° off).
+   given, so the initial heading is the compass's) with ``P = σ_init²``.
 
    **The gate does not lock out.** Once δ is wrong by more than the gate (a gyro drift while
    the field was rejected, a device frame that moved), every later epoch would be gated out
@@ -121,7 +115,6 @@ import numpy as np
 
 from pdr.ahrs import make_filter
 from pdr.angles import wrap  # noqa: F401  (re-exported)
-from pdr.field_reference import FieldReference
 from pdr.grip import GripTracker
 from pdr.heading_settings import HeadingSettings  # noqa: F401  (re-exported)
 from pdr.fixed_order import row_dot
@@ -186,16 +179,15 @@ class HeadingEstimator:
         self._raw_last: float | None = None  # last gyro heading, wrapped
         self._turns = 0  # whole turns of the gyro heading at that sample
         self._epoch_state = np.zeros(EPOCH_STATE)  # the open compass epoch (see close_epochs)
-        self._field = FieldReference(s)  # the |B| and dip each compass epoch is compared with
+        self._ref_norm = s.field_norm
+        self._ref_inc = s.field_inclination
+        self._ref_buf: list[np.ndarray] = []
         self._delta: float | None = None  # KF state: gyro frame -> ENU yaw offset
         self._P = s.sigma_init**2
         self._kf_t = -math.inf  # end time of the last epoch the filter has seen
         self._kf_psi: float | None = None  # gyro heading at that epoch end
         self._hist = deque([(-math.inf, math.nan, math.inf)])  # (epoch end, δ, P) for step lookups
         self._rejected = [math.nan, 0.0, 0.0, 0]  # gated-out streak: start time, Σcos δ_m, Σsin δ_m, count
-        # before the first epoch passes the gates: Σ cos δ_m / σ², Σ sin δ_m / σ² of those that failed
-        # only the norm or dip gate, each weighed by its σ_m without them and faded with its age; last epoch
-        self._provisional = (0.0, 0.0, math.nan)
         self.grip = GripTracker(s.grip)
         self._pending: list[float] = []
         self._pending_off: list[float] = []
@@ -256,7 +248,6 @@ class HeadingEstimator:
         limit = t_first - 4 * s.max_step_duration - s.epoch
         while len(self._hist) > 1 and self._hist[1][0] < limit:
             self._hist.popleft()
-        self._field.prune(limit)
 
     def _bias_per_sample(self, t, acc_norm, gyr) -> np.ndarray:
         """Bias used for each sample: the gyro mean of the latest still window ending before it."""
@@ -284,49 +275,65 @@ class HeadingEstimator:
         dm = np.arctan2(sn, cs)
         rho = np.clip(np.hypot(cs, sn), 1e-12, 1.0)
         spread = np.sqrt(-2.0 * np.log(rho))
-        self._field.learn(self._t0, t_end, nrm, inc_m, (rate <= s.max_rate) & (spread < s.spread_gate))
+        self._learn_reference(t_end, nrm, inc_m, np.where(rate > s.max_rate, np.inf, spread))
         sig = self._measurement_sigma(spread, nrm, inc_m, t_end)
         sig = np.where(rate > s.max_rate, np.inf, sig)
-        soft = np.where(rate > s.max_rate, np.inf, self._measurement_sigma(spread, nrm, inc_m, t_end, gates=False))
         for i in range(len(t_end)):  # a few epochs per second: a scalar filter loop is cheap
-            self._kf_step(t_end[i], psi_end[i], dm[i], sig[i], soft[i])
+            self._kf_step(t_end[i], psi_end[i], dm[i], sig[i])
+
+    def _learn_reference(self, t_end, nrm, inc_m, spread) -> None:
+        s = self.settings
+        if np.isfinite(self._ref_norm) and np.isfinite(self._ref_inc):
+            return
+        if self._t0 is None or not np.isfinite(nrm).any():
+            return
+        inwin = t_end <= self._t0 + s.reference_seconds
+        ok = inwin & (spread < s.spread_gate) & np.isfinite(nrm)
+        if ok.any():
+            self._ref_buf.append(np.c_[nrm[ok], inc_m[ok]])
+        if not inwin.all():  # the reference window is over: fix the medians
+            ref = np.vstack(self._ref_buf) if self._ref_buf else np.empty((0, 2))
+            if len(ref):
+                if not np.isfinite(self._ref_norm):
+                    self._ref_norm = float(np.median(ref[:, 0]))
+                if not np.isfinite(self._ref_inc):
+                    self._ref_inc = float(np.median(ref[:, 1]))
+            else:
+                self._ref_norm = self._ref_norm if np.isfinite(self._ref_norm) else math.inf
+                self._ref_inc = self._ref_inc if np.isfinite(self._ref_inc) else math.inf
 
     @property
     def field_reference(self) -> tuple[float, float]:
         """(|B| µT, inclination rad) the disturbance test compares with (NaN while learning)."""
-        return self._field.norm, self._field.inclination
+        return self._ref_norm, self._ref_inc
 
-    def _measurement_sigma(self, spread, nrm, inc_m, t, gates: bool = True) -> np.ndarray:
-        """σ_m per epoch (or step) ending at ``t``, judged against the field reference as it stood
-        then (:class:`pdr.field_reference.FieldReference`), so one large batch and many small ones agree. ``gates``
-        off: the weight alone (the norm and dip gates do not reject)."""
+    def _measurement_sigma(self, spread, nrm, inc_m, t) -> np.ndarray:
+        """σ_m per epoch (or step) ending at ``t``. A learned field reference only counts from
+        the end of its window on — an earlier epoch is judged as it was when it happened,
+        so one large batch and many small ones agree."""
         s = self.settings
         var = s.sigma_mag**2 + spread**2
         bad = ~np.isfinite(spread) | (spread > s.spread_gate) | ~np.isfinite(nrm)
-        if not gates:
-            s = dataclasses.replace(s, norm_gate=math.inf, learned_norm_gate=math.inf, inclination_gate=math.inf)
-        ref_n, ref_i = self._field.at(t)
-        dn = np.where(np.isfinite(ref_n), np.abs(nrm - ref_n), 0.0)
-        var = var + (s.norm_weight * dn) ** 2
-        bad |= dn > (s.norm_gate if np.isfinite(s.field_norm) else s.learned_norm_gate)
-        di = np.where(np.isfinite(ref_i), np.abs(inc_m - ref_i), 0.0)
-        var = var + (s.inclination_weight * di) ** 2
-        if np.isfinite(s.field_inclination):
-            bad |= di > s.inclination_gate
+        learned_by = -math.inf if self._t0 is None else self._t0 + s.reference_seconds
+        known = np.asarray(t) > learned_by
+        if np.isfinite(self._ref_norm):
+            dn = np.where(np.isfinite(s.field_norm) | known, np.abs(nrm - self._ref_norm), 0.0)
+            var = var + (s.norm_weight * dn) ** 2
+            if np.isfinite(s.field_norm):  # a learned reference is where the walker started: no gate
+                bad |= dn > s.norm_gate
+        if np.isfinite(self._ref_inc):
+            di = np.where(np.isfinite(s.field_inclination) | known, np.abs(inc_m - self._ref_inc), 0.0)
+            var = var + (s.inclination_weight * di) ** 2
+            if np.isfinite(s.field_inclination):
+                bad |= di > s.inclination_gate
         return np.where(bad, np.inf, np.sqrt(var))
 
-    def _kf_step(self, t_end, psi_end, dm, sig, soft=math.inf) -> None:
-        """One epoch into the filter; ``soft`` is its σ_m had the norm and dip gates not rejected it."""
+    def _kf_step(self, t_end, psi_end, dm, sig) -> None:
         s = self.settings
         if self._delta is None:
-            if np.isfinite(soft) and not np.isfinite(sig):  # the provisional offset (see answer_steps)
-                c, sn, t_last = self._provisional
-                fade = math.exp(-(t_end - t_last) / s.provisional_memory_s) if np.isfinite(t_last) else 0.0
-                w = 1.0 / soft**2
-                self._provisional = (fade * c + w * math.cos(dm), fade * sn + w * math.sin(dm), float(t_end))
-            if np.isfinite(sig):  # initial heading: the first compass epoch that passes the gates,
-                self._delta = float(dm)  # as uncertain as that epoch says (a field already weighed
-                self._P = max(s.sigma_init, sig) ** 2  # down for its strength must not set it for good)
+            if np.isfinite(sig):  # initial heading: the first compass epoch that passes the gates
+                self._delta = float(dm)
+                self._P = s.sigma_init**2
         else:
             dt = t_end - self._kf_t
             dpsi = psi_end - self._kf_psi
@@ -343,10 +350,7 @@ class HeadingEstimator:
                     self._delta = float(wrap(self._delta + K * nu))
                     self._P *= 1.0 - K
         self._kf_t, self._kf_psi = t_end, psi_end
-        if self._delta is None and np.isfinite(self._provisional[2]):
-            self._hist.append((t_end, math.atan2(self._provisional[1], self._provisional[0]), s.sigma_provisional**2))
-        else:
-            self._hist.append((t_end, math.nan if self._delta is None else self._delta, self._P))
+        self._hist.append((t_end, math.nan if self._delta is None else self._delta, self._P))
 
     def _gate(self, t_end, dm, passes: bool) -> bool:
         """The innovation gate must not lock the compass out for good: a streak of gated-out

@@ -37,20 +37,14 @@ class HeadingSettings:
     spread_gate: float = math.radians(6.0)  # rad, reject epochs whose δ varies more
     field_norm: float = math.nan  # µT, expected |B|; NaN: learn from the first reference_seconds
     field_inclination: float = math.nan  # rad, expected dip (positive down); NaN: learn
-    reference_seconds: float = 60.0  # s, the learned reference: median of the usable epochs of the stream's first window
-    reference_min_s: float = 10.0  # s after the stream's start before a learned reference counts (no weight before)
+    reference_seconds: float = 60.0  # s
     norm_gate: float = math.inf  # µT, reject when ||B| − field_norm| exceeds it (only with a given field_norm)
-    learned_norm_gate: float = math.inf  # µT, the same against a learned reference
     inclination_gate: float = math.radians(15.0)  # rad, reject when |I − field_inclination| exceeds it (only when given)
     max_rate: float = 1.0  # rad/s, reject epochs whose mean |ω| exceeds it (phone waved: tilt, and so δ, unreliable)
-    norm_weight: float = math.radians(1.0)  # rad per µT of norm deviation (k_n; docs/heading.md §4)
+    norm_weight: float = math.radians(1.0)  # rad per µT of norm deviation (k_n)
     inclination_weight: float = 0.5  # rad per rad of inclination deviation (k_I)
     # heading filter
     sigma_init: float = math.radians(30.0)  # rad, P0 around the first compass epoch
-    # rad, heading sigma of steps before any compass epoch passed the gates, taking the provisional
-    # offset of the epochs that failed only the field's norm or dip gates (weighed by their deviations)
-    sigma_provisional: float = math.radians(60.0)
-    provisional_memory_s: float = 10.0  # s, the provisional offset forgets older epochs with this time constant
     sigma_rw: float = math.radians(2.5)  # rad/√s, random walk of δ (residual bias, grip changes)
     scale_error: float = 0.02  # fraction of each turn (gyro scale factor)
     gate_sigmas: float = 3.0  # innovation gate, in standard deviations
