@@ -331,8 +331,9 @@ class ResponderTracker:
         return self.live
 
     def _published(self, p: PoseEstimate, steps: int) -> PoseEstimate:
-        """The estimator's pose with the step count and the source the service reports."""
-        return dataclasses.replace(p, steps=steps, source="fused" if self.fixes_applied > 1 else "pdr")
+        """The estimator's pose with the responder's step count (the estimator's restarts at each
+        placement). ``source`` is the estimator's own: ``fused`` once it took an absolute fix."""
+        return dataclasses.replace(p, steps=steps)
 
     def _apply_fix(self, fix) -> PoseEstimate | None:
         if isinstance(fix, CheckpointFix) and (self._placed_at is None or self._first_step_after_placement):

@@ -22,7 +22,8 @@ from rich.progress import (
 
 T = TypeVar("T")
 
-out = Console(soft_wrap=True)  # results
+# results; piped into a file or a log they keep a table's columns whole (rich's default is 80)
+out = Console(soft_wrap=True, width=None if sys.stdout.isatty() else 160)
 err = Console(stderr=True, soft_wrap=True)  # progress, warnings, errors
 
 

@@ -54,6 +54,7 @@ class IpinRun:
     gnss_rejected: int
     diagnostics: dict = field(default_factory=dict)  # for plots: heading evidence, floors over time
     app_to_sensor_offset_s: float = 0.0  # s: the logger's app clock (AppTs, the organisers' time) + this = the device clock
+    refused: dict[str, int] = field(default_factory=dict)  # what the core turned away, by reason (e.g. GNSS before the IMU)
 
     def scored(self) -> np.ndarray:
         return np.setdiff1d(np.arange(self.lm_t.size), self.fixes)
@@ -239,7 +240,8 @@ def run_ipin(rec: Recording, incident, fix_every: int = 0, use_gnss: bool = True
     gnss_n = sum(m.kind == "fix" and m.msg.source == "gnss" for m in msgs)
     return IpinRun(rec.source, lm.t, np.asarray(lx, float), np.asarray(ly, float), lm.floor.astype(int), fixes, live,
                    smoothed, _columns(tracker.pdr_track), gnss_n, tracker.fixes_rejected, diagnostics,
-                   float(rec.meta.get("app_to_sensor_offset_s", 0.0) or 0.0))
+                   float(rec.meta.get("app_to_sensor_offset_s", 0.0) or 0.0),
+                   {k: n for k, n in run.rejected.items() if n})
 
 
 def _columns(rows) -> dict[str, np.ndarray]:
