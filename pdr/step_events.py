@@ -63,7 +63,11 @@ class StepAssembler:
         return assemble_round([(self, hd, pressure, floor_at)])[0]
 
 
-def assemble_round(jobs: list[tuple[StepAssembler, StepHeadings, np.ndarray, Callable[[float], int]]]) -> list[list[StepEvent]]:
+# a member's job for assemble_round: its assembler, headings, pressure rows (t, height) and floor_at
+AssemblyJob = tuple[StepAssembler, StepHeadings, np.ndarray, Callable[[float], int]]
+
+
+def assemble_round(jobs: list[AssemblyJob]) -> list[list[StepEvent]]:
     """:meth:`StepAssembler.assemble` of many responders at once (a columnar round's): each
     job is ``(assembler, headings, pressure, floor_at)``. The lengths, heights and height
     changes of every job's steps are computed in one pass over their concatenated columns:
