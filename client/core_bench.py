@@ -5,11 +5,13 @@ N simulated walkers (the bench's crew: seed 0, starts spread over 5 s) walk SECO
 frames, encoded as on the wire, are fed to :class:`service.core.incident_core.IncidentCore`
 in rounds of ROUND frames, with a tick per second of data, and every answer is encoded as the
 shell would. After the first quarter (responders made, detectors designed) the process's CPU
-time is counted. Prints JSON: ``cpu_us_per_frame`` (and wall), poses and steps. Compare two
+time is counted. Prints JSON: ``cpu_us_per_frame`` (and wall), poses, steps and
+``answers_sha256`` (every answer's key and bytes, in order: a change meant to be bit-equal keeps it). Compare two
 commits by alternating runs of the same command (A, B, A, B).
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import sys
 import time
@@ -17,7 +19,8 @@ import time
 import numpy as np
 
 
-def core_bench(n: int = 250, seconds: float = 12.0, round_frames: int = 50) -> dict:
+def core_bench(n: int = 250, seconds: float = 12.0, round_frames: int = 50, profiler=None) -> dict:
+    """Run the measure; ``profiler`` (a ``cProfile.Profile``, optional) is enabled for the timed part only."""
     from pdr.simulation import WalkerFleet, WalkerSettings
     from service.core.incident_core import Inbound, IncidentCore
     from service.core.warmup import warm_up
@@ -47,22 +50,28 @@ def core_bench(n: int = 250, seconds: float = 12.0, round_frames: int = 50) -> d
     core.feed_round(doors)
     poses, next_tick, timed_from = 0, 1001.0, len(stream) // 4
     cpu0 = wall0 = poses0 = None
+    digest = hashlib.sha256()  # every answer's key and bytes, in order: two commits that agree give the same
     for j in range(0, len(stream), round_frames):
         if j >= timed_from and cpu0 is None:
             cpu0, wall0, poses0 = time.process_time(), time.perf_counter(), poses
+            if profiler is not None:
+                profiler.enable()
         now = 1000.0 + j / (10.0 * n)
         out = core.feed_round([Inbound("imu", k, p, now) for k, p in stream[j:j + round_frames]])
         if now >= next_tick:
             out += core.tick(now)
             next_tick += 1.0
         for o in out:
-            wire.encode(o.message)
+            digest.update(o.key.encode())
+            digest.update(wire.encode(o.message))
             poses += isinstance(o.message, wire.Pose)
+    if profiler is not None:
+        profiler.disable()
     timed = len(stream) - timed_from
     return {"responders": n, "seconds": seconds, "round_frames": round_frames, "frames_timed": timed,
             "cpu_us_per_frame": round(1e6 * (time.process_time() - cpu0) / timed, 1),
             "wall_us_per_frame": round(1e6 * (time.perf_counter() - wall0) / timed, 1),
-            "poses_timed": poses - poses0, "errors": core.counters.errors,
+            "poses_timed": poses - poses0, "errors": core.counters.errors, "answers_sha256": digest.hexdigest()[:16],
             "steps": sum(r.tracker.steps for r in core.responders.values())}
 
 

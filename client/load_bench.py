@@ -59,7 +59,8 @@ from service.shell.workers import WorkerPool
 
 
 def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float, seed: int, out: str,
-               ready, go, start_spread_s: float, tls_dir: str | None = None, foot: float = 0.0) -> None:  # pragma: no cover - child
+               ready, go, start_spread_s: float, tls_dir: str | None = None, foot: float = 0.0,
+               drill: bool = False) -> None:  # pragma: no cover - child
 
     from client.simulate import SimulationPublisher
     from service.protocol.session import open_client
@@ -68,7 +69,8 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
     session = open_client(endpoint, tls=TlsIdentity.load(tls_dir) if tls_dir else None)
     # each wearable keeps what a real one keeps (KEEP_FRAMES, 5 min) for the service's requests (Status.missing): a
     # view of the precomputed table (client.simulate.PrecomputedKeep, no copy); zenoh's keep stays SIM_KEEP_FRAMES
-    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s, foot=foot)
+    pub = SimulationPublisher(session, incident, n, rate, seed, truth=False, start_spread_s=start_spread_s, foot=foot,
+                              drill=drill)
     frames = int(seconds * 10) + 20
     send_t = np.full((n, frames), np.nan)
 
@@ -107,6 +109,7 @@ def _wait_publisher(child, svc, seconds: float) -> None:
         raise RuntimeError(f"the publisher process failed (exit code {child.exitcode})")
 
 
+DRILL_CONFIRM_S = 3.0  # s: four steps at 1.8 Hz and the ramp up to speed
 EVEN_MIN_SPAN_S = 5.0  # s of poses a responder needs in the window to have rates
 
 
@@ -140,6 +143,17 @@ def _even(poses, names, lo: float, hi: float, workers: int) -> dict:
         out[name] = {"min": round(float(xs.min()), 3), "median": round(mid, 3), "max": round(float(xs.max()), 3),
                      "spread": round(float(np.abs(xs - mid).max() / mid), 3) if mid > 0 else None}
     return out
+
+
+def _even_from(drill: bool, start_spread_s: float) -> float:
+    """s after the start from which ``tracked_evenly`` counts: after the first 3 s; for a drill
+    crew, once the last wearer has waited (``start_spread_s``), stood (``initial_still_s``) and
+    taken the four steps that confirm a walk (:data:`DRILL_CONFIRM_S`), so each is walking throughout."""
+    if not drill:
+        return WARMUP_FRAMES / 10.0
+    from pdr.simulation import WalkerSettings
+
+    return max(WARMUP_FRAMES / 10.0, start_spread_s + WalkerSettings().initial_still_s + DRILL_CONFIRM_S)
 
 
 def _p99(ms: np.ndarray) -> float | None:
@@ -221,7 +235,7 @@ def _bench_pki(directory: Path, incident: str):
 
 def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
                   profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2,
-                  start_spread_s: float = 5.0, tls: bool = False, foot: float = 0.0) -> dict:
+                  start_spread_s: float = 5.0, tls: bool = False, foot: float = 0.0, drill: bool = False) -> dict:
 
     from service.protocol.incident import default_incident
     from service.protocol.session import open_session
@@ -265,7 +279,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         ready, go = ctx.Event(), ctx.Event()
         out = str(Path(stats_dir) / "sent.npz")
         child = ctx.Process(target=_publisher, args=(endpoint, cfg.id, responders, seconds, rate, seed, out, ready, go,
-                                                     start_spread_s, str(sim_id.dir) if tls else None, foot))
+                                                     start_spread_s, str(sim_id.dir) if tls else None, foot, drill))
         child.start()
         done.callback(lambda: child.kill() if child.is_alive() else None)
         # the publisher simulates and encodes every frame before the clock starts: on a busy machine
@@ -329,6 +343,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "rate_hz": rate,
         "seconds": seconds,
         "start_spread_s": start_spread_s,
+        "drill": drill,
         "samples_per_s": samples / wall,
         "realtime_factor": min(capacity) if capacity else None,
         "latency_p50_ms": float(np.percentile(lat, 50)) if lat.size else None,
@@ -351,7 +366,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "behind_max_s": max([svc.behind_max_s] + [s.get("behind_max_s", 0.0) for s in others]),  # service.core.lag
         "publishing_s": round(end_wall - go_wall, 1),  # longer than seconds: the service pushed back
         # per responder while the wearables published (after the first 3 s): poses/s and frames/s its track advanced
-        "tracked_evenly": _even(poses, list(index), go_wall + WARMUP_FRAMES / 10.0, end_wall, workers),
+        "tracked_evenly": _even(poses, list(index), go_wall + _even_from(drill, start_spread_s), end_wall, workers),
         "publisher_cpu_s": publisher_cpu,
         "load_average": [round(x, 2) for x in os.getloadavg()],  # 1, 5, 15 min at the end: a shared machine's load
         "rss_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -386,6 +401,8 @@ def bench_service_command(
                                        help="s over which the wearers start walking (0: all in the same instant)"),
     tls: bool = typer.Option(False, "--tls", help="mutual TLS on every link and the roster's access control on the "
                                                   "router (a CA made for the run)"),
+    drill: bool = typer.Option(False, "--drill", help="a drill crew: every wearer keeps walking at one cadence "
+                                                      "(no pauses or stairs), so tracked_evenly's pose rates compare"),
     foot: float = typer.Option(0.0, "--foot", min=0.0, max=1.0,
                                help="share of wearers with a boot-mounted IMU (ZUPT-aided INS), 0..1; the rest handheld"),
 ):
@@ -394,7 +411,7 @@ def bench_service_command(
         return
     try:
         result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m),
-                               workers=workers, start_spread_s=start_spread, tls=tls, foot=foot)
+                               workers=workers, start_spread_s=start_spread, tls=tls, foot=foot, drill=drill)
     except RuntimeError as e:  # a process that did not start or failed: one line, not a traceback
         err.print(f"[bold red]error:[/] {e}", highlight=False)
         raise typer.Exit(1) from None

@@ -9,6 +9,7 @@ point: the door it came in by.
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -107,17 +108,24 @@ class PrecomputedKeep(Mapping):
         return len(self._window())
 
 
+# WalkerSettings of a drill crew: every wearer keeps walking at one cadence (no pauses, no stairs, corners walked
+# through), so each takes the same steps per second and any spread of the service's pose rates is the service's
+DRILL_CREW = {"pause_probability": 0.0, "cadence_jitter": 0.0, "cadence_leg_jitter": 0.0, "stairs_probability": 0.0,
+              "max_walking_turn_rad": math.pi}
+
+
 class SimulationPublisher:
     """N simulated wearables on one zenoh session, advanced one frame at a time."""
 
     def __init__(self, session: zenoh.Session, incident_id: str, n: int, rate_hz: float = 100.0, seed: int = 0,
                  bounds=None, floors=(0, 0), prefix: str = "sim", truth: bool = True, start_t: float = 1000.0,
-                 start_spread_s: float = 0.0, foot: float = 0.0, keep_frames: int = SIM_KEEP_FRAMES):
+                 start_spread_s: float = 0.0, foot: float = 0.0, keep_frames: int = SIM_KEEP_FRAMES,
+                 drill: bool = False):
         self.session = session
         self.incident_id = incident_id
         self.rate_hz = rate_hz
         self.names = [f"{prefix}-{i:03d}" for i in range(n)]
-        settings = WalkerSettings(rate_hz=rate_hz)
+        settings = WalkerSettings(rate_hz=rate_hz, **(DRILL_CREW if drill else {}))
         kw = {} if bounds is None else {"bounds": bounds}
         self.fleet = WalkerFleet(n, settings, seed, responders=self.names, floors=floors, start_t=start_t,
                                  attitude=False, **kw)

@@ -41,7 +41,7 @@ from pdr.frames import ImuFrame
 from pdr.heading import HeadingEstimator
 from pdr.height import ALTIMETER_START, reanchor, relative_height
 from pdr.pipeline_settings import PipelineSettings
-from pdr.step_events import FloorEvents, StepAssembler
+from pdr.step_events import FloorEvents, StepAssembler, assemble_round
 from pdr.steps import make_detector
 from pdr.steps.base import TAIL_MARGIN_S
 from pdr.windows import norm3
@@ -333,11 +333,13 @@ class PdrFleet:
         new_off = np.zeros(J + 1, np.int64)
         if n_det:
             new_off[1:] = np.cumsum(np.bincount(det_slot[:n_det], minlength=J))
+            jobs = []  # each member's headings first, then every member's steps assembled at once
             for j in np.unique(det_slot[:n_det]):
                 k, m = imu[j][0], imu[j][1]
                 rows = det_out[new_off[j]:new_off[j + 1]]
-                found = [StepDetection(*map(float, row)) for row in rows]
-                steps[k] = self._steps(m, found, R.mot[m.slot, K.M_TLAST] - s.floor_event_hold_s)
+                jobs.append((k, m, self._headed(m, [StepDetection(*map(float, row)) for row in rows])))
+            for (k, m, _), ev in zip(jobs, assemble_round([job for _, _, job in jobs])):
+                steps[k] = self._release(m, ev, R.mot[m.slot, K.M_TLAST] - s.floor_event_hold_s)
         grid, delay = s.state_grid_s, s.state_delay_s
         k_hi = np.floor((R.mot[slots, K.M_TLAST] - delay + 1e-9 - R.mot[slots, K.M_T0]) / grid)
         mo = np.empty((int(np.maximum(k_hi - R.mot[slots, K.M_GRID_K] + 1, 0).sum()) + 1, 3))
@@ -364,11 +366,15 @@ class PdrFleet:
 
     def _steps(self, m: FleetMember, found: list[StepDetection], horizon: float) -> list:
         """Detected steps -> their headings, lengths, dz, floors and the floor events around them."""
+        return self._release(m, assemble_round([self._headed(m, found)])[0], horizon)
+
+    def _headed(self, m: FleetMember, found: list[StepDetection]) -> tuple:
+        """Detected steps -> their headings; the member's job for :func:`pdr.step_events.assemble_round`."""
         R = self.rows
         m.heading.prune_history(float(R.t_first[m.slot]))
         hd = m.heading.answer_steps(get_rows(R.hbufs, m.slot), [d.t for d in found])
         m.assembler.detected(found)
-        return self._release(m, m.assembler.assemble(hd, get_rows(R.pres, m.slot), m.floor_tracker.floor_at), horizon)
+        return m.assembler, hd, get_rows(R.pres, m.slot), m.floor_tracker.floor_at
 
     def _release(self, m: FleetMember, steps: list, horizon: float) -> list:
         out = m.floor_events.release(steps, horizon)

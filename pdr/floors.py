@@ -412,18 +412,35 @@ class StairsDetector:
         self._tail = np.empty(0)  # the last window_steps - 1 step dz (fewer at the start)
 
     def _window_mean(self, dz: np.ndarray) -> np.ndarray:
-        """Mean of ``dz`` over each step's window, with the steps kept from earlier batches."""
+        """Mean of ``dz`` over each step's window, with the steps kept from earlier batches.
+
+        Each window is summed left to right from 0.0 in Python floats (IEEE doubles, as numpy
+        sums fewer than 8 numbers): a step or two at a time, the numpy calls cost more than the sums."""
         w = self.settings.window_steps
-        known = np.concatenate([self._tail, dz])
-        padded = np.concatenate([np.zeros(w - 1 - self._tail.size), known])  # zeros add nothing
-        sums = np.lib.stride_tricks.sliding_window_view(padded, w).sum(axis=1)
-        count = np.minimum(np.arange(dz.size) + 1 + self._tail.size, w)
-        self._tail = known[max(known.size - (w - 1), 0):] if w > 1 else np.empty(0)
-        return sums / count
+        if w >= 8:  # numpy sums 8 or more numbers pairwise
+            known = np.concatenate([self._tail, dz])
+            padded = np.concatenate([np.zeros(w - 1 - self._tail.size), known])
+            sums = np.lib.stride_tricks.sliding_window_view(padded, w).sum(axis=1)
+            count = np.minimum(np.arange(dz.size) + 1 + self._tail.size, w)
+            self._tail = known[max(known.size - (w - 1), 0):]
+            return sums / count
+        tail = self._tail.tolist()
+        known = tail + dz.tolist()
+        padded = [0.0] * (w - 1 - len(tail)) + known  # zeros add nothing
+        means = []
+        for i in range(dz.size):
+            acc = 0.0  # numpy's sum starts from its identity (so -0.0 + -0.0 is 0.0 there too)
+            for j in range(i, i + w):
+                acc += padded[j]
+            means.append(acc / min(i + 1 + len(tail), w))
+        self._tail = np.array(known[max(len(known) - (w - 1), 0):] if w > 1 else [], np.float64)
+        return np.array(means, np.float64)
 
     def update(self, dz) -> StairSteps:
         dz = np.asarray(dz, dtype=np.float64).reshape(-1)
         mean = self._window_mean(dz)
         on = np.abs(mean) >= self.settings.min_dz_per_step
-        length = np.where(on, stair_step_length(mean, self.settings), np.nan)
+        length = np.full(mean.shape, np.nan)
+        if on.any():  # each element alone: the same lengths as over the whole batch
+            length[on] = stair_step_length(mean[on], self.settings)
         return StairSteps(on, mean, length)

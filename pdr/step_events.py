@@ -60,34 +60,72 @@ class StepAssembler:
     def assemble(self, hd: StepHeadings, pressure: np.ndarray, floor_at: Callable[[float], int]) -> list[StepEvent]:
         """The first ``len(hd)`` detected steps with their headings ``hd``; ``pressure`` holds
         rows (t, height) of the recent pressure samples, ``floor_at`` the barometer's floor."""
-        n = len(hd)
-        if n == 0:
-            return []
-        s = self.settings
-        det, self._detected = self._detected[:n], self._detected[n:]
-        L = np.clip(step_lengths(step_arrays(det), s.profile), s.min_step_length_m, s.max_step_length_m)
-        h = _height_before(pressure, hd.t)
-        h_prev = np.concatenate(([self._last[1] if self._last else np.nan], h[:-1]))
-        known = np.isfinite(h) & np.isfinite(h_prev)
-        dz = np.where(known, h - h_prev, 0.0)
-        dz_sigma = np.where(known, s.dz_sigma_m, math.inf)
-        stairs = self._stairs.update(dz)
-        L = np.where(stairs.on_stairs, stairs.length, L)
-        sigma_L = s.length_sigma_m + s.length_sigma_frac * L
-        events = []
+        return assemble_round([(self, hd, pressure, floor_at)])[0]
+
+
+# a member's job for assemble_round: its assembler, headings, pressure rows (t, height) and floor_at
+AssemblyJob = tuple[StepAssembler, StepHeadings, np.ndarray, Callable[[float], int]]
+
+
+def assemble_round(jobs: list[AssemblyJob]) -> list[list[StepEvent]]:
+    """:meth:`StepAssembler.assemble` of many responders at once (a columnar round's): each
+    job is ``(assembler, headings, pressure, floor_at)``. The lengths, heights and height
+    changes of every job's steps are computed in one pass over their concatenated columns:
+    each is elementwise (the step-length models' regressors and :func:`pdr.fixed_order.row_dot`
+    included), so every step gets the same bits as alone. Only the stairs windows, which
+    carry each responder's previous steps, go one responder at a time."""
+    out: list[list[StepEvent]] = [[] for _ in jobs]
+    live = [(i, job) for i, job in enumerate(jobs) if len(job[1])]
+    if not live:
+        return out
+    ns = [len(hd) for _, (_, hd, _, _) in live]
+    dets = []
+    for (_, (a, hd, _, _)), n in zip(live, ns):
+        det, a._detected = a._detected[:n], a._detected[n:]
+        dets += det
+    L = np.empty(len(dets))
+    for s, rows in _rows_by_settings(live, ns):  # one pass per settings (a fleet's members share theirs)
+        L[rows] = np.clip(step_lengths(step_arrays([dets[r] for r in rows.tolist()]), s.profile),
+                          s.min_step_length_m, s.max_step_length_m)
+    h = np.concatenate([_height_before(pr, hd.t) for _, (_, hd, pr, _) in live])
+    firsts = np.array([a._last[1] if a._last else np.nan for _, (a, _, _, _) in live])
+    starts = np.cumsum([0] + ns[:-1])
+    h_prev = np.concatenate(([np.nan], h[:-1]))
+    h_prev[starts] = firsts  # each responder's first step follows its own previous one
+    known = np.isfinite(h) & np.isfinite(h_prev)
+    dz = np.where(known, h - h_prev, 0.0)
+    dsig = np.array([a.settings.dz_sigma_m for _, (a, _, _, _) in live]).repeat(ns)
+    dz_sigma = np.where(known, dsig, math.inf)
+    for (i, (a, hd, _, floor_at)), o, n in zip(live, starts.tolist(), ns):
+        s = a.settings
+        stairs = a._stairs.update(dz[o:o + n])
+        Lj = np.where(stairs.on_stairs, stairs.length, L[o:o + n])
+        sigma_L = s.length_sigma_m + s.length_sigma_frac * Lj
+        dzj, dsj = dz[o:o + n], dz_sigma[o:o + n]
+        events = out[i]
         for k in range(n):
-            self.count += 1
+            a.count += 1
             events.append(StepEvent(
-                t=float(hd.t[k]), index=self.count, length=float(L[k]), length_sigma=float(sigma_L[k]),
+                t=float(hd.t[k]), index=a.count, length=float(Lj[k]), length_sigma=float(sigma_L[k]),
                 heading=float(hd.heading[k]), heading_sigma=float(hd.heading_sigma[k]),
-                heading_change=float(hd.heading_change[k]) if self.count > 1 else 0.0,
+                heading_change=float(hd.heading_change[k]) if a.count > 1 else 0.0,
                 heading_change_sigma=float(hd.heading_change_sigma[k]),
-                dz=float(dz[k]), dz_sigma=float(dz_sigma[k]), floor=int(floor_at(float(hd.t[k]))),
+                dz=float(dzj[k]), dz_sigma=float(dsj[k]), floor=int(floor_at(float(hd.t[k]))),
                 on_stairs=bool(stairs.on_stairs[k]), mag_heading=float(hd.mag_heading[k]),
                 mag_heading_sigma=float(hd.mag_heading_sigma[k]),
             ))
-        self._last = (float(hd.t[-1]), float(h[-1]))
-        return events
+        a._last = (float(hd.t[-1]), float(h[o + n - 1]))
+    return out
+
+
+def _rows_by_settings(live, ns) -> list[tuple[PipelineSettings, np.ndarray]]:
+    """(settings, rows of their steps among the concatenated steps) of the jobs, in order."""
+    groups: dict[int, tuple[PipelineSettings, list[np.ndarray]]] = {}
+    o = 0
+    for (_, (a, _, _, _)), n in zip(live, ns):
+        groups.setdefault(id(a.settings), (a.settings, []))[1].append(np.arange(o, o + n))
+        o += n
+    return [(s, np.concatenate(rows)) for s, rows in groups.values()]
 
 
 def _height_before(pressure: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -134,4 +172,4 @@ class FloorEvents:
         return out
 
 
-__all__ = ["StepAssembler", "FloorEvents"]
+__all__ = ["StepAssembler", "FloorEvents", "assemble_round"]

@@ -303,3 +303,50 @@ def test_a_crowd_that_leaves_gives_its_rows_back_and_the_fleet_goes_on():
     for ref, mine in ((alone(walks[0][:400], floors, 0), got), (alone(walks[2][:250], floors, 0), late_got)):
         (sa, ma), (sb, mb) = by_kind(ref), by_kind(mine)
         assert len(sa) > 20 and same_events(sa, sb) and same_events(ma, mb)
+
+
+@pytest.mark.bitexact
+def test_steps_assembled_for_a_round_of_members_equal_each_member_alone():
+    """pdr.step_events.assemble_round over many members (heights, height changes, stairs,
+    lengths in one pass) gives each member the events it gets assembled alone, bit for bit,
+    with steps waiting for their headings, pressure rows or none, and climbs."""
+    import dataclasses
+
+    from pdr.events import StepDetection
+    from pdr.heading import StepHeadings
+    from pdr.step_events import StepAssembler, assemble_round
+
+    rng = np.random.default_rng(7)
+    members, rounds = 10, 150
+    together = [StepAssembler(PipelineSettings()) for _ in range(members)]
+    alone = [StepAssembler(PipelineSettings()) for _ in range(members)]
+    t, z = np.full(members, 1000.0), np.zeros(members)
+    names = [f.name for f in dataclasses.fields(StepDetection)]
+    stairs = 0
+    for _ in range(rounds):
+        jobs, want = [], []
+        for i in range(members):
+            if rng.random() < 0.4:
+                continue
+            n = int(rng.integers(1, 4))
+            found = []
+            for _ in range(n):
+                t[i] += rng.uniform(0.4, 0.7)
+                v = {"t": t[i], "t_start": t[i] - 0.5, "a_max": rng.uniform(1, 5), "a_min": rng.uniform(-4, 0),
+                     "a_mean": rng.normal(0, 0.3), "a_mean_abs": rng.uniform(0.5, 2)}
+                found.append(StepDetection(**{k: float(v.get(k, rng.normal())) for k in names}))
+            heads = StepHeadings(np.array([d.t for d in found]), *[rng.normal(0, 1, n) for _ in range(8)])
+            z[i] += rng.choice([0.0, 0.17, -0.17, 0.01]) * n  # a climb now and then: stairs
+            k = int(rng.integers(0, 4))
+            pres = (np.column_stack([np.sort(rng.uniform(t[i] - 3, t[i] + 0.2, k)), z[i] + rng.normal(0, 0.02, k)])
+                    if k else np.empty((0, 2)))
+            extra = [found[-1]] if rng.random() < 0.2 else []  # one more detected than headed: it waits for the next round
+            alone[i].detected(found + extra)
+            together[i].detected(found + extra)
+            want.append(alone[i].assemble(heads, pres, lambda _t: 0))
+            jobs.append((together[i], heads, pres, lambda _t: 0))
+        got = assemble_round(jobs)
+        for a, b in zip(want, got):
+            stairs += sum(e.on_stairs for e in a)
+            assert [repr(dataclasses.astuple(e)) for e in a] == [repr(dataclasses.astuple(e)) for e in b]
+    assert stairs > 0  # the stairs windows were exercised

@@ -68,3 +68,33 @@ def test_bench_decode_reports_both_paths_for_every_run():
     d = json.loads(r.stdout)
     assert len(d["fast_path_us_per_frame"]) == 2 and len(d["schema_path_us_per_frame"]) == 2
     assert all(x > 0 for x in d["fast_path_us_per_frame"] + d["schema_path_us_per_frame"])
+
+
+def test_a_drill_crew_steps_alike_where_a_mixed_crew_does_not():
+    """The bench's --drill crew (client.simulate.DRILL_CREW): every wearer takes the same steps
+    per second once walking, so tracked_evenly's pose rates measure the service; the default
+    crew's pauses and cadences spread them by more than 20 % over the same window."""
+    import numpy as np
+
+    from client.load_bench import _even_from
+    from client.simulate import DRILL_CREW
+    from pdr.simulation import WalkerFleet, WalkerSettings
+
+    n, spread, seconds = 24, 5.0, 24.0
+    lo = _even_from(True, spread)  # s after the start: every wearer walks from here on
+    assert lo == spread + WalkerSettings().initial_still_s + 3.0 and _even_from(False, spread) == 3.0
+    spreads = {}
+    for name, kw in (("drill", DRILL_CREW), ("mixed", {})):
+        fleet = WalkerFleet(n, WalkerSettings(rate_hz=100.0, **kw), 0, floors=(0, 0), start_t=1000.0, attitude=False)
+        for i, w in enumerate(np.random.default_rng([0, 0x5747]).uniform(0.0, spread, n)):
+            fleet.stand_still(i, float(w), at=1000.0)  # as the bench's publisher starts its crew
+        at_lo, at_end = np.zeros(n), np.zeros(n)
+        for _ in range(int(seconds * 10)):
+            for i, b in enumerate(fleet.next_batches(10)):
+                if b.t[-1] - 1000.0 <= lo:
+                    at_lo[i] = b.step_count[-1]
+                at_end[i] = b.step_count[-1]
+        rate = (at_end - at_lo) / (seconds - lo)
+        spreads[name] = float(np.abs(rate - np.median(rate)).max() / np.median(rate))
+    assert spreads["drill"] <= 0.1, spreads  # whole steps in a 14 s window: one step is 4 %
+    assert spreads["mixed"] > 0.2, spreads

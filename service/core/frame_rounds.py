@@ -153,7 +153,7 @@ class FrameRounds:
     def _next_batches(r: Responder) -> list:
         """The frames a responder's tracker takes next as one batch: all it has, or one while a
         checkpoint fix waits for its step (``ResponderTracker.fix_waiting``)."""
-        if r.tracker.fix_waiting and len(r.backlog) > 1:
+        if len(r.backlog) > 1 and r.tracker.fix_waiting:  # the cheap test first: most rounds give one frame
             batches, r.backlog = r.backlog[:1], r.backlog[1:]
         else:
             batches, r.backlog = r.backlog, []
