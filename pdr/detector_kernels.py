@@ -16,7 +16,8 @@ from numba import njit
 _PW_BLOCK = 128  # numpy's PW_BLOCKSIZE
 # detector state columns (float64 row per slot)
 D_RATE, D_ZI_SET, D_NEXT, D_LAST_STEP, D_PEAK_ON, D_PEAK_T, D_PEAK_Y, D_LAST_PEAK, D_NSWING, D_BOUT, D_NBOUT = range(11)
-D_STATE = 11
+D_G0, D_GM, D_TP, D_AP = range(11, 15)  # the uniform clock (pdr.steps.uniform): origin, next index, last sample
+D_STATE = 15
 MAX_SWINGS = 64  # ring of recent swings (the reference keeps reference_steps of them)
 
 
@@ -134,6 +135,46 @@ def detector_buffer(slots, off, T, A, det, raws, rate_window):  # pragma: no cov
 
 
 @njit(cache=True)
+def onto_grid(t, a, det, r, max_gap):  # pragma: no cover - compiled
+    """:class:`pdr.steps.uniform.UniformClock` for responder ``r`` (its state in ``det``), bit for
+    bit: samples ``t``, ``a`` -> the grid points they complete."""
+    rate = det[r, D_RATE]
+    n = t.shape[0]
+    tp, ap, g0, m = det[r, D_TP], det[r, D_AP], det[r, D_G0], det[r, D_GM]
+    span = 0.0
+    if n > 0:
+        span = t[n - 1] - (t[0] if math.isnan(tp) else min(tp, t[0]))
+    cap = n + 2 + int(max(span, 0.0) * rate)
+    go = np.empty(cap)
+    ao = np.empty(cap)
+    k = 0
+    for i in range(n):
+        ti, ai = t[i], a[i]
+        if math.isnan(tp) or (ti > tp and ti - tp > max_gap):  # the first sample, or a gap: (re)start
+            g0, m, tp, ap = ti, 1.0, ti, ai
+            go[k], ao[k] = ti, ai
+            k += 1
+            continue
+        if not ti > tp:
+            continue
+        while True:
+            g = g0 + m / rate
+            if g > ti:
+                break
+            if k == cap:  # (the bound above holds; grow rather than trust it)
+                go = np.concatenate((go, np.empty(cap)))
+                ao = np.concatenate((ao, np.empty(cap)))
+                cap *= 2
+            go[k] = g
+            ao[k] = ai if g == ti else ap + (ai - ap) * ((g - tp) / (ti - tp))
+            k += 1
+            m += 1.0
+        tp, ap = ti, ai
+    det[r, D_TP], det[r, D_AP], det[r, D_G0], det[r, D_GM] = tp, ap, g0, m
+    return go[:k].copy(), ao[:k].copy()
+
+
+@njit(cache=True)
 def detector_stage(slots, off, T, A, use_raw, det, sos, zi, zi_unit, raws, tails, swings, bouts, cfg,
                    out, out_slot):  # pragma: no cover - compiled
     """Band-pass and the norm detector's scan (:class:`pdr.steps.norm.NormDetector`) for
@@ -142,6 +183,7 @@ def detector_stage(slots, off, T, A, use_raw, det, sos, zi, zi_unit, raws, tails
     their responder in ``out_slot``; returns how many."""
     floor, relative, ref_steps, ref_window = cfg[0], cfg[1], int(cfg[2]), cfg[3]
     min_interval, bout_gap, min_bout, max_step, margin = cfg[4], cfg[5], int(cfg[6]), cfg[7], cfg[8]
+    max_gap = cfg[9]
     n_out = 0
     for j in range(slots.shape[0]):
         r = slots[j]
@@ -165,6 +207,7 @@ def detector_stage(slots, off, T, A, use_raw, det, sos, zi, zi_unit, raws, tails
                 if T[i] - T[i] == 0.0 and A[i] - A[i] == 0.0:
                     t[k], a[k] = T[i], A[i]
                     k += 1
+        t, a = onto_grid(t, a, det, r, max_gap)
         n = t.shape[0]
         if n == 0:
             continue

@@ -148,7 +148,8 @@ class PdrFleet:
         self._detector = d = make_detector(s.detector, dict(s.detector_params))
         ds = d.settings
         self._det_cfg = np.array([ds.floor, ds.relative, ds.reference_steps, ds.reference_window_s,
-                                  ds.min_interval_s, ds.bout_gap_s, ds.min_bout_steps, ds.max_step_s, TAIL_MARGIN_S])
+                                  ds.min_interval_s, ds.bout_gap_s, ds.min_bout_steps, ds.max_step_s, TAIL_MARGIN_S,
+                                  ds.max_gap_s])
         if ds.reference_steps > DK.MAX_SWINGS:
             raise ValueError(f"reference_steps above {DK.MAX_SWINGS} is not supported")
         self._bout_n = max(int(ds.min_bout_steps), 1)
@@ -188,6 +189,7 @@ class PdrFleet:
         R.bias[slot] = m.heading.bias
         R.det[slot, [DK.D_ZI_SET, DK.D_NEXT, DK.D_PEAK_ON, DK.D_NSWING, DK.D_BOUT, DK.D_NBOUT]] = [0, 1, 0, 0, 0, 0]
         R.det[slot, [DK.D_LAST_STEP, DK.D_LAST_PEAK]] = -np.inf
+        R.det[slot, [DK.D_G0, DK.D_GM, DK.D_TP, DK.D_AP]] = [np.nan, 0, np.nan, np.nan]
         R.mot[slot, [K.M_LAST_MOVING, K.M_GRID_K, K.M_STATE, K.M_TLAST, K.M_JUDGED]] = [-np.inf, 1, K.STILL, -np.inf,
                                                                                       -np.inf]
         R.alt[slot] = ALTIMETER_START

@@ -14,7 +14,8 @@ Per frame:
    AHRS, compass offset filter). Its levelling quaternions also rotate the acceleration for
    the vertical detectors, so only one AHRS runs per responder.
 3. **Steps** — the ``norm`` detector of :mod:`pdr.steps` (any carry position) on
-   ``‖f‖ − g``; the detected steps go back to the heading estimator, which answers each
+   ``‖f‖ − g``, put on an even clock first (:mod:`pdr.steps.uniform`: a browser reads the
+   sensors at uneven ticks); the detected steps go back to the heading estimator, which answers each
    with its heading once samples up to the step have arrived.
 4. **Step length** — :func:`pdr.step_length.step_lengths` with the responder's profile
    (the linear step-frequency model ``L = a + b·f`` by default, seed 002 §2.8); on stairs

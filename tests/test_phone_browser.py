@@ -163,8 +163,8 @@ STRETCH_S = (50.0, 162.0)  # s after the walk's first sample: landmarks 0 (the s
 LEAD_IN_S = 15.0  # s of the walk played before the stretch (not scored): the live pipeline warms up
 # How far the tracked walk may be from the file's: the 2 % and 0.5 m. The walk is one
 # whose tracking a browser's way of sampling does not move by itself (tests/test_phone_walk_choice.py:
-# the file resampled at 58 Hz with the browser's jitter, rounding, held gyroscope and 10 Hz
-# magnetometer gives this stretch's p75 within 0.25 m of the file's). On TrainingTrial01_repetition01,
+# the file read at the ticks of an uneven 58 Hz timer, as Chromium reads it, rounded, with a 10 Hz
+# magnetometer, gives this stretch's p75 within 0.25 m of the file's and its steps within one). On TrainingTrial01_repetition01,
 # the walk this test played before, the same resampling loses 2 of 88 steps in a third of the draws
 # and the p75 over its 6 landmarks jumps by 1 m: the PDR's step detector, not the page.
 STEP_TOLERANCE = 0.02

@@ -68,16 +68,16 @@ def resampled(rate_hz: float):
 
 def browser(rate_hz: float = 60.0, quantized: bool = False):
     def apply(rec: Recording, seed) -> Recording:
-        grid = P.uniform_grid(*_t0_t1(rec), rate_hz)
-        motion = P.browser_stamps(grid, [*seed, 1])  # acc and gyro arrive together (one devicemotion event)
+        # acc and gyro are read together at each tick of the page's uneven timer (one devicemotion event)
+        ticks = P.timer_ticks(*_t0_t1(rec), rate_hz, [*seed, 1])
         steps = {"acc": 0.1, "gyr": 0.1 * DEG, "mag": None}
 
         def one(name, s):
             if name == "mag":
                 t, v = P.resample(s.t, s.values, rate_hz)
                 return P.browser_stamps(t, [*seed, 2]), v
-            _, v = P.resample(s.t, s.values, rate_hz, grid)
-            return motion, (P.quantize(v, steps[name]) if quantized else v)
+            _, v = P.resample(s.t, s.values, rate_hz, ticks)
+            return ticks, (P.quantize(v, steps[name]) if quantized else v)
         return _each(rec, one, names=("acc", "gyr", "mag"))
     return apply
 
@@ -158,7 +158,8 @@ PERTURBATIONS: dict[str, Perturbation] = {p.name: p for p in [
     Perturbation("rate60", "resampled to 60 Hz (anti-aliased)", resampled(60.0)),
     Perturbation("rate100", "resampled to 100 Hz", resampled(100.0)),
     Perturbation("rate200", "resampled to 200 Hz", resampled(200.0)),
-    Perturbation("browser60", "60 Hz, browser timestamps: ~3 ms jitter, 0.2/s late by 20-100 ms", browser(60.0)),
+    Perturbation("browser60", "60 Hz read at a browser timer's uneven ticks (intervals sd ~4-6 ms; 0.2/s held back "
+                 "20-100 ms)", browser(60.0)),
     Perturbation("browser60q", "browser60 and readings quantised to 0.1 m/s², 0.1 °/s", browser(60.0, quantized=True)),
     Perturbation("grip_x", "mid-walk, phone turned 90° about its x axis (screen tilted up/down) in 0.5 s",
                  turned_in_hand(X)),

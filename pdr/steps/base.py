@@ -16,8 +16,10 @@ Memory is bounded: only the last ``max_step_s + 0.5`` s of the filtered signal a
 (enough for the statistics of a step, which spans at most ``max_step_s``). Filtering and
 the search for extrema are vectorised over each batch; the Python loop runs only over the
 extrema found (a few per second), where each decision depends on the previous step.
-Non-finite samples are dropped (a NaN would poison the filter state); a gap in the stream
-is filtered as if the samples were contiguous.
+Non-finite samples are dropped (a NaN would poison the filter state). Before the filter the
+samples are put on a uniform clock at the estimated rate (:mod:`pdr.steps.uniform`: a
+browser's sensor events come at irregular times, and a filter assumes even spacing); a gap
+in the stream (over ``max_gap_s``) is filtered as if the samples were contiguous.
 
 The live path is causal. :meth:`StepDetector.detect` with ``zero_phase=True`` runs the
 same logic on a forward-backward filtered recording, for offline analysis only (the
@@ -35,6 +37,7 @@ from pdr.events import StepDetection
 from pdr.settings import settings_with  # noqa: F401  (re-exported)
 from pdr.steps.signals import estimate_rate
 from pdr.steps.sosfilter import sos_filter
+from pdr.steps.uniform import UniformClock
 
 TAIL_MARGIN_S = 0.5  # s kept beyond the longest step, for the extremum and crossing tests
 
@@ -46,6 +49,7 @@ class DetectorSettings:
     rate_hz: float = 0.0  # Hz; 0 = estimate it from the first rate_window_s of timestamps
     rate_window_s: float = 2.0  # s of samples the rate is estimated from
     max_step_s: float = 1.0  # s; the longest step (1 Hz, the slowest walking cadence)
+    max_gap_s: float = 0.2  # s; samples further apart are a gap (the uniform clock restarts), not jitter
 
 
 class StepDetector:
@@ -67,6 +71,7 @@ class StepDetector:
         self._next = 1  # first tail index not yet examined as an extremum
         self._last_step_t = -np.inf
         self._fed = False
+        self._clock: UniformClock | None = None
         if self.settings.rate_hz > 0:
             self._start(self.settings.rate_hz)
 
@@ -126,7 +131,8 @@ class StepDetector:
         t = np.asarray(t, dtype=float).reshape(-1)
         if self.rate_hz is None:
             self._start(estimate_rate(t))
-        y = signal.sosfiltfilt(self._sos, np.asarray(a, dtype=float).reshape(-1))
+        t, a = self._clock.push(t, np.asarray(a, dtype=float).reshape(-1))
+        y = signal.sosfiltfilt(self._sos, a)
         self._bypass = True
         return self.update(t, y) + self.finish()
 
@@ -139,6 +145,7 @@ class StepDetector:
     def _start(self, fs: float) -> None:
         self.rate_hz = float(fs)
         self._sos = self.filter_sections(self.rate_hz)
+        self._clock = UniformClock(self.rate_hz, self.settings.max_gap_s)
 
     def _process(self, t: np.ndarray, a: np.ndarray) -> list[StepDetection]:
         if t.size == 0:
@@ -146,6 +153,9 @@ class StepDetector:
         if self._bypass:
             y = a
         else:
+            t, a = self._clock.push(t, a)
+            if t.size == 0:
+                return []
             if self._zi is None:  # steady state for the first sample: no start-up transient
                 self._zi = np.ascontiguousarray(signal.sosfilt_zi(self._sos) * a[0])
             y = sos_filter(self._sos, a, self._zi)
