@@ -22,6 +22,17 @@ from __future__ import annotations
 import math
 
 
+def held(nu: float, P: float, odd: bool, s) -> bool:
+    """Whether the heading filter holds a compass offset ``nu`` (rad) from its δ of variance ``P``
+    (settings ``s``: :class:`pdr.heading_settings.HeadingSettings`): when the field is ``odd``
+    (strength off the reference by more than ``hold_norm``) and ``|ν| > max(hold_angle,
+    hold_sigmas · √P)``. Such an offset is a change the gyro did not see, in a field that is not
+    the building's usual one: steel, which bends the field while it still agrees with itself.
+    It waits in the filter's rejected run until that run has proved itself. A disagreement in a
+    field of the usual strength is not held (a δ that is wrong: the compass corrects it)."""
+    return odd and abs(nu) > max(s.hold_angle, s.hold_sigmas * math.sqrt(P))
+
+
 class OffsetStreak:
     """``add(t_end, dm, psi) -> bool`` (True: the run, with this epoch, has proved itself);
     ``mean`` its circular mean δ_m; ``clear()`` forgets it."""

@@ -115,7 +115,7 @@ import numpy as np
 
 from pdr.ahrs import make_filter
 from pdr.angles import wrap  # noqa: F401  (re-exported)
-from pdr.compass_streak import OffsetStreak
+from pdr.compass_streak import OffsetStreak, held
 from pdr.grip import GripTracker
 from pdr.heading_settings import HeadingSettings  # noqa: F401  (re-exported)
 from pdr.fixed_order import row_dot
@@ -374,16 +374,9 @@ class HeadingEstimator:
             self._hist.append((t_end, self._delta, self._P))
 
     def _accepts(self, nu: float, sig: float, odd: bool = False) -> bool:
-        """The innovation gate ``ν² ≤ n_σ² (P + σ_m²)``, and the hold: an epoch of an ``odd`` field
-        (strength off the reference by more than ``hold_norm``) whose offset lies farther from δ
-        than δ's own uncertainty allows (``|ν| > max(hold_angle, hold_sigmas · √P)``) is a change
-        the gyro did not see in a field that is not the building's usual one: steel, which bends
-        the field while it still agrees with itself. It waits in the rejected run until that run
-        has proved itself (:meth:`_gate`). A disagreement in a field of the usual strength is
-        not held (a δ that is wrong: the compass corrects it as before)."""
+        """The innovation gate ``ν² ≤ n_σ² (P + σ_m²)``, unless :func:`pdr.compass_streak.held`."""
         s = self.settings
-        held = odd and abs(nu) > max(s.hold_angle, s.hold_sigmas * math.sqrt(self._P))
-        return not held and nu * nu <= s.gate_sigmas**2 * (self._P + sig**2)
+        return not held(nu, self._P, odd, s) and nu * nu <= s.gate_sigmas**2 * (self._P + sig**2)
 
     def _gate(self, t_end, psi_end, dm, passes: bool) -> bool:
         """The gate must not lock the compass out for good: a run of turned-away epochs that agree
@@ -477,10 +470,11 @@ class HeadingEstimator:
                 ddo = dd[okd]
                 c, sn = np.cos(ddo).mean(), np.sin(ddo).mean()
                 spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
-                sig_m = float(self._measurement_sigma(
-                    np.array([spread]), np.array([buf[i0:i1, 3][okd].mean()]), np.array([buf[i0:i1, 4][okd].mean()]),
-                    np.array([tk]),
-                )[0])
+                nrm_k = np.array([buf[i0:i1, 3][okd].mean()])
+                sig_m = float(self._measurement_sigma(np.array([spread]), nrm_k, np.array([buf[i0:i1, 4][okd].mean()]),
+                                                      np.array([tk]))[0])
+                if held(float(wrap(math.atan2(sn, c) - delta)), P, bool(self._odd_field(nrm_k, np.array([tk]))[0]), s):
+                    sig_m = math.inf  # the filter would hold this compass (_accepts): so must the fusion
                 magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if np.isfinite(sig_m) else math.nan
             else:
                 sig_m, magh = math.inf, math.nan
