@@ -54,14 +54,18 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
        gate      reject when ν² > n_σ² S
        update    K = P / S,  δ ← δ + K ν,  P ← (1 − K) P
 
-   The filter starts from the first epoch's compass offset (only the initial position is
-   given, so the initial heading is the compass's) with ``P = σ_init²``.
+   The filter starts (only the initial position is given, so the initial heading is the
+   compass's) from a run of epochs that agree with each other for ``start_confirm_s`` or across
+   a gyro turn (:mod:`pdr.compass_streak`), with ``P = σ_init²``; steps before take the run's mean
+   with P = π². Steel held near the phone gives a δ_m that is steady while the walker goes
+   straight but not across a turn. Later, an offset far from δ in a field whose strength is off
+   the reference is *held* (:func:`pdr.compass_streak.held`), for the filter and the step's compass.
 
    **The gate does not lock out.** Once δ is wrong by more than the gate (a gyro drift while
    the field was rejected, a device frame that moved), every later epoch would be gated out
    until ``P`` had grown past the error. So a streak of gated-out epochs that agree among
    themselves (circular spread of their δ_m below ``gate_recover_spread``) for
-   ``gate_recover_s`` seconds reopens the filter: δ restarts from the streak's circular mean,
+   ``gate_recover_s`` seconds, or across a turn of ``confirm_turn``, reopens the filter: δ restarts from the streak's circular mean,
    ``P ← max(P, σ_init²)``, and the epoch is gated again (raising ``P`` alone cannot accept an
    error beyond the gate, about 127°). A disturbed field does not agree with itself for that long while the walker
    moves; a wrong δ does.

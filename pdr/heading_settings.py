@@ -57,7 +57,7 @@ class HeadingSettings:
     start_confirm_s: float = 4.0  # s, the first δ: a run this long without a turn also proves itself
     # hold: an epoch whose |B| is off the reference by more than hold_norm and whose offset lies
     # farther from δ than max(hold_angle, hold_sigmas · √P) waits in the rejected run
-    hold_norm: float = 10.0  # µT
+    hold_norm: float = 15.0  # µT (route 02 starts in a 24 µT field and walks on in 35-40 µT: 10 µT held its real compass)
     hold_angle: float = math.radians(35.0)  # rad
     hold_sigmas: float = 3.0
     gap_turn_rate: float = 1.0  # rad/s, δ's variance grows by (rate · gap)² over a gap in the samples
