@@ -54,14 +54,18 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
        gate      reject when ν² > n_σ² S
        update    K = P / S,  δ ← δ + K ν,  P ← (1 − K) P
 
-   The filter starts from the first epoch's compass offset (only the initial position is
-   given, so the initial heading is the compass's) with ``P = σ_init²``.
+   The filter starts (only the initial position is given, so the initial heading is the
+   compass's) from a run of epochs that agree with each other for ``start_confirm_s`` or across
+   a gyro turn (:mod:`pdr.compass_streak`), with ``P = σ_init²``; steps before take the run's mean
+   with P = π². Steel held near the phone gives a δ_m that is steady while the walker goes
+   straight but not across a turn. Later, an offset far from δ in a field whose strength is off
+   the reference is *held* (:func:`pdr.compass_streak.held`), for the filter and the step's compass.
 
    **The gate does not lock out.** Once δ is wrong by more than the gate (a gyro drift while
    the field was rejected, a device frame that moved), every later epoch would be gated out
    until ``P`` had grown past the error. So a streak of gated-out epochs that agree among
    themselves (circular spread of their δ_m below ``gate_recover_spread``) for
-   ``gate_recover_s`` seconds reopens the filter: δ restarts from the streak's circular mean,
+   ``gate_recover_s`` seconds, or across a turn of ``confirm_turn``, reopens the filter: δ restarts from the streak's circular mean,
    ``P ← max(P, σ_init²)``, and the epoch is gated again (raising ``P`` alone cannot accept an
    error beyond the gate, about 127°). A disturbed field does not agree with itself for that long while the walker
    moves; a wrong δ does.
@@ -115,6 +119,7 @@ import numpy as np
 
 from pdr.ahrs import make_filter
 from pdr.angles import wrap  # noqa: F401  (re-exported)
+from pdr.compass_streak import OffsetStreak, held
 from pdr.grip import GripTracker
 from pdr.heading_settings import HeadingSettings  # noqa: F401  (re-exported)
 from pdr.fixed_order import row_dot
@@ -187,7 +192,10 @@ class HeadingEstimator:
         self._kf_t = -math.inf  # end time of the last epoch the filter has seen
         self._kf_psi: float | None = None  # gyro heading at that epoch end
         self._hist = deque([(-math.inf, math.nan, math.inf)])  # (epoch end, δ, P) for step lookups
-        self._rejected = [math.nan, 0.0, 0.0, 0]  # gated-out streak: start time, Σcos δ_m, Σsin δ_m, count
+        # runs of compass epochs that agree with each other (pdr.compass_streak): the epochs the
+        # filter turned away, and before the first δ the epochs that would set it
+        self._rejected = OffsetStreak(s.gate_recover_spread, s.confirm_turn, s.confirm_min_s, s.gate_recover_s)
+        self._start_run = OffsetStreak(s.gate_recover_spread, s.confirm_turn, s.confirm_min_s, s.start_confirm_s)
         self.grip = GripTracker(s.grip)
         self._pending: list[float] = []
         self._pending_off: list[float] = []
@@ -278,8 +286,18 @@ class HeadingEstimator:
         self._learn_reference(t_end, nrm, inc_m, np.where(rate > s.max_rate, np.inf, spread))
         sig = self._measurement_sigma(spread, nrm, inc_m, t_end)
         sig = np.where(rate > s.max_rate, np.inf, sig)
+        odd = self._odd_field(nrm, t_end)
         for i in range(len(t_end)):  # a few epochs per second: a scalar filter loop is cheap
-            self._kf_step(t_end[i], psi_end[i], dm[i], sig[i])
+            self._kf_step(t_end[i], psi_end[i], dm[i], sig[i], bool(odd[i]))
+
+    def _odd_field(self, nrm, t) -> np.ndarray:
+        """Per epoch: is its field strength more than ``hold_norm`` from the reference (configured,
+        or learned once its window is over)? Only such an epoch can be held (:meth:`_accepts`)."""
+        s = self.settings
+        learned_by = -math.inf if self._t0 is None else self._t0 + s.reference_seconds
+        known = np.isfinite(s.field_norm) | (np.asarray(t) > learned_by)
+        with np.errstate(invalid="ignore"):
+            return known & (np.abs(nrm - self._ref_norm) > s.hold_norm)
 
     def _learn_reference(self, t_end, nrm, inc_m, spread) -> None:
         s = self.settings
@@ -328,12 +346,16 @@ class HeadingEstimator:
                 bad |= di > s.inclination_gate
         return np.where(bad, np.inf, np.sqrt(var))
 
-    def _kf_step(self, t_end, psi_end, dm, sig) -> None:
+    def _kf_step(self, t_end, psi_end, dm, sig, odd: bool = False) -> None:
         s = self.settings
         if self._delta is None:
-            if np.isfinite(sig):  # initial heading: the first compass epoch that passes the gates
-                self._delta = float(dm)
+            # initial heading: a run of epochs that pass the gates and agree with each other, tested
+            # by a turn or by time (pdr.compass_streak); until then the steps take the run's mean
+            # with P = π² (no absolute evidence: steel at the first landmark must not set δ)
+            if np.isfinite(sig) and self._start_run.add(t_end, dm, psi_end):
+                self._delta = self._start_run.mean
                 self._P = s.sigma_init**2
+                self._start_run.clear()
         else:
             dt = t_end - self._kf_t
             dpsi = psi_end - self._kf_psi
@@ -342,41 +364,41 @@ class HeadingEstimator:
                 self._P += (s.gap_turn_rate * (dt - s.epoch)) ** 2
             if np.isfinite(sig):
                 nu = float(wrap(dm - self._delta))
-                if self._gate(t_end, dm, nu * nu <= s.gate_sigmas**2 * (self._P + sig**2)):
+                if self._gate(t_end, psi_end, dm, self._accepts(nu, sig, odd)):
                     nu = float(wrap(dm - self._delta))
-                S = self._P + sig**2
-                if nu * nu <= s.gate_sigmas**2 * S:
+                if self._accepts(nu, sig, odd):
+                    S = self._P + sig**2
                     K = self._P / S
                     self._delta = float(wrap(self._delta + K * nu))
                     self._P *= 1.0 - K
         self._kf_t, self._kf_psi = t_end, psi_end
-        self._hist.append((t_end, math.nan if self._delta is None else self._delta, self._P))
+        if self._delta is None:
+            self._hist.append((t_end, self._start_run.mean, math.pi**2))
+        else:
+            self._hist.append((t_end, self._delta, self._P))
 
-    def _gate(self, t_end, dm, passes: bool) -> bool:
-        """The innovation gate must not lock the compass out for good: a streak of gated-out
-        epochs that agree among themselves (circular spread below ``gate_recover_spread``) for
-        ``gate_recover_s`` seconds means δ itself is wrong (a gyro drift while the field was
-        rejected, a frame that moved, a first epoch next to steel): δ restarts from the streak's
-        circular mean, ``P = max(P, σ_init²)``, and the caller gates the epoch again (raising ``P``
-        alone cannot accept an error beyond the gate, 127°). Returns whether δ restarted."""
+    def _accepts(self, nu: float, sig: float, odd: bool = False) -> bool:
+        """The innovation gate ``ν² ≤ n_σ² (P + σ_m²)``, unless :func:`pdr.compass_streak.held`."""
+        s = self.settings
+        return not held(nu, self._P, odd, s) and nu * nu <= s.gate_sigmas**2 * (self._P + sig**2)
+
+    def _gate(self, t_end, psi_end, dm, passes: bool) -> bool:
+        """The gate must not lock the compass out for good: a run of turned-away epochs that agree
+        with each other (circular spread below ``gate_recover_spread``) across a gyro turn of
+        ``confirm_turn`` (over at least ``confirm_min_s``) or for ``gate_recover_s`` seconds means
+        δ itself is wrong (a gyro drift while the field was rejected, a frame that moved): δ
+        restarts from the run's circular mean, ``P = max(P, σ_init²)``, and the caller gates the
+        epoch again (raising ``P`` alone cannot accept an error beyond the gate, 127°). Returns
+        whether δ restarted."""
         s = self.settings
         r = self._rejected
         if passes:
-            self._rejected = [math.nan, 0.0, 0.0, 0]
+            r.clear()
             return False
-        if r[3] == 0:
-            r[0] = t_end
-        r[1] += math.cos(dm)
-        r[2] += math.sin(dm)
-        r[3] += 1
-        rho = min(max(math.hypot(r[1], r[2]) / r[3], 1e-12), 1.0)
-        if math.sqrt(-2.0 * math.log(rho)) > s.gate_recover_spread:  # not one consistent offset: start over
-            self._rejected = [t_end, math.cos(dm), math.sin(dm), 1]
-            return False
-        if t_end - r[0] >= s.gate_recover_s:
-            self._delta = math.atan2(r[2], r[1])
+        if r.add(t_end, dm, psi_end):
+            self._delta = r.mean
             self._P = max(self._P, s.sigma_init**2)
-            self._rejected = [math.nan, 0.0, 0.0, 0]
+            r.clear()
             return True
         return False
 
@@ -452,10 +474,11 @@ class HeadingEstimator:
                 ddo = dd[okd]
                 c, sn = np.cos(ddo).mean(), np.sin(ddo).mean()
                 spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
-                sig_m = float(self._measurement_sigma(
-                    np.array([spread]), np.array([buf[i0:i1, 3][okd].mean()]), np.array([buf[i0:i1, 4][okd].mean()]),
-                    np.array([tk]),
-                )[0])
+                nrm_k = np.array([buf[i0:i1, 3][okd].mean()])
+                sig_m = float(self._measurement_sigma(np.array([spread]), nrm_k, np.array([buf[i0:i1, 4][okd].mean()]),
+                                                      np.array([tk]))[0])
+                if held(float(wrap(math.atan2(sn, c) - delta)), P, bool(self._odd_field(nrm_k, np.array([tk]))[0]), s):
+                    sig_m = math.inf  # the filter would hold this compass (_accepts): so must the fusion
                 magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if np.isfinite(sig_m) else math.nan
             else:
                 sig_m, magh = math.inf, math.nan

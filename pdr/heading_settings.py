@@ -50,6 +50,16 @@ class HeadingSettings:
     gate_sigmas: float = 3.0  # innovation gate, in standard deviations
     gate_recover_s: float = 20.0  # s of consistently gated-out compass epochs after which δ is re-decided (inf: never)
     gate_recover_spread: float = math.radians(20.0)  # rad, their circular spread must stay below this
+    # a run of compass epochs that agree with each other proves itself sooner across a gyro turn
+    # (a field bent by steel moves with the phone when it turns; pdr.compass_streak)
+    confirm_turn: float = math.radians(45.0)  # rad, of gyro heading spanned by the run
+    confirm_min_s: float = 2.0  # s, the run lasts at least this long
+    start_confirm_s: float = 4.0  # s, the first δ: a run this long without a turn also proves itself
+    # hold: an epoch whose |B| is off the reference by more than hold_norm and whose offset lies
+    # farther from δ than max(hold_angle, hold_sigmas · √P) waits in the rejected run
+    hold_norm: float = 15.0  # µT (route 02 starts in a 24 µT field and walks on in 35-40 µT: 10 µT held its real compass)
+    hold_angle: float = math.radians(35.0)  # rad
+    hold_sigmas: float = 3.0
     gap_turn_rate: float = 1.0  # rad/s, δ's variance grows by (rate · gap)² over a gap in the samples
     # changes of grip (walking direction − device heading as a jump state; pdr.grip)
     grip: GripSettings = dataclasses.field(default_factory=GripSettings)

@@ -1,0 +1,97 @@
+"""Steel must not set or drag the compass offset (issue 27, the robustness suite's ``mag_steel``):
+the first δ waits for compass epochs that agree with each other for a while or across a turn,
+and mid-walk an offset far from δ in a field of unusual strength waits until it proves itself."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pdr import quaternion as quat
+from pdr.compass_streak import OffsetStreak
+from pdr.heading import HeadingEstimator, HeadingSettings, wrap
+from pdr.synthetic import FIELD_ENU
+from tests.test_heading import TILT, _rotated_field, deg, walk
+
+
+STEEL_UT = np.array([50.0, 0.0, 0.0])  # µT in the phone's axes: across the horizontal field at the walk's heading
+
+
+def _errors(settings, t, acc, gyr, mag, truth, steps):
+    r = HeadingEstimator(settings).update(t, acc, gyr, mag, steps)
+    return r.t, np.abs(deg(wrap(r.heading - np.interp(r.t, t, np.unwrap(truth)))))
+
+
+def test_steel_at_the_first_landmark_does_not_set_the_heading():
+    # the walk starts next to steel: for its first 2 s the field is turned 110° (strength as
+    # usual), then clean; straight ahead, no turn
+    bad = _rotated_field(110.0)
+    field = lambda t: np.where((t < 2.0)[:, None], bad, FIELD_ENU)  # noqa: E731
+    data = walk(lambda t: 0.0 * t, 30.0, field=field)
+    t, err = _errors(HeadingSettings(), *data)
+    assert err[(t > 3.0) & (t < 20.0)].max() < 10.0
+    # δ from the first epoch that passes the gates (before): the start is steel's
+    t0, err0 = _errors(HeadingSettings(start_confirm_s=0.0), *data)
+    assert err0[(t0 > 3.0) & (t0 < 8.0)].min() > 60.0
+
+
+def _steel_in_the_phone(t, mag, start, end, offset):
+    """Steel held in the phone's frame (the suite's model): ``offset`` µT added in body axes."""
+    on = ((t >= start) & (t < end))[:, None]
+    return mag + np.where(on, np.asarray(offset, float), 0.0)
+
+
+def test_steel_passed_mid_walk_does_not_drag_the_heading():
+    # a straight walk; from 30 s to 42 s a steel offset of 50 µT in the phone's frame bends the
+    # compass by 68° and its strength by 21 µT; the reference is learned
+    # over the first 20 s
+    t, acc, gyr, mag, truth, steps = walk(lambda t: 0.0 * t, 60.0)
+    mag = _steel_in_the_phone(t, mag, 30.0, 42.0, STEEL_UT)
+    base = HeadingSettings(reference_seconds=20.0)
+    tk, err = _errors(base, t, acc, gyr, mag, truth, steps)
+    during = (tk > 31.0) & (tk < 50.0)
+    assert err[during].max() < 8.0
+    # not held (no field deviates enough): the filter follows the steel
+    tk0, err0 = _errors(HeadingSettings(reference_seconds=20.0, hold_norm=math.inf), t, acc, gyr, mag, truth, steps)
+    assert err0[(tk0 > 31.0) & (tk0 < 50.0)].max() > 15.0
+
+
+def test_a_wrong_offset_is_corrected_across_the_first_turn_not_after_20_s():
+    # a start next to steel long enough to be taken (6 s, straight), then the clean field and a
+    # 90° left turn at 12-13 s: the clean epochs are gated out, agree with each other across the
+    # turn, and restart δ there
+    bad = _rotated_field(150.0)
+    field = lambda t: np.where((t < 6.0)[:, None], bad, FIELD_ENU)  # noqa: E731
+    turn = lambda t: np.where((t >= 12.0) & (t < 13.0), math.pi / 2, 0.0)  # noqa: E731
+    data = walk(turn, 40.0, field=field)
+    t, err = _errors(HeadingSettings(), *data)
+    assert err[(t > 7.0) & (t < 11.0)].min() > 90.0  # the start's error, beyond the gate
+    assert err[(t > 16.0) & (t < 25.0)].max() < 10.0
+    t0, err0 = _errors(HeadingSettings(confirm_turn=math.inf), *data)  # only time proves a run
+    assert err0[(t0 > 16.0) & (t0 < 25.0)].min() > 90.0
+
+
+def test_a_run_of_offsets_proves_itself_by_a_turn_or_by_time():
+    run = OffsetStreak(spread=math.radians(20.0), turn=math.radians(45.0), min_s=2.0, long_s=10.0)
+    proved = [run.add(0.5 * k, 0.3, 0.0) for k in range(1, 20)]  # straight: 9 s, not yet
+    assert not any(proved)
+    assert run.add(10.5, 0.3, 0.0)  # 10 s after the first epoch's end
+    run.clear()
+    assert not run.add(0.5, 0.3, 0.0)
+    assert not run.add(1.0, 0.3, 1.0)  # turned 57°, but after 0.5 s only
+    assert run.add(2.5, 0.3, 1.0)
+    run.clear()
+    run.add(0.5, 0.3, 0.0)
+    assert not run.add(1.0, 0.3 + math.radians(90.0), 1.0)  # disagrees: a new run from this epoch
+    assert run.n == 1 and math.isclose(run.mean, 0.3 + math.radians(90.0))
+
+
+def test_the_steel_model_of_the_test_bends_the_compass():
+    # the steel of test_steel_passed_mid_walk_does_not_drag_the_heading bends the field by more
+    # than the hold angle and changes its strength by more than hold_norm (else it tests nothing)
+    q = quat.multiply(quat.from_yaw(np.array([0.0])), TILT)
+    body = quat.rotate_inverse(q, FIELD_ENU[None, :])[0]
+    bent = quat.rotate(q, (body + STEEL_UT)[None, :])[0]
+    turn = abs(math.degrees(math.atan2(bent[1], bent[0]) - math.atan2(FIELD_ENU[1], FIELD_ENU[0])))
+    assert turn > math.degrees(HeadingSettings().hold_angle)
+    assert abs(np.linalg.norm(bent) - np.linalg.norm(FIELD_ENU)) > HeadingSettings().hold_norm
