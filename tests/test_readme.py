@@ -31,14 +31,15 @@ def test_the_test_command_runs_every_test_once_and_the_serial_ones_alone():
     runs = re.findall(r"pytest ([^&]*)", _commands()[1])
     marks = [re.search(r'-m ("[^"]+"|\S+)', r) for r in runs]
     assert [m.group(1).strip('"') if m else None for m in marks] == ["not serial", "serial"], runs
-    assert re.search(r"-n \d", runs[0]) and "-n" not in runs[1].split(), runs
+    assert re.search(r"-n \d", runs[0]) and "--dist loadgroup" in runs[0] and "-n" not in runs[1].split(), runs
 
 
-def test_every_serial_entry_names_a_test_that_exists():
-    """A renamed test would otherwise leave ``SERIAL`` silently and run beside the others."""
-    from tests.conftest import SERIAL
+def test_every_serial_and_realtime_entry_names_a_test_that_exists():
+    """A renamed test would otherwise leave ``SERIAL`` or ``REALTIME`` silently and run beside the others."""
+    from tests.conftest import REALTIME, SERIAL
 
-    for key in SERIAL:
+    assert not set(SERIAL) & set(REALTIME)
+    for key in [*SERIAL, *REALTIME]:
         path, _, name = key.partition("::")
         assert (ROOT / path).is_file(), key
         assert not name or re.search(rf"^def {re.escape(name)}\(", (ROOT / path).read_text(), flags=re.M), key
