@@ -253,6 +253,7 @@ def _listed(item, table: dict[str, str]) -> bool:
     base = item.nodeid.split("[", 1)[0]
     return base in table or base.split("::", 1)[0] in table
 
+
 def _code_names(code: types.CodeType) -> set[str]:
     names = set(code.co_names) | set(code.co_varnames) & _LIVE_NAMES
     for const in code.co_consts:
