@@ -223,6 +223,37 @@ SLOW: dict[str, str] = {
 }
 
 
+# Tests that must have the machine to themselves: their assertions measure rates, latencies or
+# a browser's sampling pace, which a busy neighbour bends. The README's test command runs the
+# rest on two workers (pytest-xdist) and these afterwards, one at a time (``-m serial``).
+# Key: a file (every test in it) or a nodeid without parameters -> why.
+SERIAL: dict[str, str] = {
+    "tests/test_overload.py::test_an_overloaded_worker_tracks_everyone_alike_loses_nothing_and_says_it_is_behind":
+        "a worker slowed to 50 frames/s must spread them alike over 8 walkers in real time",
+    "tests/test_clean_exit.py::test_simulate_with_many_walkers_exits_zero_while_statuses_arrive":
+        "1000 simulated walkers at 100 Hz against a live service: every core it can get",
+    "tests/test_phone_browser.py": "Chromium's motion events at a browser's sampling pace, a real walk scored in metres",
+    "tests/test_fault_bench.py": "the fault bench: attacks timed against a control run",
+    "tests/test_standby.py": "a takeover within 10 s of a killed primary",
+}
+
+# Tests on real-time schedules (outages of 10 s and 40 s, a router restart, a flood, forged
+# streams against the 6 s takeover rule, shard processes on a mesh): most of their time is
+# waiting, so they run in the parallel phase, but one after another on one worker (an xdist
+# group, ``--dist loadgroup``), never two schedules at once. Key and value as in SERIAL.
+REALTIME: dict[str, str] = {
+    "tests/test_faults.py": "outages, a router restart, a killed service and a flood on real-time schedules",
+    "tests/test_faults_tls.py": "outages and a killed service on real-time schedules, with TLS",
+    "tests/test_shards.py": "worker processes and a mesh of routers tracking walkers in real time",
+    "tests/test_attacks_tls.py": "an honest wearable's frames against forged streams within the takeover time",
+}
+
+
+def _listed(item, table: dict[str, str]) -> bool:
+    base = item.nodeid.split("[", 1)[0]
+    return base in table or base.split("::", 1)[0] in table
+
+
 def _code_names(code: types.CodeType) -> set[str]:
     names = set(code.co_names) | set(code.co_varnames) & _LIVE_NAMES
     for const in code.co_consts:
@@ -301,6 +332,10 @@ def pytest_collection_modifyitems(config, items):
         item.add_marker(getattr(pytest.mark, tier))
         if "recording" in reached and item.get_closest_marker("recording") is None:
             item.add_marker(pytest.mark.recording)
+        if _listed(item, SERIAL):
+            item.add_marker(pytest.mark.serial)
+        elif _listed(item, REALTIME):
+            item.add_marker(pytest.mark.xdist_group("realtime"))
 
 
 # The programs a unit test must not start: the project's own processes (a Python child, the

@@ -25,6 +25,26 @@ def test_ci_runs_the_readme_test_command():
     assert re.search(r"rc\" -eq 5", ci), "pytest's exit code 5 (no tests) must fail CI"
 
 
+def test_the_test_command_runs_every_test_once_and_the_serial_ones_alone():
+    """Phase one on parallel workers without the ``serial`` tests, phase two those alone: between
+    them every test, none twice."""
+    runs = re.findall(r"pytest ([^&]*)", _commands()[1])
+    marks = [re.search(r'-m ("[^"]+"|\S+)', r) for r in runs]
+    assert [m.group(1).strip('"') if m else None for m in marks] == ["not serial", "serial"], runs
+    assert re.search(r"-n \d", runs[0]) and "--dist loadgroup" in runs[0] and "-n" not in runs[1].split(), runs
+
+
+def test_every_serial_and_realtime_entry_names_a_test_that_exists():
+    """A renamed test would otherwise leave ``SERIAL`` or ``REALTIME`` silently and run beside the others."""
+    from tests.conftest import REALTIME, SERIAL
+
+    assert not set(SERIAL) & set(REALTIME)
+    for key in [*SERIAL, *REALTIME]:
+        path, _, name = key.partition("::")
+        assert (ROOT / path).is_file(), key
+        assert not name or re.search(rf"^def {re.escape(name)}\(", (ROOT / path).read_text(), flags=re.M), key
+
+
 def test_ci_checks_the_layers():
     assert "lint-imports" in (ROOT / ".ci" / "run").read_text()
 
