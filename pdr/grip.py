@@ -105,9 +105,11 @@ class GripTracker:
         self.regrips = 0  # jumps of ω from the tilt (counted in ``jumps`` too)
         self._recent: deque = deque(maxlen=self.settings.steps)
         self._prev_up = None  # the last step's up axis in body coordinates
-        self._ref = None  # (t, up) of the last walking step with a settled tilt: the attitude before a re-grip
+        self._ref = None  # (t, up) of the last confirmed walking step (module docstring): the attitude before a re-grip
+        self._cand = None  # (t, up) of the last step if walking with a settled tilt: the reference once the next step keeps it
         self._since = -math.inf  # time of the last re-grip: windows reaching before it are not evidence
-        self._fast = False  # after a change of tilt: a jump needs only regrip_steps measurements
+        self._fast = True  # at the start (ω = 0 is a prior, not evidence) and after a change of tilt:
+        # a jump needs only regrip_steps measurements
 
     def usable(self, m) -> bool:
         s = self.settings
@@ -168,11 +170,16 @@ class GripTracker:
             return False
         u = _up(q)
         prev, self._prev_up = self._prev_up, u
+        cand, self._cand = self._cand, None
         if not self.walking(m) or prev is None or _angle(prev, u) >= s.regrip_settle:
             return False  # not walking, or the tilt still moving: the reference stays where it was
-        ref, self._ref = self._ref, (t, u)
+        ref = self._ref
+        if cand is not None:  # the last step kept its tilt into this one: it is the reference from now on
+            self._ref = cand
+        self._cand = (t, u)
         if ref is None or _angle(ref[1], u) < s.regrip_tilt:
             return False
+        self._ref, self._cand = (t, u), None  # the tilt changed: the new attitude is the reference
         turn = self._grip_turn(ref[1], u)
         if turn is None or turn[0][2] != 1.0:  # only a turn about the screen normal moves the forward axis
             return False  # sideways: a pitch is kept by the heading vector, a roll keeps y; else the axis tells
