@@ -16,7 +16,11 @@ the last ``n`` steps with ``e_k ≥ e_min`` agrees on another value,
     μ = arg Σ exp(i m_j),   R = |Σ exp(i m_j)| / n,
     jump when  R ≥ R_min  and  |wrap(μ − ω)| ≥ θ_jump:   ω ← μ,
 
-after which the evidence is cleared (the next jump needs ``n`` new steps). Between jumps ω
+after which the evidence is cleared (the next jump needs ``n`` new steps). The first jump of a
+walk needs only ``regrip_steps`` measurements: ω = 0 at the start is a prior, not evidence, and
+a phone turned while the walker stood before the first step (IPIN route 21 under the robustness
+suite's ``hold_z``: 40 % of the log is standing) has no walking step to compare its tilt with
+(below). Between jumps ω
 does not follow the noisy measurement, so a walk without a change of grip is not touched;
 a turn of the walker leaves the device-relative axis where it was and is not a jump. The
 thresholds: a hand-held phone's measurement scatters by about 13° per leg, so ``θ_jump`` = 50°
@@ -35,7 +39,11 @@ axis is vertical its attitude to gravity changes; a walker's turn is about the v
 leaves it alone. Per step ``k`` the levelling's mean attitude ``q_k`` (body -> ENU) gives the
 world's up axis in body coordinates, ``u_k = R(q_k)ᵀ e_z``. The reference ``u_r`` is the last
 step that was walking (gait phase ρ ≥ ρ_min, σ_z ≤ max) with a settled tilt
-(``∠(u_{k−1}, u_k) < θ_settle``); a step that is both, with
+(``∠(u_{k−1}, u_k) < θ_settle``) whose next step kept it (``∠(u_k, u_{k+1}) < θ_settle``): a
+turn that starts late in a step leaves that step's mean a few degrees turned, within the
+settle test, and a reference taken from it shortens θ by as much (and on IPIN trial 05 rep 04
+under ``grip_z`` moved the screen normal's elevation past ``regrip_axis_tol``, so the re-grip
+was refused). A step that is walking and settled, with
 
     ∠(u_r, u_k) ≥ θ_tilt
 
