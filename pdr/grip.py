@@ -48,7 +48,14 @@ was refused). A step that is walking and settled, with
     ∠(u_r, u_k) ≥ θ_tilt
 
 (however long since the reference: a phone turned while the walker stands counts as well)
-is a rotation of the device about a non-vertical axis. A re-grip turns the phone about one of
+is a rotation of the device about a non-vertical axis. Before the first walking step there is
+no such reference, so the samples before that step's own, within its window (``window`` s, as
+far back as every batching keeps), stand in for it: the mean up axis of their leading run
+that stays within ``θ_settle`` of the first one, when that run has ``standing_samples`` and
+σ_z ≤ ``standing_vertical_std`` (:func:`standing_up`), the attitude the walker stood in. A
+phone turned 1.5 s before the walk (IPIN route 21 rep 03 under ``hold_z``) is caught at the
+second step instead of the fifth; one turned earlier leaves no standing sample of the old
+grip in reach, and the fast first jump of the walking axis (above) catches it. A re-grip turns the phone about one of
 its own axes ``a`` (the screen normal: portrait to landscape; x: the screen raised; y: rolled),
 so ``u_k = R(a, θ)ᵀ u_r``: ``a`` is the body axis whose elevation kept (within
 ``regrip_axis_tol``), and θ is where ``u`` moved around it (the signed angle β from ``u_r``'s
@@ -100,6 +107,8 @@ class GripSettings:
     regrip_steps: int = 4  # measurements that must agree for a jump after a change of tilt
     regrip_axis_tol: float = math.radians(10.0)  # rad: the turn's axis kept its elevation within this
     regrip_lever: float = math.sin(math.radians(20.0))  # up's part across the axis, at least (else θ is ill-conditioned)
+    standing_samples: int = 10  # samples before the first walking step's own that make a standing attitude, at least
+    standing_vertical_std: float = 0.5  # m/s², σ_z of those samples at most: the walker stood (walking: 0.6-1.3)
 
 
 class GripTracker:
@@ -115,6 +124,7 @@ class GripTracker:
         self._prev_up = None  # the last step's up axis in body coordinates
         self._ref = None  # (t, up) of the last confirmed walking step (module docstring): the attitude before a re-grip
         self._cand = None  # (t, up) of the last step if walking with a settled tilt: the reference once the next step keeps it
+        self._standing = None  # (t, up) of the walker standing just before the first walking step: the first reference
         self._since = -math.inf  # time of the last re-grip: windows reaching before it are not evidence
         self._fast = True  # at the start (ω = 0 is a prior, not evidence) and after a change of tilt:
         # a jump needs only regrip_steps measurements
@@ -129,13 +139,23 @@ class GripTracker:
         s = self.settings
         return m.phase >= s.min_phase and m.vertical_std <= s.max_vertical_std
 
-    def step(self, m, t: float = math.nan, q=None, yaw_of=None) -> tuple[float, bool]:
+    @property
+    def wants_standing(self) -> bool:
+        """No reference yet: the samples before the next step's own may give one (:meth:`step`'s ``before``)."""
+        return self.settings.enabled and self._ref is None and self._standing is None
+
+    def step(self, m, t: float = math.nan, q=None, yaw_of=None, before=None) -> tuple[float, bool]:
         """ω after a step at ``t`` (s) with measurement ``m`` and attitude ``q`` (body -> ENU,
         scalar first); ``yaw_of(q (n, 4))`` the device heading's yaw of attitudes. Without
-        ``q`` the walking axis alone decides."""
+        ``q`` the walking axis alone decides. ``before``: ``(q (n, 4), z (n,))``, the attitudes
+        and vertical specific force of the samples just before this step's own, when
+        :attr:`wants_standing` (:func:`standing_up`)."""
         s = self.settings
         if not s.enabled:
             return self.offset, False
+        if before is not None and self.wants_standing and self.walking(m) and math.isfinite(t):
+            up = standing_up(*before, s)
+            self._standing = None if up is None else (t, up)
         if q is not None and yaw_of is not None and self._regrip(m, t, q, yaw_of):
             return self.offset, True
         if not self.usable(m) or t - s.window < self._since:
@@ -181,7 +201,7 @@ class GripTracker:
         cand, self._cand = self._cand, None
         if not self.walking(m) or prev is None or _angle(prev, u) >= s.regrip_settle:
             return False  # not walking, or the tilt still moving: the reference stays where it was
-        ref = self._ref
+        ref = self._ref if self._ref is not None else self._standing
         if cand is not None:  # the last step kept its tilt into this one: it is the reference from now on
             self._ref = cand
         self._cand = (t, u)
@@ -225,6 +245,29 @@ class GripTracker:
         self._recent.clear()
         self._since = since
         self._fast = True
+
+
+def standing_up(q, z, settings: GripSettings) -> np.ndarray | None:
+    """The world's up axis in body coordinates while the walker stood, from attitudes ``q``
+    (n, 4) and vertical specific force ``z`` (n,) of the samples before the first walking step,
+    oldest first: the mean up axis of the leading run of samples whose up axis stays within
+    ``regrip_settle`` of the first one's (the attitude held before any turn among them), or
+    None unless that run has ``standing_samples`` with σ_z ≤ ``standing_vertical_std``."""
+    q = np.asarray(q, float)
+    z = np.asarray(z, float)
+    if len(q) < settings.standing_samples or not (np.all(np.isfinite(q)) and np.all(np.isfinite(z))):
+        return None
+    first = _up(q[0])
+    n = len(q)
+    for i in range(1, len(q)):
+        if _angle(first, _up(q[i])) >= settings.regrip_settle:
+            n = i
+            break
+    zs = z[:n] - z[:n].mean()
+    if n < settings.standing_samples or math.sqrt(_dot(zs, zs) / n) > settings.standing_vertical_std:
+        return None
+    mean = np.array([_up(qi) for qi in q[:n]]).mean(axis=0)
+    return mean / _norm(mean)
 
 
 def _up(q) -> np.ndarray:
