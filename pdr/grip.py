@@ -54,10 +54,12 @@ far back as every batching keeps), stand in for it: the mean up axis of their le
 that stays within ``θ_settle`` of the first one, when that run has ``standing_samples`` and
 σ_z ≤ ``standing_vertical_std`` (:func:`standing_up`), the attitude the walker stood in. A
 phone turned 1.5 s before the walk (IPIN route 21 rep 03 under ``hold_z``) is caught at the
-second step instead of the fifth; one turned earlier leaves no standing sample of the old
-grip in reach, and the fast first jump of the walking axis (above) catches it. A re-grip turns the phone about one of
-its own axes ``a`` (the screen normal: portrait to landscape; x: the screen raised; y: rolled),
-so ``u_k = R(a, θ)ᵀ u_r``: ``a`` is the body axis whose elevation kept (within
+second walking step instead of the seventh (6.6 s later); one turned earlier leaves no
+standing sample of the old grip in reach, and the fast first jump of the walking axis (above)
+catches it.
+
+A re-grip turns the phone about one of its own axes ``a`` (the screen normal: portrait to
+landscape; x: the screen raised; y: rolled), so ``u_k = R(a, θ)ᵀ u_r``: ``a`` is the body axis whose elevation kept (within
 ``regrip_axis_tol``), and θ is where ``u`` moved around it (the signed angle β from ``u_r``'s
 part across ``a`` to ``u_k``'s, θ = −β). The device's attitude without the re-grip is
 ``q_k ⊗ q(a, θ)*`` (the walker's turn in between, about the vertical, is in both), so
