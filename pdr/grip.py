@@ -107,7 +107,7 @@ class GripSettings:
     regrip_settle: float = math.radians(10.0)  # θ_settle, rad: the tilt has settled (last step to this one)
     snap: float = math.radians(30.0)  # rad, a predicted ω this close to 0 is the texting grip again
     regrip_steps: int = 4  # measurements that must agree for a jump after a change of tilt
-    regrip_axis_tol: float = math.radians(10.0)  # rad: the turn's axis kept its elevation within this
+    regrip_axis_tol: float = math.radians(15.0)  # rad: the turn's axis kept its elevation within this (a walker's hold wobbles by 5-10°)
     regrip_lever: float = math.sin(math.radians(20.0))  # up's part across the axis, at least (else θ is ill-conditioned)
     standing_samples: int = 10  # samples before the first walking step's own that make a standing attitude, at least
     standing_vertical_std: float = 0.5  # m/s², σ_z of those samples at most: the walker stood (walking: 0.6-1.3)
