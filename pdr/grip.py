@@ -144,7 +144,7 @@ class GripTracker:
     @property
     def wants_standing(self) -> bool:
         """No reference yet: the samples before the next step's own may give one (:meth:`step`'s ``before``)."""
-        return self.settings.enabled and self._ref is None and self._standing is None
+        return self.settings.enabled and self._ref is None
 
     def step(self, m, t: float = math.nan, q=None, yaw_of=None, before=None) -> tuple[float, bool]:
         """ω after a step at ``t`` (s) with measurement ``m`` and attitude ``q`` (body -> ENU,
@@ -157,7 +157,8 @@ class GripTracker:
             return self.offset, False
         if before is not None and self.wants_standing and self.walking(m) and math.isfinite(t):
             up = standing_up(*before, s)
-            self._standing = None if up is None else (t, up)
+            if up is not None:
+                self._standing = (t, up)
         if q is not None and yaw_of is not None and self._regrip(m, t, q, yaw_of):
             return self.offset, True
         if not self.usable(m) or t - s.window < self._since:
@@ -203,7 +204,9 @@ class GripTracker:
         cand, self._cand = self._cand, None
         if not self.walking(m) or prev is None or _angle(prev, u) >= s.regrip_settle:
             return False  # not walking, or the tilt still moving: the reference stays where it was
-        ref = self._ref if self._ref is not None else self._standing
+        ref = self._ref
+        if ref is None and self._standing is not None and t - self._standing[0] <= s.window:
+            ref = self._standing  # only while fresh: an older one may be from a wave or a pause long before the walk
         if cand is not None:  # the last step kept its tilt into this one: it is the reference from now on
             self._ref = cand
         self._cand = (t, u)
