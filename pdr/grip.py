@@ -52,7 +52,9 @@ is a rotation of the device about a non-vertical axis. Before the first walking 
 no such reference, so the samples before that step's own, within its window (``window`` s, as
 far back as every batching keeps), stand in for it: the mean up axis of their leading run
 that stays within ``θ_settle`` of the first one, when that run has ``standing_samples`` and
-σ_z ≤ ``standing_vertical_std`` (:func:`standing_up`), the attitude the walker stood in. A
+σ_z ≤ ``standing_vertical_std`` (:func:`standing_up`), the attitude the walker stood in
+(looked for at every walking step until there is a reference, and used only within ``window``
+s of the step it came from: one from long before, a wave or a pause, is no reference). A
 phone turned 1.5 s before the walk (IPIN route 21 rep 03 under ``hold_z``) is caught at the
 second walking step instead of the seventh (6.6 s later); one turned earlier leaves no
 standing sample of the old grip in reach, and the fast first jump of the walking axis (above)
