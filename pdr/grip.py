@@ -16,7 +16,11 @@ the last ``n`` steps with ``e_k ≥ e_min`` agrees on another value,
     μ = arg Σ exp(i m_j),   R = |Σ exp(i m_j)| / n,
     jump when  R ≥ R_min  and  |wrap(μ − ω)| ≥ θ_jump:   ω ← μ,
 
-after which the evidence is cleared (the next jump needs ``n`` new steps). Between jumps ω
+after which the evidence is cleared (the next jump needs ``n`` new steps). The first jump of a
+walk needs only ``regrip_steps`` measurements: ω = 0 at the start is a prior, not evidence, and
+a phone turned while the walker stood before the first step (IPIN route 21 under the robustness
+suite's ``hold_z``: 40 % of the log is standing) has no walking step to compare its tilt with
+(below). Between jumps ω
 does not follow the noisy measurement, so a walk without a change of grip is not touched;
 a turn of the walker leaves the device-relative axis where it was and is not a jump. The
 thresholds: a hand-held phone's measurement scatters by about 13° per leg, so ``θ_jump`` = 50°
@@ -35,14 +39,29 @@ axis is vertical its attitude to gravity changes; a walker's turn is about the v
 leaves it alone. Per step ``k`` the levelling's mean attitude ``q_k`` (body -> ENU) gives the
 world's up axis in body coordinates, ``u_k = R(q_k)ᵀ e_z``. The reference ``u_r`` is the last
 step that was walking (gait phase ρ ≥ ρ_min, σ_z ≤ max) with a settled tilt
-(``∠(u_{k−1}, u_k) < θ_settle``); a step that is both, with
+(``∠(u_{k−1}, u_k) < θ_settle``) whose next step kept it (``∠(u_k, u_{k+1}) < θ_settle``): a
+turn that starts late in a step leaves that step's mean a few degrees turned, within the
+settle test, and a reference taken from it shortens θ by as much (and on IPIN trial 05 rep 04
+under ``grip_z`` moved the screen normal's elevation past ``regrip_axis_tol``, so the re-grip
+was refused). A step that is walking and settled, with
 
     ∠(u_r, u_k) ≥ θ_tilt
 
 (however long since the reference: a phone turned while the walker stands counts as well)
-is a rotation of the device about a non-vertical axis. A re-grip turns the phone about one of
-its own axes ``a`` (the screen normal: portrait to landscape; x: the screen raised; y: rolled),
-so ``u_k = R(a, θ)ᵀ u_r``: ``a`` is the body axis whose elevation kept (within
+is a rotation of the device about a non-vertical axis. Before the first walking step there is
+no such reference, so the samples before that step's own, within its window (``window`` s, as
+far back as every batching keeps), stand in for it: the mean up axis of their leading run
+that stays within ``θ_settle`` of the first one, when that run has ``standing_samples`` and
+σ_z ≤ ``standing_vertical_std`` (:func:`standing_up`), the attitude the walker stood in
+(looked for at every walking step until there is a reference, and used only within ``window``
+s of the step it came from: one from long before, a wave or a pause, is no reference). A
+phone turned 1.5 s before the walk (IPIN route 21 rep 03 under ``hold_z``) is caught at the
+second walking step instead of the seventh (6.6 s later); one turned earlier leaves no
+standing sample of the old grip in reach, and the fast first jump of the walking axis (above)
+catches it.
+
+A re-grip turns the phone about one of its own axes ``a`` (the screen normal: portrait to
+landscape; x: the screen raised; y: rolled), so ``u_k = R(a, θ)ᵀ u_r``: ``a`` is the body axis whose elevation kept (within
 ``regrip_axis_tol``), and θ is where ``u`` moved around it (the signed angle β from ``u_r``'s
 part across ``a`` to ``u_k``'s, θ = −β). The device's attitude without the re-grip is
 ``q_k ⊗ q(a, θ)*`` (the walker's turn in between, about the vertical, is in both), so
@@ -90,8 +109,10 @@ class GripSettings:
     regrip_settle: float = math.radians(10.0)  # θ_settle, rad: the tilt has settled (last step to this one)
     snap: float = math.radians(30.0)  # rad, a predicted ω this close to 0 is the texting grip again
     regrip_steps: int = 4  # measurements that must agree for a jump after a change of tilt
-    regrip_axis_tol: float = math.radians(10.0)  # rad: the turn's axis kept its elevation within this
+    regrip_axis_tol: float = math.radians(15.0)  # rad: the turn's axis kept its elevation within this (a walker's hold wobbles by 5-10°)
     regrip_lever: float = math.sin(math.radians(20.0))  # up's part across the axis, at least (else θ is ill-conditioned)
+    standing_samples: int = 10  # samples before the first walking step's own that make a standing attitude, at least
+    standing_vertical_std: float = 0.5  # m/s², σ_z of those samples at most: the walker stood (walking: 0.6-1.3)
 
 
 class GripTracker:
@@ -105,9 +126,12 @@ class GripTracker:
         self.regrips = 0  # jumps of ω from the tilt (counted in ``jumps`` too)
         self._recent: deque = deque(maxlen=self.settings.steps)
         self._prev_up = None  # the last step's up axis in body coordinates
-        self._ref = None  # (t, up) of the last walking step with a settled tilt: the attitude before a re-grip
+        self._ref = None  # (t, up) of the last confirmed walking step (module docstring): the attitude before a re-grip
+        self._cand = None  # (t, up) of the last step if walking with a settled tilt: the reference once the next step keeps it
+        self._standing = None  # (t, up) of the walker standing just before the first walking step: the first reference
         self._since = -math.inf  # time of the last re-grip: windows reaching before it are not evidence
-        self._fast = False  # after a change of tilt: a jump needs only regrip_steps measurements
+        self._fast = True  # at the start (ω = 0 is a prior, not evidence) and after a change of tilt:
+        # a jump needs only regrip_steps measurements
 
     def usable(self, m) -> bool:
         s = self.settings
@@ -119,13 +143,24 @@ class GripTracker:
         s = self.settings
         return m.phase >= s.min_phase and m.vertical_std <= s.max_vertical_std
 
-    def step(self, m, t: float = math.nan, q=None, yaw_of=None) -> tuple[float, bool]:
+    @property
+    def wants_standing(self) -> bool:
+        """No reference yet: the samples before the next step's own may give one (:meth:`step`'s ``before``)."""
+        return self.settings.enabled and self._ref is None
+
+    def step(self, m, t: float = math.nan, q=None, yaw_of=None, before=None) -> tuple[float, bool]:
         """ω after a step at ``t`` (s) with measurement ``m`` and attitude ``q`` (body -> ENU,
         scalar first); ``yaw_of(q (n, 4))`` the device heading's yaw of attitudes. Without
-        ``q`` the walking axis alone decides."""
+        ``q`` the walking axis alone decides. ``before``: ``(q (n, 4), z (n,))``, the attitudes
+        and vertical specific force of the samples just before this step's own, when
+        :attr:`wants_standing` (:func:`standing_up`)."""
         s = self.settings
         if not s.enabled:
             return self.offset, False
+        if before is not None and self.wants_standing and self.walking(m) and math.isfinite(t):
+            up = standing_up(*before, s)
+            if up is not None:
+                self._standing = (t, up)
         if q is not None and yaw_of is not None and self._regrip(m, t, q, yaw_of):
             return self.offset, True
         if not self.usable(m) or t - s.window < self._since:
@@ -168,11 +203,18 @@ class GripTracker:
             return False
         u = _up(q)
         prev, self._prev_up = self._prev_up, u
+        cand, self._cand = self._cand, None
         if not self.walking(m) or prev is None or _angle(prev, u) >= s.regrip_settle:
             return False  # not walking, or the tilt still moving: the reference stays where it was
-        ref, self._ref = self._ref, (t, u)
+        ref = self._ref
+        if ref is None and self._standing is not None and t - self._standing[0] <= s.window:
+            ref = self._standing  # only while fresh: an older one may be from a wave or a pause long before the walk
+        if cand is not None:  # the last step kept its tilt into this one: it is the reference from now on
+            self._ref = cand
+        self._cand = (t, u)
         if ref is None or _angle(ref[1], u) < s.regrip_tilt:
             return False
+        self._ref, self._cand = (t, u), None  # the tilt changed: the new attitude is the reference
         turn = self._grip_turn(ref[1], u)
         if turn is None or turn[0][2] != 1.0:  # only a turn about the screen normal moves the forward axis
             return False  # sideways: a pitch is kept by the heading vector, a roll keeps y; else the axis tells
@@ -210,6 +252,29 @@ class GripTracker:
         self._recent.clear()
         self._since = since
         self._fast = True
+
+
+def standing_up(q, z, settings: GripSettings) -> np.ndarray | None:
+    """The world's up axis in body coordinates while the walker stood, from attitudes ``q``
+    (n, 4) and vertical specific force ``z`` (n,) of the samples before the first walking step,
+    oldest first: the mean up axis of the leading run of samples whose up axis stays within
+    ``regrip_settle`` of the first one's (the attitude held before any turn among them), or
+    None unless that run has ``standing_samples`` with σ_z ≤ ``standing_vertical_std``."""
+    q = np.asarray(q, float)
+    z = np.asarray(z, float)
+    if len(q) < settings.standing_samples or not (np.all(np.isfinite(q)) and np.all(np.isfinite(z))):
+        return None
+    first = _up(q[0])
+    n = len(q)
+    for i in range(1, len(q)):
+        if _angle(first, _up(q[i])) >= settings.regrip_settle:
+            n = i
+            break
+    zs = z[:n] - z[:n].mean()
+    if n < settings.standing_samples or math.sqrt(_dot(zs, zs) / n) > settings.standing_vertical_std:
+        return None
+    mean = np.array([_up(qi) for qi in q[:n]]).mean(axis=0)
+    return mean / _norm(mean)
 
 
 def _up(q) -> np.ndarray:

@@ -402,13 +402,14 @@ class HeadingEstimator:
             return True
         return False
 
-    def _grip_step(self, t, f, l, z, tk: float, q) -> tuple[float, bool]:
+    def _grip_step(self, t, f, l, z, tk: float, q, before=None) -> tuple[float, bool]:
         """The walking offset ω after the step at ``tk`` whose window holds samples ``t``, ``f``,
-        ``l``, ``z``; ``q`` the step's mean attitude (:mod:`pdr.grip`)."""
+        ``l``, ``z``; ``q`` the step's mean attitude, ``before`` the attitudes and vertical
+        specific force of the window's samples before the step's own (:mod:`pdr.grip`)."""
         g = self.settings.grip
         if not g.enabled or len(t) < 3:
             return self.grip.offset, False
-        return self.grip.step(walking_angle(t, f, l, z, g.lag), tk, q, self.device_yaw)
+        return self.grip.step(walking_angle(t, f, l, z, g.lag), tk, q, self.device_yaw, before)
 
     def device_yaw(self, q) -> np.ndarray:
         """Yaw (rad) of the device's heading vector for attitudes ``q`` (n, 4), as the steps get it."""
@@ -456,8 +457,9 @@ class HeadingEstimator:
             w0 = int(np.searchsorted(bt, tk - s.grip.window, side="right"))  # samples in (tk − window, tk]
             qs = buf[i0:i1, 8:12]
             qm = (qs * np.sign(row_dot(qs, qs[-1]))[:, None]).mean(axis=0)  # the step's mean attitude (one hemisphere)
+            before = (buf[w0:i0, 8:12], buf[w0:i0, 7]) if self.grip.wants_standing else None
             omega, jumped = self._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7], tk,
-                                            qm / math.sqrt(float(row_dot(qm, qm))))
+                                            qm / math.sqrt(float(row_dot(qm, qm))), before)
             off = off + omega
             k = bisect.bisect_right(hist_t, tk) - 1
             _, delta, P = hist[max(k, 0)]
