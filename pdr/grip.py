@@ -264,16 +264,17 @@ def standing_up(q, z, settings: GripSettings) -> np.ndarray | None:
     z = np.asarray(z, float)
     if len(q) < settings.standing_samples or not (np.all(np.isfinite(q)) and np.all(np.isfinite(z))):
         return None
-    first = _up(q[0])
-    n = len(q)
-    for i in range(1, len(q)):
-        if _angle(first, _up(q[i])) >= settings.regrip_settle:
-            n = i
-            break
+    ups = _ups(q)
+    first = ups[0]
+    # ∠(u_0, u_i) = acos(u_0 · u_i): the dot products as arrays (each the same bits as _dot),
+    # the acos per sample in math's own (numpy's may take a CPU-specific kernel)
+    cosines = np.clip(row_dot(ups, first), -1.0, 1.0).tolist()
+    settle = settings.regrip_settle
+    n = next((i for i in range(1, len(cosines)) if math.acos(cosines[i]) >= settle), len(cosines))
     zs = z[:n] - z[:n].mean()
     if n < settings.standing_samples or math.sqrt(_dot(zs, zs) / n) > settings.standing_vertical_std:
         return None
-    mean = np.array([_up(qi) for qi in q[:n]]).mean(axis=0)
+    mean = ups[:n].mean(axis=0)
     return mean / _norm(mean)
 
 
@@ -281,6 +282,16 @@ def _up(q) -> np.ndarray:
     """The world's up axis in body coordinates, ``R(q)ᵀ e_z`` (the third row of R)."""
     w, x, y, z = q
     return np.array([2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)])
+
+
+def _ups(q: np.ndarray) -> np.ndarray:
+    """:func:`_up` of every row of ``q`` (n, 4): (n, 3), elementwise, so row i has the same bits as ``_up(q[i])``."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    out = np.empty((len(q), 3))
+    out[:, 0] = 2.0 * (x * z - w * y)
+    out[:, 1] = 2.0 * (y * z + w * x)
+    out[:, 2] = 1.0 - 2.0 * (x * x + y * y)
+    return out
 
 
 def _angle(a, b) -> float:
