@@ -1,7 +1,10 @@
 """The walk gate (service/fusion/walk_gate.py): fixes against dead reckoning from the last trusted fix."""
 from __future__ import annotations
 
+import dataclasses
 import math
+
+import numpy as np
 
 from pdr.events import StepEvent
 from service.fusion.fixes import CheckpointFix, UwbRange
@@ -84,3 +87,20 @@ def test_off_lets_everything_through():
     gate = new_gate(walk_gate_probability=None)
     walked(gate, 1, 10)
     assert gate.judge(CheckpointFix(6.0, 1e7, 0.0, sigma=0.5)).ok
+
+
+def test_a_heading_made_certain_midway_leaves_the_reference_a_covariance_and_a_range_a_verdict():
+    """Walk east with the heading uncertain (σθ = 1 rad), then west with the graph's heading
+    nearly exact: the reference's θθ shrinks while its cross terms stay, and its propagated
+    position covariance went indefinite (yy = -196 m²); a UWB range with the anchor north was
+    then judged with the square root of a negative variance, a ValueError (CI, test_attacks_tls:
+    a responder's track lost for 20 s)."""
+    gate = WalkGate(FusionSettings())
+    gate.start(0.0, 0.0, 0.0, 0.3, 0, 0.0, 1.0)
+    walked(gate, 1, 20, heading_sigma=1.0)
+    for i in range(21, 41):
+        gate.add_step(dataclasses.replace(east_step(i), heading=math.pi), math.pi, 0.001)
+    assert all(np.linalg.eigvalsh(r.cov)[0] >= -1e-9 for r in gate._rows)
+    p = gate.point[0]
+    v = gate.judge(UwbRange(t=0.6 * 40, anchor_x=p.x, anchor_y=p.y + 10.0, range=10.0, sigma=0.1))
+    assert v.ok

@@ -155,7 +155,14 @@ class WalkGate:
                                      turn, max(turn_sigma, s.turn_sigma_floor_rad), s.lateral_sigma_m)
         self._state = (ev.t, x, y, th, cov, ev.floor)
         self._walked += length
-        self._rows.append(_Row(ev.t, x, y, np.array([[cov[0], cov[1]], [cov[1], cov[3]]]), self._walked))
+        row_cov = np.array([[cov[0], cov[1]], [cov[1], cov[3]]])
+        if not (cov[0] >= 0.0 and cov[3] >= 0.0 and cov[0] * cov[3] >= cov[1] * cov[1]):
+            # the 3x3 went indefinite (the graph's tighter heading σ replaced θθ above while the
+            # cross terms xθ, yθ stayed): a walk east at σθ = 1 rad, then west at 0.001 rad, gave
+            # yy = -196 m², and a UWB range judged against it took the square root of a negative
+            # variance (a ValueError that cost a responder 20 s of track in CI)
+            row_cov = _psd(row_cov)
+        self._rows.append(_Row(ev.t, x, y, row_cov, self._walked))
         while len(self._rows) > 1 and self._rows[0].t < ev.t - self.s.lag_s - 5.0:
             self._rows.popleft()
 
@@ -204,7 +211,7 @@ class WalkGate:
             u = np.array([dx, dy]) / r_hat if r_hat > 1e-9 else np.zeros(2)
             var = float(u @ row.cov @ u) + max(sigma, s.uwb_sigma_floor_m) ** 2 + s.uwb_anchor_sigma_m ** 2  # blas-ok: 2x2
             nu = rng - r_hat
-            rho = _k(s.walk_gate_probability, 1) * math.sqrt(var) + s.walk_gate_margin_m
+            rho = _k(s.walk_gate_probability, 1) * math.sqrt(max(var, 0.0)) + s.walk_gate_margin_m
             info = {"innovation_m": nu, "radius_m": rho + allow}
             if not abs(nu) <= rho + allow:
                 return GateVerdict(False, reason="walk_gate", info=info,
