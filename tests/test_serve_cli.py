@@ -139,7 +139,12 @@ def test_ctrl_c_while_starting_ends_without_a_traceback(delay):
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     time.sleep(delay)
     proc.send_signal(signal.SIGINT)
-    out, _ = proc.communicate(timeout=30)
+    try:
+        out, _ = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:  # the Ctrl-C was lost: say so, and leave no service running
+        proc.kill()
+        out, _ = proc.communicate()
+        raise AssertionError(f"Ctrl-C {delay} s into the start did not end it within 30 s:\n{out[-2000:]}") from None
     assert proc.returncode in (0, 130), out
     assert "Traceback" not in out, out
 
