@@ -62,6 +62,41 @@ class StepAssembler:
         rows (t, height) of the recent pressure samples, ``floor_at`` the barometer's floor."""
         return assemble_round([(self, hd, pressure, floor_at)])[0]
 
+    # the three parts of assembling, for assemble_round: take the steps, where the last one
+    # was, emit the events (the per-responder part: stairs windows and step indices)
+    def take(self, n: int) -> list[StepDetection]:
+        """The first ``n`` detected steps, no longer waiting."""
+        det, self._detected = self._detected[:n], self._detected[n:]
+        return det
+
+    @property
+    def last_height(self) -> float:
+        """m, the height at the previous step (NaN before the first or without a barometer)."""
+        return self._last[1] if self._last else math.nan
+
+    def emit(self, hd: StepHeadings, L: np.ndarray, h: np.ndarray, dz: np.ndarray, dz_sigma: np.ndarray,
+             floor_at: Callable[[float], int]) -> list[StepEvent]:
+        """The events of steps with headings ``hd``, model lengths ``L``, heights ``h`` and height
+        changes ``dz`` (σ ``dz_sigma``); on stairs the stairs detector's lengths instead."""
+        s = self.settings
+        stairs = self._stairs.update(dz)
+        L = np.where(stairs.on_stairs, stairs.length, L)
+        sigma_L = s.length_sigma_m + s.length_sigma_frac * L
+        events = []
+        for k in range(len(hd)):
+            self.count += 1
+            events.append(StepEvent(
+                t=float(hd.t[k]), index=self.count, length=float(L[k]), length_sigma=float(sigma_L[k]),
+                heading=float(hd.heading[k]), heading_sigma=float(hd.heading_sigma[k]),
+                heading_change=float(hd.heading_change[k]) if self.count > 1 else 0.0,
+                heading_change_sigma=float(hd.heading_change_sigma[k]),
+                dz=float(dz[k]), dz_sigma=float(dz_sigma[k]), floor=int(floor_at(float(hd.t[k]))),
+                on_stairs=bool(stairs.on_stairs[k]), mag_heading=float(hd.mag_heading[k]),
+                mag_heading_sigma=float(hd.mag_heading_sigma[k]),
+            ))
+        self._last = (float(hd.t[-1]), float(h[-1]))
+        return events
+
 
 # a member's job for assemble_round: its assembler, headings, pressure rows (t, height) and floor_at
 AssemblyJob = tuple[StepAssembler, StepHeadings, np.ndarray, Callable[[float], int]]
@@ -80,15 +115,14 @@ def assemble_round(jobs: list[AssemblyJob]) -> list[list[StepEvent]]:
         return out
     ns = [len(hd) for _, (_, hd, _, _) in live]
     dets = []
-    for (_, (a, hd, _, _)), n in zip(live, ns):
-        det, a._detected = a._detected[:n], a._detected[n:]
-        dets += det
+    for (_, (a, _, _, _)), n in zip(live, ns):
+        dets += a.take(n)
     L = np.empty(len(dets))
     for s, rows in _rows_by_settings(live, ns):  # one pass per settings (a fleet's members share theirs)
         L[rows] = np.clip(step_lengths(step_arrays([dets[r] for r in rows.tolist()]), s.profile),
                           s.min_step_length_m, s.max_step_length_m)
     h = np.concatenate([_height_before(pr, hd.t) for _, (_, hd, pr, _) in live])
-    firsts = np.array([a._last[1] if a._last else np.nan for _, (a, _, _, _) in live])
+    firsts = np.array([a.last_height for _, (a, _, _, _) in live])
     starts = np.cumsum([0] + ns[:-1])
     h_prev = np.concatenate(([np.nan], h[:-1]))
     h_prev[starts] = firsts  # each responder's first step follows its own previous one
@@ -97,24 +131,8 @@ def assemble_round(jobs: list[AssemblyJob]) -> list[list[StepEvent]]:
     dsig = np.array([a.settings.dz_sigma_m for _, (a, _, _, _) in live]).repeat(ns)
     dz_sigma = np.where(known, dsig, math.inf)
     for (i, (a, hd, _, floor_at)), o, n in zip(live, starts.tolist(), ns):
-        s = a.settings
-        stairs = a._stairs.update(dz[o:o + n])
-        Lj = np.where(stairs.on_stairs, stairs.length, L[o:o + n])
-        sigma_L = s.length_sigma_m + s.length_sigma_frac * Lj
-        dzj, dsj = dz[o:o + n], dz_sigma[o:o + n]
-        events = out[i]
-        for k in range(n):
-            a.count += 1
-            events.append(StepEvent(
-                t=float(hd.t[k]), index=a.count, length=float(Lj[k]), length_sigma=float(sigma_L[k]),
-                heading=float(hd.heading[k]), heading_sigma=float(hd.heading_sigma[k]),
-                heading_change=float(hd.heading_change[k]) if a.count > 1 else 0.0,
-                heading_change_sigma=float(hd.heading_change_sigma[k]),
-                dz=float(dzj[k]), dz_sigma=float(dsj[k]), floor=int(floor_at(float(hd.t[k]))),
-                on_stairs=bool(stairs.on_stairs[k]), mag_heading=float(hd.mag_heading[k]),
-                mag_heading_sigma=float(hd.mag_heading_sigma[k]),
-            ))
-        a._last = (float(hd.t[-1]), float(h[o + n - 1]))
+        part = slice(o, o + n)
+        out[i] = a.emit(hd, L[part], h[part], dz[part], dz_sigma[part], floor_at)
     return out
 
 
