@@ -137,6 +137,8 @@ def _route_after_the_wearable_began(prefix: str, early: int, zenoh_keep: bool) -
         for b in frames[early:]:
             w.send("imu", b)
         assert w.flush(60), w.delivery()
+        # acknowledged is not yet processed: the last round may still be running (a loaded machine)
+        wait_until(lambda: svc.frames_processed >= len(frames), 10)
         return {"sent": len(frames), "unheard": unheard, "resent": w.resent, "heard": dict(svc.heard),
                 "processed": svc.frames_processed, "accounting": svc.core.frame_accounting(),
                 "first_seq": svc.core.responders[rid].gate.first_of_stream.seq}
