@@ -5,6 +5,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from pdr.events import StepEvent
 from service.fusion.fixes import CheckpointFix, UwbRange
@@ -104,3 +105,61 @@ def test_a_heading_made_certain_midway_leaves_the_reference_a_covariance_and_a_r
     p = gate.point[0]
     v = gate.judge(UwbRange(t=0.6 * 40, anchor_x=p.x, anchor_y=p.y + 10.0, range=10.0, sigma=0.1))
     assert v.ok
+
+
+def test_a_heading_error_revealed_by_two_fixes_lets_both_in():
+    """Dead reckoning walks due east; the walker went 30° north of it (a heading error the
+    graph's heading sigma does not admit). The first landmark, 10.5 m off after 21 m, is held
+    out; the second shows the leg between them turned, not shifted: it is let in, trusted, with
+    the first for the graph to take first."""
+    gate = new_gate()
+    true = np.array([math.cos(math.radians(30)), math.sin(math.radians(30))])
+    walked(gate, 1, 30)
+    a = CheckpointFix(0.6 * 30, *(21.0 * true), sigma=0.3)
+    assert not gate.judge(a).ok
+    walked(gate, 31, 60)
+    v = gate.judge(CheckpointFix(0.6 * 60, *(42.0 * true), sigma=0.3))
+    assert v.ok and v.trusted and v.earlier is a
+    assert v.info["turn_deg"] == pytest.approx(30.0, abs=1.0)
+
+
+@pytest.mark.parametrize("shift", [(0.0, 8.0), (8.0, 0.0)])
+def test_two_fixes_one_offset_from_the_walk_are_a_shift_not_a_turn(shift):
+    """A drag's signature (both fixes the same offset from dead reckoning, across or along the
+    track) reveals no turn: the second is judged as if alone (here held out, or let through on
+    the drift allowance untrusted), never trusted, and the first stays out."""
+    gate = new_gate()
+    walked(gate, 1, 30)
+    p = gate.point[0]
+    assert not gate.judge(CheckpointFix(0.6 * 30, p.x + shift[0], p.y + shift[1], sigma=0.3)).ok
+    walked(gate, 31, 40)
+    p = gate.point[0]
+    v = gate.judge(CheckpointFix(0.6 * 40, p.x + shift[0], p.y + shift[1], sigma=0.3))
+    assert not v.trusted and v.earlier is None and "turn_deg" not in v.info
+
+
+def test_the_live_track_turns_at_the_second_fix_of_a_heading_error():
+    """Issue 27, point 5, through the estimator: the PDR's absolute heading and its gyro agree on a
+    walk 30° off the truth (a grip it did not notice), no compass; landmarks every 20 steps. Before
+    the gate knew turns, every landmark was held out and the live track ended tens of metres off;
+    now the live heading is right from the second landmark on and the track stays near the truth."""
+    from service.fusion.estimators import FusionEstimator
+
+    h = np.repeat([0.0, math.pi / 2, math.pi, -math.pi / 2], 40)
+    off = math.radians(30.0)
+    est = FusionEstimator(FusionSettings())
+    est.start(0.0, 0.0, 0.0, off, 0.2, 0.3, 0)
+    pos, errors, headings = np.zeros(2), [], []
+    for k, th in enumerate(h):
+        turn = 0.0 if k == 0 else th - h[k - 1]
+        ev = dataclasses.replace(east_step(k + 1, 0.8), heading=th + off, heading_change=turn)
+        pos = pos + 0.8 * np.array([math.cos(th), math.sin(th)])
+        p = est.add_step(ev)
+        errors.append(math.hypot(p.x - pos[0], p.y - pos[1]))
+        if (k + 1) % 20 == 0:
+            out = est.add_fix(CheckpointFix(ev.t + 1e-3, float(pos[0]), float(pos[1]), sigma=0.3))
+            if k + 1 >= 40:
+                assert out.verdict == "applied"
+                headings.append(abs(math.remainder(out.pose.heading - th, 2 * math.pi)))
+    assert max(headings) < math.radians(3.0)
+    assert max(errors[45:]) < 1.0

@@ -247,6 +247,8 @@ class FusionEstimator:
             self.fusion.events.append(FusionEvent(fix.t, "rejected", getattr(fix, "source", type(fix).__name__),
                                                   f"{verdict.reason}: {verdict.detail}", verdict.info or {}))
             return FixOutcome("rejected", reason=verdict.reason)
+        if verdict.earlier is not None:  # a fix held out before, which this one shows was right: the graph takes it first
+            self._guarded(lambda: self.fusion.add_fix(verdict.earlier) or self.fusion.live, verdict.earlier.t, self._dr[7])
         before = Counter(self.fusion.rejected)
         degraded = self.degraded
         fp = self._guarded(lambda: self.fusion.add_fix(fix) or self.fusion.live, fix.t, self._dr[7])

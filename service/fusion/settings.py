@@ -97,6 +97,11 @@ Issue 32 ("the estimator cannot crash and cannot hide"; service/fusion/walk_gate
   cross-validated, one walk +0.32 m (Trial24 rep02). p = 0.99 / 0.95: 1.955 / 1.971 m with
   Trial03 rep04 +0.89 m, and no clearer bound on a drag (ten 5 m checkpoints every 3 s: 10.8 m
   at 0.999, 15.8 m at 0.99, 8.4 m at 0.95).
+* Issue 27, point 5: a precise fix held out and the next precise one, whose leg between them is
+  the reference's leg turned (not shifted), are let in together (service/fusion/walk_gate.py,
+  *A heading error revealed by two fixes*); "precise" is σ at most ``walk_gate_margin_m``. No new
+  number: the same p, β and margin. Development walks unchanged (K = 0 and 3, live, in sample;
+  K = 3 smoothed 1.299 → 1.279 m, Trial24 rep02); ``hold_z`` at K = 3 live 2.238 → 2.175 m.
 * ``divergence_m = 50``, ``divergence_sigma_m = 1000``: only a graph that has left any walk
   behind (an absurd fix the gate did not see) restarts; ``restart_heading_sigma_rad = 0.3``.
 """

@@ -39,6 +39,30 @@ same drag reach 20.6 m. And the other way round: along the track the covariance 
 so a step-length error above ``walk_gate_drift`` (5 %) over landmarks that are never trusted is,
 after a few hundred metres, held out (tests/test_walk_gate.py); not seen on the 40 IPIN walks (K = 3).
 
+**A heading error revealed by two fixes** (issue 27, point 5). The reference walks along the
+live heading with the graph's heading sigma, so when that heading is wrong by more than the
+graph admits (a grip the PDR did not notice, a compass bent for a whole corridor: the unseen walk
+route 25 rep 03 went 100° off) every landmark falls outside the reference's covariance and is
+held out, and the checkpoints that should pull the track back never reach it (a synthetic square
+walk 30° off with a landmark every 16 m: live p75 27.8 m before, 0.02 m now;
+tests/test_walk_gate.py). So the last precise position fix held out (σ at most
+``walk_gate_margin_m``: a checkpoint, not GNSS) is kept, and the next precise fix that the gate
+would hold out or let through untrusted is compared with it: the leg between the two fixes
+``w_z = z_B − z_A`` against what the reference walked between their times ``w_r = r_B − r_A``.
+
+* a **shift** (``|w_z − w_r|² ≤ χ²₂(p)·(σ_A² + σ_B²)``): both fixes one offset from the walk, a
+  drag's signature (attack 3): nothing is revealed, B is judged alone;
+* a **turn**: the legs have the same length within ``τ = margin + β·d_AB + √χ²₂(p)·√(σ_A² + σ_B²)``
+  and the reference's leg is at least ``2τ`` long (shorter, a turn and a shift cannot be told
+  apart within τ): the walk turned by the angle from w_r to w_z. B is let in and trusted (it
+  restarts the reference), and A goes to the graph first, so the graph's newest heading is
+  corrected at once by the two fixes (the live track turns at B, not at the fix after).
+
+Weak evidence (GNSS, beacons: σ above the margin) neither is kept nor reveals a turn. The rule
+lets a drag through only as a consistent rotation of the walk over legs at least 2τ long; with
+it, attack 3 (ten fixes 5 m from the live pose every 3 s) moves the track as far as before
+(the 3 s legs are too short to show a turn).
+
 The same reference is what a track restarts from when the graph cannot go on
 (:meth:`WalkGate.diverged`, :class:`service.fusion.estimators.FusionEstimator`): its pose is
 dead reckoning from the last trusted fix, which no refused input has touched.
@@ -98,6 +122,18 @@ class GateVerdict:
     reason: str = ""
     detail: str = ""
     info: dict | None = None
+    earlier: object | None = None  # a fix held out before that this one shows was right (a turn): the graph takes it first
+
+
+@dataclass(frozen=True)
+class _Held:
+    """The last precise position fix held out: with the next one it may reveal a heading error."""
+
+    fix: object
+    t: float
+    x: float
+    y: float
+    sigma: float
 
 
 @dataclass
@@ -126,11 +162,14 @@ def observation(fix) -> tuple | None:
 class WalkGate:
     """The dead-reckoning reference of one track and the gate it gives (module docstring)."""
 
+    _held: _Held | None = None  # (class default: snapshots pickled before it existed)
+
     def __init__(self, settings):
         self.s = settings
         self._state: tuple | None = None  # (t, x, y, θ, Σ as 6 floats (xx, xy, xθ, yy, yθ, θθ), floor)
         self._rows: deque[_Row] = deque()
         self._walked = 0.0
+        self._held = None
 
     def start(self, t: float, x: float, y: float, sigma: float, floor: int, heading: float = math.nan,
               heading_sigma: float = math.nan) -> None:
@@ -227,18 +266,52 @@ class WalkGate:
         d2 = _mahalanobis2(nu, cov, allow + s.walk_gate_margin_m)
         info = {"innovation_m": dist, "mahalanobis2": d2}
         if not d2 <= chi2:
+            turned = self._turned(fix, zx, zy, sigma, row, chi2, info)
+            if turned is not None:
+                return turned
+            if sigma <= s.walk_gate_margin_m:
+                self._held = _Held(fix, float(fix.t), zx, zy, sigma)
             return GateVerdict(False, reason="walk_gate", info=info,
                                detail=f"{dist:.1f} m from dead reckoning since the last trusted fix, "
                                       f"Mahalanobis² {d2:.1f} > {chi2:.1f} beyond {allow + s.walk_gate_margin_m:.1f} m "
                                       f"of drift after {row.walked:.0f} m walked")
         trusted = _mahalanobis2(nu, cov, s.walk_gate_margin_m) <= chi2
+        if not trusted:  # let through on the drift allowance: with a fix held out before, it may show a turn
+            turned = self._turned(fix, zx, zy, sigma, row, chi2, info)
+            if turned is not None:
+                return turned
         return GateVerdict(True, trusted=trusted, info=info)
+
+    def _turned(self, fix, zx: float, zy: float, sigma: float, row: _Row, chi2: float, info: dict) -> GateVerdict | None:
+        """A fix held out that, with the precise fix held out before it, shows the walk turned by a
+        heading error (module docstring, *A heading error revealed by two fixes*), or None."""
+        s, held = self.s, self._held
+        if held is None or sigma > s.walk_gate_margin_m or not (self._rows[0].t <= held.t < fix.t):
+            return None
+        a = self._at(held.t)
+        w_ref = np.array([row.x - a.x, row.y - a.y])  # what dead reckoning walked from A to B
+        w_fix = np.array([zx - held.x, zy - held.y])  # what the fixes say
+        var = held.sigma * held.sigma + sigma * sigma
+        if float((w_fix - w_ref) @ (w_fix - w_ref)) / var <= chi2:  # blas-ok: 2-vectors
+            return None  # a shift, not a turn: both fixes one offset from the walk (a drag's signature)
+        slack = s.walk_gate_margin_m + s.walk_gate_drift * max(row.walked - a.walked, 0.0)
+        tolerance = slack + math.sqrt(chi2 * var)  # m, how much the two legs' lengths may differ
+        if math.hypot(*w_ref) < 2.0 * tolerance:
+            return None  # a leg this short cannot tell a turn from a shift within that tolerance
+        if abs(math.hypot(*w_fix) - math.hypot(*w_ref)) > tolerance:
+            return None  # the legs differ in length: no turn explains it
+        turn = math.atan2(w_ref[0] * w_fix[1] - w_ref[1] * w_fix[0], float(w_ref @ w_fix))  # blas-ok: 2-vectors
+        self._held = None
+        info.update(turn_deg=math.degrees(turn), turn_from_t=held.t)
+        return GateVerdict(True, trusted=True, info=info, earlier=held.fix)
 
     def take(self, fix, verdict: GateVerdict) -> None:
         """The graph took ``fix``: a trusted position fix corrects the reference."""
         obs = observation(fix)
         if obs is None or obs[0] != "position" or not self._rows:
             return
+        if verdict.trusted:
+            self._held = None  # a new start: a fix held out before it no longer tells a turn
         row = self._at(float(fix.t))
         sigma = max(obs[3], self.s.checkpoint_sigma_floor_m)
         nu = np.array([obs[1] - row.x, obs[2] - row.y])
