@@ -174,6 +174,24 @@ def test_ctrl_c_during_the_warm_up_ends_the_start_at_once(tmp_path):
     assert "stopped while starting" in out or "interrupted" in out, out
 
 
+def test_a_ctrl_c_swallowed_while_importing_still_stops_the_command():
+    """A Ctrl-C during the imports that a library swallows (a broad ``except`` around an optional
+    import) must still stop the command once its own handler is installed."""
+    code = ("import os, signal\n"
+            "from service.protocol.early_interrupt import remember_interrupts\n"
+            "remember_interrupts()\n"
+            "try:\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n"
+            "    import time; time.sleep(5)\n"
+            "except BaseException:\n"
+            "    pass  # what a careless library does\n"
+            "from service.protocol.terminal import stop_on_signals\n"
+            "print('stop set:', stop_on_signals().is_set())\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert "stop set: True" in r.stdout, r.stdout + r.stderr
+    assert "SIGINT: shutting down" in r.stdout + r.stderr
+
+
 @pytest.mark.parametrize("args, says", [
     (["--roster-only"], "--roster-only needs a roster"),  # the demo incident has none, and no --tls
     (["--expire-after", "0"], "--expire-after must be positive"),
