@@ -24,6 +24,9 @@ def main() -> None:
 def _run() -> int:
     """Run the command; its exit code (130 after Ctrl-C, 1 after an uncaught error, printed)."""
     try:
+        from service.protocol.early_interrupt import remember_interrupts
+
+        remember_interrupts()  # before the seconds of imports (why: that module's docstring)
         from client.cli import main as run
 
         run()

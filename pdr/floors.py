@@ -143,7 +143,8 @@ class FloorSettings:
     """Every number of the floor tracker, with its unit (see the module docstring)."""
 
     switch_margin: float = 0.2  # fraction of the predicted gap beyond the midpoint, in [0, 0.5)
-    dwell_s: float = 1.0  # s, how long the height must stay past a threshold between dwells
+    dwell_s: float = 0.5  # s, how long the height must stay past a threshold between dwells (1.0 until
+    # issue 27's floors: T52r02 at K = 2 reached floor 0 0.1 s after a landmark at the stairs' top)
     dwell_window_s: float = 6.0  # s, the height is steady over this long: the walker is on a level
     dwell_max_rate: float = 0.05  # m/s, largest least-squares climb rate over the window that is still "steady"
     dwell_band_m: float = 1.0  # m, and largest range (max − min) over the window

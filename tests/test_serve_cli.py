@@ -149,6 +149,49 @@ def test_ctrl_c_while_starting_ends_without_a_traceback(delay):
     assert "Traceback" not in out, out
 
 
+def test_ctrl_c_during_the_warm_up_ends_the_start_at_once(tmp_path):
+    """Ctrl-C once the handler is installed (the INSECURE warning is printed just before) lands in
+    the warm-up, which takes seconds. It used to go on starting, print "serving" and then stop,
+    or hit the stop watchdog 15 s later (exit code 1); now the start ends where it is."""
+    proc = subprocess.Popen([sys.executable, "-c", "from client.entry import main; main()", "serve", "--no-console",
+                             "--listen", f"tcp/127.0.0.1:{free_port()}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    seen = []
+    try:
+        for line in proc.stdout:  # bounded: the process ends, or is killed below
+            seen.append(line)
+            if "INSECURE" in line:
+                break
+        proc.send_signal(signal.SIGINT)
+        rest, _ = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        rest, _ = proc.communicate()
+        raise AssertionError("Ctrl-C during the warm-up did not end serve within 30 s:\n" + "".join(seen) + rest) from None
+    out = "".join(seen) + rest
+    assert proc.returncode in (0, 130), out
+    assert "firetrack serving" not in out and "still shutting down" not in out and "Traceback" not in out, out
+    assert "stopped while starting" in out or "interrupted" in out, out
+
+
+def test_a_ctrl_c_swallowed_while_importing_still_stops_the_command():
+    """A Ctrl-C during the imports that a library swallows (a broad ``except`` around an optional
+    import) must still stop the command once its own handler is installed."""
+    code = ("import os, signal\n"
+            "from service.protocol.early_interrupt import remember_interrupts\n"
+            "remember_interrupts()\n"
+            "try:\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n"
+            "    import time; time.sleep(5)\n"
+            "except BaseException:\n"
+            "    pass  # what a careless library does\n"
+            "from service.protocol.terminal import stop_on_signals\n"
+            "print('stop set:', stop_on_signals().is_set())\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert "stop set: True" in r.stdout, r.stdout + r.stderr
+    assert "SIGINT: shutting down" in r.stdout + r.stderr
+
+
 @pytest.mark.parametrize("args, says", [
     (["--roster-only"], "--roster-only needs a roster"),  # the demo incident has none, and no --tls
     (["--expire-after", "0"], "--expire-after must be positive"),

@@ -102,6 +102,9 @@ def test_a_heading_made_certain_midway_leaves_the_reference_a_covariance_and_a_r
     for i in range(21, 41):
         gate.add_step(dataclasses.replace(east_step(i), heading=math.pi), math.pi, 0.001)
     assert all(np.linalg.eigvalsh(r.cov)[0] >= -1e-9 for r in gate._rows)
+    xx, xy, xt, yy, yt, tt = gate._state[4]
+    full = np.array([[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]])
+    assert np.linalg.eigvalsh(full)[0] >= -1e-9 * np.abs(full).max()  # the reference's whole (x, y, θ) stays PSD
     p = gate.point[0]
     v = gate.judge(UwbRange(t=0.6 * 40, anchor_x=p.x, anchor_y=p.y + 10.0, range=10.0, sigma=0.1))
     assert v.ok

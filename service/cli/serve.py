@@ -305,8 +305,9 @@ class running_service:
             svc.fence = self.fence
             svc.snapshot_feed = SnapshotFeed(session, self.cfg.id, self.shard, self.fence.tag)
             self._closers.append(svc.snapshot_feed.close)
-        svc.start()
+        svc.start(cancel=self.stop)
         self._closers.append(svc.close)
+        self._end_if_stopped()
         svc.console_url = None
         if sec is not None and sec.roster is not None:
             self._closers.append(_watch_roster(sec, svc, router=not self.connect).close)
@@ -320,6 +321,7 @@ class running_service:
             self._closers.append(pool.close)
             if not pool.wait_ready(60) and not (self.stop is not None and self.stop.is_set()):
                 err.print("[yellow]warning:[/] not every worker process started within 60 s")
+            self._end_if_stopped()
         if self.console:
             if _console_starter is None:
                 self.__exit__(None, None, None)
@@ -337,6 +339,15 @@ class running_service:
         where = ", ".join(self.connect) if self.connect else ", ".join(self.listen or [default_endpoint(tls)])
         self.service = svc
         return svc, where
+
+    def _end_if_stopped(self) -> None:
+        """A Ctrl-C (or systemd's stop) while starting: close what is open and end now, with
+        exit code 0 as after serving. Without this the start went on for seconds (the warm-up),
+        printed "serving" and only then stopped, or hit the stop watchdog (exit code 1)."""
+        if self.stop is not None and self.stop.is_set():
+            self.__exit__(None, None, None)
+            out.print("stopped while starting")
+            raise typer.Exit(0)
 
     def _claim(self, session):
         """Claim this part's next epoch; first, with ``--standby`` or while another service's
@@ -372,7 +383,8 @@ class running_service:
 
         settings = self.settings or ServiceSettings()
         if settings.warm_up:
-            warm_up(self.cfg, settings.core)
+            warm_up(self.cfg, settings.core, cancel=self.stop)
+            self._end_if_stopped()
             self.settings = dataclasses.replace(settings, warm_up=False)
 
     def _restore(self, follower):

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
+import logging
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -40,10 +41,14 @@ from pdr.pipeline import ImuFrame, PipelineSettings
 from service.core.motion import DEFAULT_CARRY, MotionModel, motion_model_for
 from service.fusion.estimators import (
     DeadReckoningEstimator,
+    FixOutcome,
     TrackEstimator,
+    joined_tracks,
     make_estimator,
 )
 from service.fusion.fixes import CheckpointFix  # noqa: F401  (re-exported: the tracker's fix type)
+
+log = logging.getLogger("firetrack.service")
 
 HELD_OUT_KEPT = 64  # fixes held out by the estimator kept for the core's audits (source, t, reason)
 
@@ -111,12 +116,14 @@ class ResponderTracker:
         self._degraded_before = 0  # graph restarts of the estimators replaced by a new placement
         self._degraded_at_before = math.nan
         self.held_out: deque = deque(maxlen=HELD_OUT_KEPT)  # (source, t, reason) refused: the core audits them
+        self._past: dict[str, np.ndarray] | None = None  # smoothed track of estimators replaced after an error
 
     def __setstate__(self, state: dict) -> None:
         """A tracker from a snapshot; one pickled before ``held_out`` was kept gets an empty one."""
         self.__dict__.update(state)
         if "held_out" not in state:
             self.held_out = deque(maxlen=HELD_OUT_KEPT)
+        self.__dict__.setdefault("_past", None)
 
     @property
     def degraded(self) -> int:
@@ -315,7 +322,10 @@ class ResponderTracker:
             if add_gap is not None:
                 add_gap(self._gap[1])
             self._gap = None
-        self.live = self._published(self.estimator.add_step(ev), ev.index)
+        p = self._guarded(lambda: self.estimator.add_step(ev), ev.t)
+        if p is None:
+            return None
+        self.live = self._published(p, ev.index)
         return self.live
 
     def _floor_changed(self, ev: FloorEvent) -> PoseEstimate | None:
@@ -326,7 +336,7 @@ class ResponderTracker:
         t = max(self.live.t, ev.t)
         p = self.baseline.set_floor(ev.t, ev.floor)
         self.pdr_track.append((max(p.t, ev.t), p.x, p.y, ev.floor))
-        self.estimator.set_floor(ev.t, ev.floor)
+        self._guarded(lambda: self.estimator.set_floor(ev.t, ev.floor), ev.t)
         self.live = dataclasses.replace(self.live, t=t, floor=ev.floor)
         return self.live
 
@@ -351,7 +361,9 @@ class ResponderTracker:
                 self.baseline.add_fix(fix)
             self.fixes_unused += 1
             return None
-        outcome = self.estimator.add_fix(fix)
+        outcome = self._guarded(lambda: self.estimator.add_fix(fix), float(fix.t))
+        if outcome is None:
+            outcome = FixOutcome("rejected", reason="estimator_error")
         if isinstance(fix, CheckpointFix) and outcome.verdict != "rejected":  # a refused fix moves no track
             self.baseline.add_fix(fix)
         if outcome.verdict == "unused":
@@ -368,5 +380,45 @@ class ResponderTracker:
         self.live = self._published(outcome.pose, self.live.steps if self.live else 0)
         return self.live
 
+    def _guarded(self, call, t: float):
+        """``call()`` on the estimator. Should it raise (a bug: inputs are checked before they get
+        here; CI once met a ValueError in the walk gate that then recurred at every round and cost a
+        responder 20 s of track), the estimator is replaced by a new one started at the last
+        published pose, the old one's smoothed track kept, the restart counted as a degradation
+        (the ``track_degraded`` alarm) and logged: one error costs one step or fix, not the track.
+        Returns None then."""
+        try:
+            return call()
+        except Exception as e:
+            log.exception("%s: the track estimator failed at device time %.2f s; restarted from the last pose",
+                          self.responder, t)
+            self._restart_estimator(t, f"{type(e).__name__}: {str(e)[:200]}")
+            return None
+
+    def _restart_estimator(self, t: float, why: str) -> None:
+        old = self.estimator
+        try:
+            past = old.smoothed_track()
+        except Exception:
+            past = None
+        if past is not None and len(past["t"]):
+            self._past = past if self._past is None else joined_tracks(self._past, past)
+        self._degraded_before, self._degraded_at_before = self.degraded + 1, t
+        self.estimator = make_estimator(self.settings.engine, self.settings.fusion)
+        p = self.live
+        if p is None:  # no pose yet: the track starts again at the next step, from the placement
+            self.estimator = None
+            return
+        from service.fusion.settings import FusionSettings
+
+        fs = self.settings.fusion or FusionSettings()
+        sigma = math.sqrt(max(float(np.linalg.eigvalsh(np.asarray(p.cov, float))[-1]), 0.0))
+        self.estimator.start(p.t, p.x, p.y, p.heading, fs.restart_heading_sigma_rad,
+                             max(sigma, fs.checkpoint_sigma_floor_m), p.floor)
+        log.warning("%s: track restarted at (%.1f, %.1f) after %s", self.responder, p.x, p.y, why)
+
     def smoothed_track(self) -> dict[str, np.ndarray] | None:
-        return None if self.estimator is None else self.estimator.smoothed_track()
+        now = None if self.estimator is None else self.estimator.smoothed_track()
+        if self._past is None or now is None:
+            return self._past if now is None else now
+        return joined_tracks(self._past, now)

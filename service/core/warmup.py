@@ -26,20 +26,22 @@ class WarmUp:
     errors: int  # exceptions the offline service caught (0, or the live one would hit them too)
 
 
-def warm_up(incident, settings=None, seconds: float = WARMUP_SECONDS) -> WarmUp:
+def warm_up(incident, settings=None, seconds: float = WARMUP_SECONDS, cancel=None) -> WarmUp:
     """Run a simulated responder through a throwaway incident core (``settings``: its
-    :class:`service.core.incident_core.CoreSettings`)."""
+    :class:`service.core.incident_core.CoreSettings`). ``cancel`` (an event, e.g. the command's
+    Ctrl-C): looked at before each frame, and the warm-up ends there when it is set (it takes
+    seconds, and a fire officer's Ctrl-C must not wait for it)."""
     started = time.perf_counter()
     quiet = logging.getLogger("firetrack.service")
     level = quiet.level
     quiet.setLevel(logging.ERROR)  # the throwaway responder is nobody's business
     try:
-        return _walk(incident, settings, seconds, started)
+        return _walk(incident, settings, seconds, started, cancel)
     finally:
         quiet.setLevel(level)
 
 
-def _walk(incident, settings, seconds: float, started: float) -> WarmUp:
+def _walk(incident, settings, seconds: float, started: float, cancel) -> WarmUp:
     from pdr.simulation import SimulatedWalker
     from service.core.incident_core import Inbound, IncidentCore
     from service.protocol import wire
@@ -51,6 +53,10 @@ def _walk(incident, settings, seconds: float, started: float) -> WarmUp:
     parts = {k: wire.read_key(v) for k, v in key.items()}  # each key read once, as the shell reads a message's
     frames = int(seconds * 10)
     for k in range(frames):
+        if cancel is not None and cancel.is_set():
+            r = core.responders.get(rid)
+            return WarmUp(time.perf_counter() - started, r.poses if r else 0, r.tracker.fixes_applied if r else 0,
+                          core.counters.errors)
         b = walker.next_batch(int(round(walker.settings.rate_hz / 10)))
         msg = wire.ImuBatch(responder=rid, device="warm-up", seq=k, t=b.t, acc=b.acc, gyr=b.gyr, mag=b.mag,
                             pressure_t=b.pressure_t, pressure=b.pressure)

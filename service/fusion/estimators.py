@@ -192,7 +192,7 @@ class FusionEstimator:
         if past is not None:
             ok = np.isfinite(past["x"]) & np.isfinite(past["y"])
             past = {k: v[ok] for k, v in past.items()}
-            self._past = past if self._past is None else _joined(self._past, past)
+            self._past = past if self._past is None else joined_tracks(self._past, past)
         p, walked = self.gate.point
         heading = p.heading if math.isfinite(p.heading) else (self._dr[3] if self._dr else 0.0)
         sigma = math.sqrt(max(float(np.linalg.eigvalsh(np.asarray(p.cov, float))[-1]), 0.0)) + self.gate.allowance(walked)
@@ -276,7 +276,7 @@ class FusionEstimator:
                    for k, v in zip(("t", "x", "y", "heading", "floor", "index"), (self._dr[0], self._dr[1], self._dr[2],
                                                                                   self._dr[3], self._dr[7], self._steps))}
         if self._past is not None:
-            out = _joined(self._past, out)
+            out = joined_tracks(self._past, out)
         if not self._pending:
             return out
         x, y, th = float(out["x"][-1]), float(out["y"][-1]), float(out["heading"][-1])
@@ -299,7 +299,7 @@ class FusionEstimator:
 _NO_COV = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
-def _joined(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+def joined_tracks(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Track ``a`` then the rows of ``b`` after its last time (a restarted graph's track after the old one's)."""
     keep = b["t"] > a["t"][-1] if len(a["t"]) else np.ones(len(b["t"]), bool)
     return {k: np.concatenate([a[k], np.asarray(b[k])[keep].astype(a[k].dtype)]) for k in a}

@@ -112,6 +112,19 @@ def _psd(c: np.ndarray) -> np.ndarray:
     return (v * np.clip(w, 0.0, None)) @ v.T  # blas-ok: 2x2
 
 
+def _tighter_heading(cov: tuple, tt: float) -> tuple:
+    """The reference's (x, y, θ) covariance (six floats, as :func:`dr_propagate`) with its heading
+    variance lowered to ``tt`` (the graph knows the heading better), the position-heading
+    correlation kept: ``Σ' = D Σ D``, ``D = diag(1, 1, √(tt/θθ))``, which is positive
+    semi-definite whenever ``Σ`` is (a congruence). Replacing θθ alone while xθ and yθ stayed made
+    the 3x3 indefinite: a walk east at σθ = 1 rad, then west at 0.001 rad, gave yy = −196 m², and a
+    UWB range judged against it took the square root of a negative variance (a ValueError that
+    cost a responder 20 s of track in CI run 1 at 157588d)."""
+    xx, xy, xt, yy, yt, t0 = cov
+    k = math.sqrt(tt / t0) if t0 > 0.0 else 0.0
+    return xx, xy, xt * k, yy, yt * k, tt
+
+
 @dataclass(frozen=True)
 class GateVerdict:
     """``ok`` (the graph may take it), ``trusted`` (it also corrects the reference); ``reason``
@@ -188,20 +201,13 @@ class WalkGate:
         turn = wrap(heading - th)
         turn_sigma = ev.heading_change_sigma if math.isfinite(ev.heading_change_sigma) else s.unknown_turn_sigma_rad
         if math.isfinite(heading_sigma) and heading_sigma * heading_sigma < cov[5]:  # the graph knows the heading better
-            cov = cov[:5] + (heading_sigma * heading_sigma,)
+            cov = _tighter_heading(cov, heading_sigma * heading_sigma)
         length = max(float(ev.length), 0.0)
         x, y, th, cov = dr_propagate(x, y, th, cov, length, max(ev.length_sigma, s.length_sigma_floor_m),
                                      turn, max(turn_sigma, s.turn_sigma_floor_rad), s.lateral_sigma_m)
         self._state = (ev.t, x, y, th, cov, ev.floor)
         self._walked += length
-        row_cov = np.array([[cov[0], cov[1]], [cov[1], cov[3]]])
-        if not (cov[0] >= 0.0 and cov[3] >= 0.0 and cov[0] * cov[3] >= cov[1] * cov[1]):
-            # the 3x3 went indefinite (the graph's tighter heading σ replaced θθ above while the
-            # cross terms xθ, yθ stayed): a walk east at σθ = 1 rad, then west at 0.001 rad, gave
-            # yy = -196 m², and a UWB range judged against it took the square root of a negative
-            # variance (a ValueError that cost a responder 20 s of track in CI)
-            row_cov = _psd(row_cov)
-        self._rows.append(_Row(ev.t, x, y, row_cov, self._walked))
+        self._rows.append(_Row(ev.t, x, y, np.array([[cov[0], cov[1]], [cov[1], cov[3]]]), self._walked))
         while len(self._rows) > 1 and self._rows[0].t < ev.t - self.s.lag_s - 5.0:
             self._rows.popleft()
 

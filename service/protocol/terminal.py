@@ -165,6 +165,10 @@ def stop_on_signals() -> SignalStop:
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    from service.protocol.early_interrupt import interrupted_early
+
+    if interrupted_early():  # a Ctrl-C during the imports that something swallowed: it still counts
+        handler(signal.SIGINT, None)
     return stop
 
 

@@ -167,12 +167,14 @@ class IncidentService(SnapshotWriter):
             return self.core.frame_accounting()
 
     # ------------------------------------------------------------------ lifecycle
-    def start(self) -> IncidentService:
+    def start(self, cancel=None) -> IncidentService:
+        """Warm up, subscribe, start the worker threads. ``cancel`` (the command's stop event)
+        cuts the warm-up short: the caller looks at it again before serving."""
         fix_mmap_threshold(self.settings.mmap_threshold_bytes)  # freed big buffers go back (snapshots.py)
         if self.settings.warm_up:
             from service.core.warmup import warm_up
 
-            w = warm_up(self.incident, self.settings.core)
+            w = warm_up(self.incident, self.settings.core, cancel=cancel)
             log.info("warmed up in %.2f s (a simulated responder: %d poses, %d fixes applied)",
                      w.seconds, w.poses, w.fixes_applied)
         if self.access is not None:  # the policy is the core's (and the recording's) first input
