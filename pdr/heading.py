@@ -120,6 +120,7 @@ import numpy as np
 from pdr.ahrs import make_filter
 from pdr.angles import wrap  # noqa: F401  (re-exported)
 from pdr.compass_streak import OffsetStreak, held
+from pdr.compass_weight import measurement_sigma, odd_field
 from pdr.grip import GripTracker
 from pdr.heading_settings import HeadingSettings  # noqa: F401  (re-exported)
 from pdr.fixed_order import row_dot
@@ -284,20 +285,18 @@ class HeadingEstimator:
         rho = np.clip(np.hypot(cs, sn), 1e-12, 1.0)
         spread = np.sqrt(-2.0 * np.log(rho))
         self._learn_reference(t_end, nrm, inc_m, np.where(rate > s.max_rate, np.inf, spread))
-        sig = self._measurement_sigma(spread, nrm, inc_m, t_end)
-        sig = np.where(rate > s.max_rate, np.inf, sig)
-        odd = self._odd_field(nrm, t_end)
-        for i in range(len(t_end)):  # a few epochs per second: a scalar filter loop is cheap
-            self._kf_step(t_end[i], psi_end[i], dm[i], sig[i], bool(odd[i]))
+        # a few epochs per second: a scalar filter loop, each epoch's weight in Python floats
+        for t, psi, d, sp, f, inc, w in zip(*(c.tolist() for c in (t_end, psi_end, dm, spread, nrm, inc_m, rate))):
+            sig = math.inf if w > s.max_rate else self._measurement_sigma(sp, f, inc, t)
+            self._kf_step(t, psi, d, sig, self._odd_field(f, t))
 
-    def _odd_field(self, nrm, t) -> np.ndarray:
-        """Per epoch: is its field strength more than ``hold_norm`` from the reference (configured,
-        or learned once its window is over)? Only such an epoch can be held (:meth:`_accepts`)."""
-        s = self.settings
-        learned_by = -math.inf if self._t0 is None else self._t0 + s.reference_seconds
-        known = np.isfinite(s.field_norm) | (np.asarray(t) > learned_by)
-        with np.errstate(invalid="ignore"):
-            return known & (np.abs(nrm - self._ref_norm) > s.hold_norm)
+    def _learned_by(self) -> float:
+        """From when a learned field reference counts (:mod:`pdr.compass_weight`)."""
+        return -math.inf if self._t0 is None else self._t0 + self.settings.reference_seconds
+
+    def _odd_field(self, nrm: float, t: float) -> bool:
+        """Only an epoch or step in an odd field can be held (:meth:`_accepts`; :func:`pdr.compass_weight.odd_field`)."""
+        return odd_field(self.settings, nrm, t, self._ref_norm, self._learned_by())
 
     def _learn_reference(self, t_end, nrm, inc_m, spread) -> None:
         s = self.settings
@@ -325,26 +324,10 @@ class HeadingEstimator:
         """(|B| µT, inclination rad) the disturbance test compares with (NaN while learning)."""
         return self._ref_norm, self._ref_inc
 
-    def _measurement_sigma(self, spread, nrm, inc_m, t) -> np.ndarray:
-        """σ_m per epoch (or step) ending at ``t``. A learned field reference only counts from
-        the end of its window on — an earlier epoch is judged as it was when it happened,
-        so one large batch and many small ones agree."""
-        s = self.settings
-        var = s.sigma_mag**2 + spread**2
-        bad = ~np.isfinite(spread) | (spread > s.spread_gate) | ~np.isfinite(nrm)
-        learned_by = -math.inf if self._t0 is None else self._t0 + s.reference_seconds
-        known = np.asarray(t) > learned_by
-        if np.isfinite(self._ref_norm):
-            dn = np.where(np.isfinite(s.field_norm) | known, np.abs(nrm - self._ref_norm), 0.0)
-            var = var + (s.norm_weight * dn) ** 2
-            if np.isfinite(s.field_norm):  # a learned reference is where the walker started: no gate
-                bad |= dn > s.norm_gate
-        if np.isfinite(self._ref_inc):
-            di = np.where(np.isfinite(s.field_inclination) | known, np.abs(inc_m - self._ref_inc), 0.0)
-            var = var + (s.inclination_weight * di) ** 2
-            if np.isfinite(s.field_inclination):
-                bad |= di > s.inclination_gate
-        return np.where(bad, np.inf, np.sqrt(var))
+    def _measurement_sigma(self, spread: float, nrm: float, inc_m: float, t: float) -> float:
+        """σ_m of an epoch (or step) ending at ``t`` (:func:`pdr.compass_weight.measurement_sigma`)."""
+        return measurement_sigma(self.settings, spread, nrm, inc_m, t, self._ref_norm, self._ref_inc,
+                                 self._learned_by())
 
     def _kf_step(self, t_end, psi_end, dm, sig, odd: bool = False) -> None:
         s = self.settings
@@ -476,10 +459,9 @@ class HeadingEstimator:
                 ddo = dd[okd]
                 c, sn = np.cos(ddo).mean(), np.sin(ddo).mean()
                 spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
-                nrm_k = np.array([buf[i0:i1, 3][okd].mean()])
-                sig_m = float(self._measurement_sigma(np.array([spread]), nrm_k, np.array([buf[i0:i1, 4][okd].mean()]),
-                                                      np.array([tk]))[0])
-                if held(float(wrap(math.atan2(sn, c) - delta)), P, bool(self._odd_field(nrm_k, np.array([tk]))[0]), s):
+                nrm_k = float(buf[i0:i1, 3][okd].mean())
+                sig_m = self._measurement_sigma(spread, nrm_k, float(buf[i0:i1, 4][okd].mean()), tk)
+                if held(float(wrap(math.atan2(sn, c) - delta)), P, self._odd_field(nrm_k, tk), s):
                     sig_m = math.inf  # the filter would hold this compass (_accepts): so must the fusion
                 magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if np.isfinite(sig_m) else math.nan
             else:
