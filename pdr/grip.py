@@ -91,7 +91,7 @@ import numpy as np
 
 from pdr import quaternion as quat
 from pdr.angles import wrap
-from pdr.fixed_order import row_dot
+from pdr.fixed_order import mean0, row_dot
 
 
 @dataclasses.dataclass(frozen=True)
@@ -269,10 +269,10 @@ def standing_up(q, z, settings: GripSettings) -> np.ndarray | None:
     # ∠(u_0, u_i) = acos(u_0 · u_i): the dot products as arrays (each the same bits as _dot),
     # the acos per sample in math's own (numpy's may take a CPU-specific kernel)
     n = _settled_run(np.clip(row_dot(ups, first), -1.0, 1.0), settings.regrip_settle)
-    zs = z[:n] - z[:n].mean()
+    zs = z[:n] - mean0(z[:n])
     if n < settings.standing_samples or math.sqrt(_sum_squares(zs) / n) > settings.standing_vertical_std:
         return None
-    mean = ups[:n].mean(axis=0)
+    mean = mean0(ups[:n])
     return mean / _norm(mean)
 
 

@@ -123,7 +123,7 @@ from pdr.compass_streak import OffsetStreak, held
 from pdr.compass_weight import measurement_sigma, odd_field
 from pdr.grip import GripTracker
 from pdr.heading_settings import HeadingSettings  # noqa: F401  (re-exported)
-from pdr.fixed_order import row_dot
+from pdr.fixed_order import mean0, row_dot
 from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass
 from pdr.walking_direction import walking_angle
 from pdr.window_kernels import still_bias
@@ -307,7 +307,7 @@ class HeadingEstimator:
         inwin = t_end <= self._t0 + s.reference_seconds
         ok = inwin & (spread < s.spread_gate) & np.isfinite(nrm)
         if ok.any():
-            self._ref_buf.append(np.c_[nrm[ok], inc_m[ok]])
+            self._ref_buf.append(np.column_stack((nrm[ok], inc_m[ok])))
         if not inwin.all():  # the reference window is over: fix the medians
             ref = np.vstack(self._ref_buf) if self._ref_buf else np.empty((0, 2))
             if len(ref):
@@ -436,34 +436,34 @@ class HeadingEstimator:
             i1 = int(np.searchsorted(bt, tk, side="right"))
             if i1 <= i0:  # no sample in the step: the last one at or before it (after a gap: the oldest)
                 i0, i1 = (i1 - 1, i1) if i1 > 0 else (0, 1)
-            psi_g = float(np.mean(buf[i0:i1, 1]))  # unwrapped: the arithmetic mean is circular
+            psi_g = float(mean0(buf[i0:i1, 1]))  # unwrapped: the arithmetic mean is circular
             w0 = int(np.searchsorted(bt, tk - s.grip.window, side="right"))  # samples in (tk − window, tk]
             qs = buf[i0:i1, 8:12]
-            qm = (qs * np.sign(row_dot(qs, qs[-1]))[:, None]).mean(axis=0)  # the step's mean attitude (one hemisphere)
+            qm = mean0(qs * np.sign(row_dot(qs, qs[-1]))[:, None])  # the step's mean attitude (one hemisphere)
             before = (buf[w0:i0, 8:12], buf[w0:i0, 7]) if self.grip.wants_standing else None
             omega, jumped = self._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7], tk,
                                             qm / math.sqrt(float(row_dot(qm, qm))), before)
             off = off + omega
             k = bisect.bisect_right(hist_t, tk) - 1
             _, delta, P = hist[max(k, 0)]
-            if not np.isfinite(delta):  # before the first compass epoch
-                delta = float(buf[i1 - 1, 2]) if np.isfinite(buf[i1 - 1, 2]) else 0.0
+            if not math.isfinite(delta):  # before the first compass epoch
+                delta = float(buf[i1 - 1, 2]) if math.isfinite(buf[i1 - 1, 2]) else 0.0
                 P = math.pi**2
             elapsed = tk - hist[max(k, 0)][0]
-            P = P + s.sigma_rw**2 * elapsed if np.isfinite(P) and np.isfinite(elapsed) else P
+            P = P + s.sigma_rw**2 * elapsed if math.isfinite(P) and math.isfinite(elapsed) else P
             dev = float(wrap(psi_g + delta))
             # compass heading of this step on its own
             dd = buf[i0:i1, 2]
             okd = np.isfinite(dd)
-            if okd.sum() >= 2:
+            if np.count_nonzero(okd) >= 2:
                 ddo = dd[okd]
-                c, sn = np.cos(ddo).mean(), np.sin(ddo).mean()
+                c, sn = float(mean0(np.cos(ddo))), float(mean0(np.sin(ddo)))
                 spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
-                nrm_k = float(buf[i0:i1, 3][okd].mean())
-                sig_m = self._measurement_sigma(spread, nrm_k, float(buf[i0:i1, 4][okd].mean()), tk)
+                nrm_k = float(mean0(buf[i0:i1, 3][okd]))
+                sig_m = self._measurement_sigma(spread, nrm_k, float(mean0(buf[i0:i1, 4][okd])), tk)
                 if held(float(wrap(math.atan2(sn, c) - delta)), P, self._odd_field(nrm_k, tk), s):
                     sig_m = math.inf  # the filter would hold this compass (_accepts): so must the fusion
-                magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if np.isfinite(sig_m) else math.nan
+                magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if math.isfinite(sig_m) else math.nan
             else:
                 sig_m, magh = math.inf, math.nan
             if self._prev_step is None:
