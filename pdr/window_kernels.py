@@ -133,19 +133,32 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
                 sure = False
         if hopeless:
             continue
-        for c in range(3 if sure else 4):
-            s = 0.0
+        # each column summed on its own, oldest first (module docstring), the columns side by
+        # side: the same additions in the same order per column, four chains at once
+        s0 = s1 = s2 = s3 = 0.0
+        if sure:
             for j in range(j0, i + 1):
-                s += X[j, c]
-            mu = s / cnt
-            g[c] = mu
-            if sure:
-                continue
-            ss = 0.0
+                s0 += X[j, 0]
+                s1 += X[j, 1]
+                s2 += X[j, 2]
+        else:
             for j in range(j0, i + 1):
-                d = X[j, c] - mu
-                ss += d * d
-            sd[c] = np.sqrt(ss / cnt)
+                s0 += X[j, 0]
+                s1 += X[j, 1]
+                s2 += X[j, 2]
+                s3 += X[j, 3]
+        g[0], g[1], g[2] = s0 / cnt, s1 / cnt, s2 / cnt
+        if not sure:
+            g[3] = s3 / cnt
+            m0, m1, m2, m3 = g[0], g[1], g[2], g[3]
+            q0 = q1 = q2 = q3 = 0.0
+            for j in range(j0, i + 1):
+                d0, d1, d2, d3 = X[j, 0] - m0, X[j, 1] - m1, X[j, 2] - m2, X[j, 3] - m3
+                q0 += d0 * d0
+                q1 += d1 * d1
+                q2 += d2 * d2
+                q3 += d3 * d3
+            sd[0], sd[1], sd[2], sd[3] = np.sqrt(q0 / cnt), np.sqrt(q1 / cnt), np.sqrt(q2 / cnt), np.sqrt(q3 / cnt)
         if ((sure or (sd[0] < gyr_std and sd[1] < gyr_std and sd[2] < gyr_std and sd[3] < acc_std))
                 and math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) < gyr_max):
             still[r] = True
