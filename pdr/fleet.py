@@ -309,7 +309,7 @@ class PdrFleet:
         ep_slot = np.empty(T.size + J, np.int64)
         n_ep = K.heading_stage(slots, off, T, ACC, GYR, MAG, has_mag, AN, R.ahrs, self._ahrs_p, self._turn,
                                R.bias, R.bias_tails, self._bias_cfg, self._fwd, bool(hs.use_mag), hs.declination,
-                               R.raw_last, R.turns, R.t0h, R.ep, hs.epoch, R.hbufs, self._hbuf_keep,
+                               R.raw_last, R.turns, R.t0h, R.ep, hs.epoch, R.hbufs, R.hbases, R.hb_end, self._hbuf_keep,
                                ep_rows, ep_slot)
         if n_ep:  # closed compass epochs: each responder's filter
             which = ep_slot[:n_ep]

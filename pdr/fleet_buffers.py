@@ -42,6 +42,36 @@ def keep_after(buf, lim, extra):  # pragma: no cover - compiled
     return out
 
 
+@njit(cache=True)
+def kept_with_room(buf, base, end, lim, extra):  # pragma: no cover - compiled
+    """``keep_after(buf, lim, extra)`` without copying the rows kept, where it can: ``buf`` is
+    ``base[end - len(buf):end]`` (a view; ``end`` < 0: no such base), so when the rows kept are
+    a suffix and ``base`` has ``extra`` free rows after ``end``, the answer is the view
+    ``base[start:end + extra]``. Otherwise the rows kept go to a new base with room for as
+    many again (the copy is paid once per that many rows, not once per frame). Returns the
+    view, its base and the view's end in the base. The values are those of :func:`keep_after`."""
+    n = buf.shape[0]
+    k0 = n
+    for i in range(n - 1, -1, -1):  # the kept suffix
+        if buf[i, 0] > lim:
+            k0 = i
+        else:
+            break
+    suffix = True
+    for i in range(k0):
+        if buf[i, 0] > lim:
+            suffix = False
+            break
+    if (suffix and n <= end <= base.shape[0] - extra
+            and (n == 0 or (base[end - n, 0] == buf[0, 0] and base[end - 1, 0] == buf[n - 1, 0]))):
+        return base[end - n + k0:end + extra], base, end + extra
+    kept = buf[k0:] if suffix else keep_after(buf, lim, 0)
+    k = kept.shape[0]
+    nb = np.empty((2 * (k + extra) + 16, buf.shape[1]))
+    nb[:k] = kept
+    return nb[:k + extra], nb, k + extra
+
+
 # ------------------------------------------------------------------ heading, detector buffer, motion windows
 
 
