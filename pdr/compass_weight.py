@@ -28,18 +28,15 @@ def measurement_sigma(s, spread: float, nrm: float, inc: float, t: float, ref_no
     var = s.sigma_mag**2 + spread * spread
     bad = not math.isfinite(spread) or spread > s.spread_gate or not math.isfinite(nrm)
     known = t > learned_by
-    if math.isfinite(ref_norm):
-        dn = abs(nrm - ref_norm) if math.isfinite(s.field_norm) or known else 0.0
-        w = s.norm_weight * dn
-        var = var + w * w
-        if math.isfinite(s.field_norm):
-            bad = bad or dn > s.norm_gate
-    if math.isfinite(ref_inc):
-        di = abs(inc - ref_inc) if math.isfinite(s.field_inclination) or known else 0.0
-        w = s.inclination_weight * di
-        var = var + w * w
-        if math.isfinite(s.field_inclination):
-            bad = bad or di > s.inclination_gate
+    for value, ref, configured, weight, gate in ((nrm, ref_norm, s.field_norm, s.norm_weight, s.norm_gate),
+                                                 (inc, ref_inc, s.field_inclination, s.inclination_weight,
+                                                  s.inclination_gate)):
+        if math.isfinite(ref):  # |B| first, then I: the order of the sum
+            dev = abs(value - ref) if math.isfinite(configured) or known else 0.0
+            w = weight * dev
+            var = var + w * w
+            if math.isfinite(configured):  # a learned reference is where the walker started: no gate
+                bad = bad or dev > gate
     return math.inf if bad else math.sqrt(var)
 
 

@@ -9,22 +9,29 @@ from numba import njit
 
 
 @njit(cache=True)
+def _kept_suffix(buf, lim):  # pragma: no cover - compiled
+    """``(k0, suffix)``: the rows from ``k0`` on are above ``lim`` (the row before is not), and
+    ``suffix``: no row before ``k0`` is above it (the rows kept are exactly those)."""
+    n = buf.shape[0]
+    k0 = n
+    for i in range(n - 1, -1, -1):
+        if buf[i, 0] > lim:
+            k0 = i
+        else:
+            break
+    for i in range(k0):
+        if buf[i, 0] > lim:
+            return k0, False
+    return k0, True
+
+
+@njit(cache=True)
 def keep_after(buf, lim, extra):  # pragma: no cover - compiled
     """The rows of ``buf`` whose first column is above ``lim`` (``buf[buf[:, 0] > lim]``), in a
     new array with ``extra`` rows left free at the end; one block copy when they are a suffix
     (times in order, the usual case)."""
     n = buf.shape[0]
-    k0 = n
-    for i in range(n - 1, -1, -1):  # the kept suffix
-        if buf[i, 0] > lim:
-            k0 = i
-        else:
-            break
-    suffix = True
-    for i in range(k0):
-        if buf[i, 0] > lim:
-            suffix = False
-            break
+    k0, suffix = _kept_suffix(buf, lim)
     if suffix:
         out = np.empty((n - k0 + extra, buf.shape[1]))
         out[:n - k0] = buf[k0:]
@@ -51,17 +58,7 @@ def kept_with_room(buf, base, end, lim, extra):  # pragma: no cover - compiled
     many again (the copy is paid once per that many rows, not once per frame). Returns the
     view, its base and the view's end in the base. The values are those of :func:`keep_after`."""
     n = buf.shape[0]
-    k0 = n
-    for i in range(n - 1, -1, -1):  # the kept suffix
-        if buf[i, 0] > lim:
-            k0 = i
-        else:
-            break
-    suffix = True
-    for i in range(k0):
-        if buf[i, 0] > lim:
-            suffix = False
-            break
+    k0, suffix = _kept_suffix(buf, lim)
     if (suffix and n <= end <= base.shape[0] - extra
             and (n == 0 or (base[end - n, 0] == buf[0, 0] and base[end - 1, 0] == buf[n - 1, 0]))):
         return base[end - n + k0:end + extra], base, end + extra

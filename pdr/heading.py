@@ -284,9 +284,10 @@ class HeadingEstimator:
         dm = np.arctan2(sn, cs)
         rho = np.clip(np.hypot(cs, sn), 1e-12, 1.0)
         spread = np.sqrt(-2.0 * np.log(rho))
-        self._learn_reference(t_end, nrm, inc_m, np.where(rate > s.max_rate, np.inf, spread))
-        # a few epochs per second: a scalar filter loop, each epoch's weight in Python floats
-        for t, psi, d, sp, f, inc, w in zip(*(c.tolist() for c in (t_end, psi_end, dm, spread, nrm, inc_m, rate))):
+        # a few epochs per second: the rest in Python floats (a scalar filter loop, each epoch's weight)
+        epochs = list(zip(*(c.tolist() for c in (t_end, psi_end, dm, spread, nrm, inc_m, rate))))
+        self._learn_reference(epochs)
+        for t, psi, d, sp, f, inc, w in epochs:
             sig = math.inf if w > s.max_rate else self._measurement_sigma(sp, f, inc, t)
             self._kf_step(t, psi, d, sig, self._odd_field(f, t))
 
@@ -298,17 +299,20 @@ class HeadingEstimator:
         """Only an epoch or step in an odd field can be held (:meth:`_accepts`; :func:`pdr.compass_weight.odd_field`)."""
         return odd_field(self.settings, nrm, t, self._ref_norm, self._learned_by())
 
-    def _learn_reference(self, t_end, nrm, inc_m, spread) -> None:
+    def _learn_reference(self, epochs: list[tuple]) -> None:
+        """The field reference from epochs (t_end, ψ, δ_m, spread, |B|, I, |ω|) within its window
+        that passed the spread gate (an epoch over ``max_rate`` has none)."""
         s = self.settings
-        if np.isfinite(self._ref_norm) and np.isfinite(self._ref_inc):
+        if math.isfinite(self._ref_norm) and math.isfinite(self._ref_inc):
             return
-        if self._t0 is None or not np.isfinite(nrm).any():
+        if self._t0 is None or not any(math.isfinite(e[4]) for e in epochs):
             return
-        inwin = t_end <= self._t0 + s.reference_seconds
-        ok = inwin & (spread < s.spread_gate) & np.isfinite(nrm)
-        if ok.any():
-            self._ref_buf.append(np.column_stack((nrm[ok], inc_m[ok])))
-        if not inwin.all():  # the reference window is over: fix the medians
+        end = self._t0 + s.reference_seconds
+        ok = [(f, inc) for t, _, _, sp, f, inc, w in epochs
+              if t <= end and not w > s.max_rate and sp < s.spread_gate and math.isfinite(f)]
+        if ok:
+            self._ref_buf.append(np.array(ok, float))
+        if not all(e[0] <= end for e in epochs):  # the reference window is over: fix the medians
             ref = np.vstack(self._ref_buf) if self._ref_buf else np.empty((0, 2))
             if len(ref):
                 if not np.isfinite(self._ref_norm):
