@@ -54,3 +54,10 @@ def mat_vec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
     for j in range(1, k):
         out = out + m[..., :, j] * v[..., None, j]
     return out
+
+
+def mean0(a: np.ndarray) -> np.ndarray | np.float64:
+    """``np.mean(a, axis=0)`` of a float64 array with at least one row, the same bits: numpy's mean
+    is ``np.add.reduce`` along the axis, then one division by the count. Without its Python
+    wrapper (a few µs a call): the per-step code calls it several times a step."""
+    return np.add.reduce(a, axis=0) / a.shape[0]

@@ -221,7 +221,7 @@ class PdrFleet:
         R = self.rows
         results: list = [[] for _ in items]
         imu, pres = [], []  # (item index, member, t, frame) / (item index, member, pt, p)
-        times = [np.asarray(f.t, float).reshape(-1) for _, f in items]
+        times = [_floats(f.t) for _, f in items]
         # the order check for the whole round at once: a frame's first sample after the member's last
         firsts = np.array([t[0] if t.size else np.inf for t in times])
         late = (firsts <= R.mot[np.array([m.slot for m, _ in items], np.int64), K.M_TLAST]).tolist()
@@ -232,7 +232,7 @@ class PdrFleet:
                                         f"{R.mot[m.slot, K.M_TLAST]:.6f} s")
                 continue
             if f.pressure is not None and f.pressure_t is not None and len(f.pressure):
-                pres.append((k, m, np.asarray(f.pressure_t, float).reshape(-1), np.asarray(f.pressure, float).reshape(-1)))
+                pres.append((k, m, _floats(f.pressure_t), _floats(f.pressure)))
             if t.size:
                 imu.append((k, m, t, f))
         if pres:
@@ -283,14 +283,14 @@ class PdrFleet:
         off = np.zeros(J + 1, np.int64)
         off[1:] = np.cumsum(sizes)
         T = np.concatenate([t for _, _, t, _ in imu])
-        ACC = np.ascontiguousarray(np.concatenate([np.asarray(f.acc, float).reshape(-1, 3) for _, _, _, f in imu]))
-        GYR = np.ascontiguousarray(np.concatenate([np.asarray(f.gyr, float).reshape(-1, 3) for _, _, _, f in imu]))
+        ACC = np.ascontiguousarray(np.concatenate([_floats(f.acc, 3) for _, _, _, f in imu]))
+        GYR = np.ascontiguousarray(np.concatenate([_floats(f.gyr, 3) for _, _, _, f in imu]))
         has_mag = np.array([f.mag is not None for _, _, _, f in imu], np.bool_)
         if has_mag.all():
-            MAG = np.ascontiguousarray(np.concatenate([np.asarray(f.mag, float).reshape(-1, 3) for _, _, _, f in imu]))
+            MAG = np.ascontiguousarray(np.concatenate([_floats(f.mag, 3) for _, _, _, f in imu]))
         elif has_mag.any():
             MAG = np.ascontiguousarray(np.concatenate([
-                np.asarray(f.mag, float).reshape(-1, 3) if f.mag is not None else np.zeros((t.size, 3))
+                _floats(f.mag, 3) if f.mag is not None else np.zeros((t.size, 3))
                 for _, _, t, f in imu]))
         else:
             MAG = np.zeros((T.size, 3))
@@ -309,7 +309,7 @@ class PdrFleet:
         ep_slot = np.empty(T.size + J, np.int64)
         n_ep = K.heading_stage(slots, off, T, ACC, GYR, MAG, has_mag, AN, R.ahrs, self._ahrs_p, self._turn,
                                R.bias, R.bias_tails, self._bias_cfg, self._fwd, bool(hs.use_mag), hs.declination,
-                               R.raw_last, R.turns, R.t0h, R.ep, hs.epoch, R.hbufs, self._hbuf_keep,
+                               R.raw_last, R.turns, R.t0h, R.ep, hs.epoch, R.hbufs, R.hbases, R.hb_end, self._hbuf_keep,
                                ep_rows, ep_slot)
         if n_ep:  # closed compass epochs: each responder's filter
             which = ep_slot[:n_ep]
@@ -435,6 +435,17 @@ class PdrFleet:
         m.assembler.reanchor(h)
         if not m.floor_events.waiting:
             self._floor_work.discard(r)
+
+
+_F8 = np.dtype(float)
+
+
+def _floats(a, cols: int = 0) -> np.ndarray:
+    """``np.asarray(a, float)`` as a vector, or as rows of ``cols``; an array that is so already (a
+    decoded frame's) as it is: a round takes five per frame, and numpy's calls cost more than the rest."""
+    if type(a) is np.ndarray and a.dtype is _F8 and (a.ndim == 1 if not cols else a.ndim == 2 and a.shape[1] == cols):
+        return a
+    return np.asarray(a, float).reshape((-1, cols) if cols else -1)
 
 
 def merge_events(steps: list, motion: list[MotionEvent]) -> list:

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from pdr.ahrs._decoupled_kernel import decoupled_run
-from pdr.fleet_buffers import keep_after
+from pdr.fleet_buffers import keep_after, kept_with_room
 from pdr.floor_kernels import track_run
 from pdr.heading_kernels import close_epochs, level_and_compass
 from pdr.height import altimeter_run
@@ -46,7 +46,7 @@ def _norm3(x, y, z):
 @njit(cache=True)
 def heading_stage(slots, off, T, ACC, GYR, MAG, has_mag, AN,
                   ahrs_s, ahrs_p, turn, bias, bias_tails, bias_cfg, fwd, use_mag_cfg, declination,
-                  raw_last, turns, t0h, ep_state, epoch, hbufs, hbuf_keep,
+                  raw_last, turns, t0h, ep_state, epoch, hbufs, hbases, hb_end, hbuf_keep,
                   ep_rows, ep_slot):  # pragma: no cover - compiled
     """Per responder of the round: ‖f‖, gyro bias at standstill, levelling AHRS, gyro heading
     and compass offset, compass epochs and the sample buffer the steps' headings read
@@ -128,8 +128,9 @@ def heading_stage(slots, off, T, ACC, GYR, MAG, has_mag, AN,
             ep_slot[n_ep] = j
             n_ep += 1
         # 5. samples kept for the steps' headings: t, ψ, δ, |b|, I, levelled specific force (f, l, up), attitude q
-        buf = hbufs[r]
-        nb = keep_after(buf, t[0] - hbuf_keep, n)
+        nb, base, end = kept_with_room(hbufs[r], hbases[r], hb_end[r], t[0] - hbuf_keep, n)
+        hbases[r] = base  # hbufs[r] is a view of it: a frame's rows are written after the last, no copy
+        hb_end[r] = end
         k = nb.shape[0] - n
         for i in range(n):
             nb[k + i, 0], nb[k + i, 1], nb[k + i, 2], nb[k + i, 3], nb[k + i, 4] = t[i], psi[i], d[i], nrm[i], inc[i]

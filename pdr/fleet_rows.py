@@ -37,7 +37,9 @@ from pdr.heading_kernels import EPOCH_STATE
 HBUF_COLS = len(BUF_COLUMNS)
 # the per-slot buffers: (1: a vector, 2: rows of samples, their columns)
 TYPED_LISTS = {"bias_tails": (2, 5), "hbufs": (2, HBUF_COLS), "mot_tails": (2, 3), "lms": (2, 2), "raws": (2, 2),
-               "det_tails": (2, 2), "pres": (2, 2), "step_times": (1, 0)}
+               "det_tails": (2, 2), "pres": (2, 2), "step_times": (1, 0), "hbases": (2, HBUF_COLS)}
+# hbufs[r] is a view of hbases[r] ending at row hb_end[r] (pdr.fleet_buffers.kept_with_room): room
+# for the next frames' samples; a snapshot keeps the views' rows only (the bases start again)
 
 
 def _empty(dim: int, cols: int) -> np.ndarray:
@@ -59,6 +61,7 @@ class FleetRows:
             "height": ((), "f8", np.nan), "fs": ((F_STATE,), "f8", np.nan), "ring_t": ((F_RING,), "f8", 0.0),
             "ring_z": ((F_RING,), "f8", 0.0), "rr": ((n_floors,), "f8", 0.0), "known": ((n_floors,), "i8", 0),
             "learned": ((n_floors,), "f8", 0.0), "pred": ((n_floors,), "f8", 0.0), "t_first": ((), "f8", np.nan),
+            "hb_end": ((), "i8", -1),
         }
         self.n = 0  # slots in use or free below the top
         self.cap = 0
@@ -144,9 +147,15 @@ class FleetRows:
             d[k] = B.pack_rows(d[k], cols) if dim == 2 else B.pack_vectors(d[k])
         for k in self.layout:
             d[k] = d[k][:self.n]
+        d["hbases"] = (np.zeros(len(self.hbases), np.int64), np.empty((0, HBUF_COLS)))  # rows to come, not state
+        d["hb_end"] = np.full(self.n, -1, np.int64)
         return d
 
     def __setstate__(self, d: dict) -> None:
+        if "hb_end" not in d["layout"]:  # a snapshot from before the bases: none yet
+            d["layout"]["hb_end"] = ((), "i8", -1)
+            d["hb_end"] = np.full(d["n"], -1, np.int64)
+            d["hbases"] = (np.zeros(len(d["hbufs"][0]), np.int64), np.empty((0, HBUF_COLS)))
         for k, (dim, _) in TYPED_LISTS.items():
             out = List.empty_list(types.float64[:, ::1] if dim == 2 else types.float64[::1])
             lens, rows = d[k]

@@ -91,7 +91,7 @@ import numpy as np
 
 from pdr import quaternion as quat
 from pdr.angles import wrap
-from pdr.fixed_order import row_dot
+from pdr.fixed_order import mean0, row_dot
 
 
 @dataclasses.dataclass(frozen=True)
@@ -268,19 +268,35 @@ def standing_up(q, z, settings: GripSettings) -> np.ndarray | None:
     first = ups[0]
     # ∠(u_0, u_i) = acos(u_0 · u_i): the dot products as arrays (each the same bits as _dot),
     # the acos per sample in math's own (numpy's may take a CPU-specific kernel)
-    cosines = np.clip(row_dot(ups, first), -1.0, 1.0).tolist()
-    settle = settings.regrip_settle
-    n = next((i for i in range(1, len(cosines)) if math.acos(cosines[i]) >= settle), len(cosines))
-    zs = z[:n] - z[:n].mean()
-    if n < settings.standing_samples or math.sqrt(_dot(zs, zs) / n) > settings.standing_vertical_std:
+    n = _settled_run(np.clip(row_dot(ups, first), -1.0, 1.0), settings.regrip_settle)
+    zs = z[:n] - mean0(z[:n])
+    if n < settings.standing_samples or math.sqrt(_sum_squares(zs) / n) > settings.standing_vertical_std:
         return None
-    mean = ups[:n].mean(axis=0)
+    mean = mean0(ups[:n])
     return mean / _norm(mean)
 
 
+def _settled_run(cosines: np.ndarray, settle: float) -> int:
+    """The first i ≥ 1 with ``math.acos(cosines[i]) ≥ settle`` (else their number). numpy's
+    arccos may differ from math's in the last bit, so it only rules samples out, far from the
+    bound: ``acos(c) ≥ settle`` needs ``c ≤ cos(settle)``, and 1e-9 of c is about 6e-9 rad at 10°
+    (the acos' slope, 1/sin), millions of ulps. Each sample left is judged by ``math.acos``."""
+    for i in (np.flatnonzero(cosines[1:] <= math.cos(settle) + 1e-9) + 1).tolist():
+        if math.acos(float(cosines[i])) >= settle:
+            return i
+    return len(cosines)
+
+
+def _sum_squares(v: np.ndarray) -> float:
+    """Σ v_i² summed left to right from v_0² (:func:`_dot` of ``v`` with itself, the same bits):
+    a running sum (``np.cumsum``, add.accumulate) adds one term at a time in order."""
+    return float(np.cumsum(v * v)[-1]) if len(v) else 0.0
+
+
 def _up(q) -> np.ndarray:
-    """The world's up axis in body coordinates, ``R(q)ᵀ e_z`` (the third row of R)."""
-    w, x, y, z = q
+    """The world's up axis in body coordinates, ``R(q)ᵀ e_z`` (the third row of R); in Python
+    floats (the same IEEE operations as numpy's scalars, a third of the time)."""
+    w, x, y, z = np.asarray(q, float).tolist()
     return np.array([2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)])
 
 
@@ -300,8 +316,17 @@ def _angle(a, b) -> float:
 
 
 def _dot(a, b) -> float:
-    """a · b summed left to right (``pdr.fixed_order``: no BLAS, the same bits on every CPU)."""
-    return float(row_dot(a, b))
+    """a · b summed left to right (``pdr.fixed_order``: no BLAS, the same bits on every CPU), in
+    Python floats: the same IEEE products and sums, one at a time, as :func:`row_dot`'s."""
+    x, y = np.asarray(a, float).tolist(), np.asarray(b, float).tolist()
+    if len(x) != len(y):
+        raise ValueError(f"_dot: {len(x)} against {len(y)} terms")
+    if not x:
+        return 0.0
+    acc = x[0] * y[0]
+    for u, v in zip(x[1:], y[1:]):
+        acc = acc + u * v
+    return acc
 
 
 def _norm(a) -> float:

@@ -120,9 +120,10 @@ import numpy as np
 from pdr.ahrs import make_filter
 from pdr.angles import wrap  # noqa: F401  (re-exported)
 from pdr.compass_streak import OffsetStreak, held
+from pdr.compass_weight import measurement_sigma, odd_field
 from pdr.grip import GripTracker
 from pdr.heading_settings import HeadingSettings  # noqa: F401  (re-exported)
-from pdr.fixed_order import row_dot
+from pdr.fixed_order import mean0, row_dot
 from pdr.heading_kernels import EPOCH_STATE, close_epochs, level_and_compass
 from pdr.walking_direction import walking_angle
 from pdr.window_kernels import still_bias
@@ -283,33 +284,35 @@ class HeadingEstimator:
         dm = np.arctan2(sn, cs)
         rho = np.clip(np.hypot(cs, sn), 1e-12, 1.0)
         spread = np.sqrt(-2.0 * np.log(rho))
-        self._learn_reference(t_end, nrm, inc_m, np.where(rate > s.max_rate, np.inf, spread))
-        sig = self._measurement_sigma(spread, nrm, inc_m, t_end)
-        sig = np.where(rate > s.max_rate, np.inf, sig)
-        odd = self._odd_field(nrm, t_end)
-        for i in range(len(t_end)):  # a few epochs per second: a scalar filter loop is cheap
-            self._kf_step(t_end[i], psi_end[i], dm[i], sig[i], bool(odd[i]))
+        # a few epochs per second: the rest in Python floats (a scalar filter loop, each epoch's weight)
+        epochs = list(zip(*(c.tolist() for c in (t_end, psi_end, dm, spread, nrm, inc_m, rate))))
+        self._learn_reference(epochs)
+        for t, psi, d, sp, f, inc, w in epochs:
+            sig = math.inf if w > s.max_rate else self._measurement_sigma(sp, f, inc, t)
+            self._kf_step(t, psi, d, sig, self._odd_field(f, t))
 
-    def _odd_field(self, nrm, t) -> np.ndarray:
-        """Per epoch: is its field strength more than ``hold_norm`` from the reference (configured,
-        or learned once its window is over)? Only such an epoch can be held (:meth:`_accepts`)."""
-        s = self.settings
-        learned_by = -math.inf if self._t0 is None else self._t0 + s.reference_seconds
-        known = np.isfinite(s.field_norm) | (np.asarray(t) > learned_by)
-        with np.errstate(invalid="ignore"):
-            return known & (np.abs(nrm - self._ref_norm) > s.hold_norm)
+    def _learned_by(self) -> float:
+        """From when a learned field reference counts (:mod:`pdr.compass_weight`)."""
+        return -math.inf if self._t0 is None else self._t0 + self.settings.reference_seconds
 
-    def _learn_reference(self, t_end, nrm, inc_m, spread) -> None:
+    def _odd_field(self, nrm: float, t: float) -> bool:
+        """Only an epoch or step in an odd field can be held (:meth:`_accepts`; :func:`pdr.compass_weight.odd_field`)."""
+        return odd_field(self.settings, nrm, t, self._ref_norm, self._learned_by())
+
+    def _learn_reference(self, epochs: list[tuple]) -> None:
+        """The field reference from epochs (t_end, ψ, δ_m, spread, |B|, I, |ω|) within its window
+        that passed the spread gate (an epoch over ``max_rate`` has none)."""
         s = self.settings
-        if np.isfinite(self._ref_norm) and np.isfinite(self._ref_inc):
+        if math.isfinite(self._ref_norm) and math.isfinite(self._ref_inc):
             return
-        if self._t0 is None or not np.isfinite(nrm).any():
+        if self._t0 is None or not any(math.isfinite(e[4]) for e in epochs):
             return
-        inwin = t_end <= self._t0 + s.reference_seconds
-        ok = inwin & (spread < s.spread_gate) & np.isfinite(nrm)
-        if ok.any():
-            self._ref_buf.append(np.c_[nrm[ok], inc_m[ok]])
-        if not inwin.all():  # the reference window is over: fix the medians
+        end = self._t0 + s.reference_seconds
+        ok = [(f, inc) for t, _, _, sp, f, inc, w in epochs
+              if t <= end and not w > s.max_rate and sp < s.spread_gate and math.isfinite(f)]
+        if ok:
+            self._ref_buf.append(np.array(ok, float))
+        if not all(e[0] <= end for e in epochs):  # the reference window is over: fix the medians
             ref = np.vstack(self._ref_buf) if self._ref_buf else np.empty((0, 2))
             if len(ref):
                 if not np.isfinite(self._ref_norm):
@@ -325,26 +328,10 @@ class HeadingEstimator:
         """(|B| µT, inclination rad) the disturbance test compares with (NaN while learning)."""
         return self._ref_norm, self._ref_inc
 
-    def _measurement_sigma(self, spread, nrm, inc_m, t) -> np.ndarray:
-        """σ_m per epoch (or step) ending at ``t``. A learned field reference only counts from
-        the end of its window on — an earlier epoch is judged as it was when it happened,
-        so one large batch and many small ones agree."""
-        s = self.settings
-        var = s.sigma_mag**2 + spread**2
-        bad = ~np.isfinite(spread) | (spread > s.spread_gate) | ~np.isfinite(nrm)
-        learned_by = -math.inf if self._t0 is None else self._t0 + s.reference_seconds
-        known = np.asarray(t) > learned_by
-        if np.isfinite(self._ref_norm):
-            dn = np.where(np.isfinite(s.field_norm) | known, np.abs(nrm - self._ref_norm), 0.0)
-            var = var + (s.norm_weight * dn) ** 2
-            if np.isfinite(s.field_norm):  # a learned reference is where the walker started: no gate
-                bad |= dn > s.norm_gate
-        if np.isfinite(self._ref_inc):
-            di = np.where(np.isfinite(s.field_inclination) | known, np.abs(inc_m - self._ref_inc), 0.0)
-            var = var + (s.inclination_weight * di) ** 2
-            if np.isfinite(s.field_inclination):
-                bad |= di > s.inclination_gate
-        return np.where(bad, np.inf, np.sqrt(var))
+    def _measurement_sigma(self, spread: float, nrm: float, inc_m: float, t: float) -> float:
+        """σ_m of an epoch (or step) ending at ``t`` (:func:`pdr.compass_weight.measurement_sigma`)."""
+        return measurement_sigma(self.settings, spread, nrm, inc_m, t, self._ref_norm, self._ref_inc,
+                                 self._learned_by())
 
     def _kf_step(self, t_end, psi_end, dm, sig, odd: bool = False) -> None:
         s = self.settings
@@ -453,35 +440,34 @@ class HeadingEstimator:
             i1 = int(np.searchsorted(bt, tk, side="right"))
             if i1 <= i0:  # no sample in the step: the last one at or before it (after a gap: the oldest)
                 i0, i1 = (i1 - 1, i1) if i1 > 0 else (0, 1)
-            psi_g = float(np.mean(buf[i0:i1, 1]))  # unwrapped: the arithmetic mean is circular
+            psi_g = float(mean0(buf[i0:i1, 1]))  # unwrapped: the arithmetic mean is circular
             w0 = int(np.searchsorted(bt, tk - s.grip.window, side="right"))  # samples in (tk − window, tk]
             qs = buf[i0:i1, 8:12]
-            qm = (qs * np.sign(row_dot(qs, qs[-1]))[:, None]).mean(axis=0)  # the step's mean attitude (one hemisphere)
+            qm = mean0(qs * np.sign(row_dot(qs, qs[-1]))[:, None])  # the step's mean attitude (one hemisphere)
             before = (buf[w0:i0, 8:12], buf[w0:i0, 7]) if self.grip.wants_standing else None
             omega, jumped = self._grip_step(buf[w0:i1, 0], buf[w0:i1, 5], buf[w0:i1, 6], buf[w0:i1, 7], tk,
                                             qm / math.sqrt(float(row_dot(qm, qm))), before)
             off = off + omega
             k = bisect.bisect_right(hist_t, tk) - 1
             _, delta, P = hist[max(k, 0)]
-            if not np.isfinite(delta):  # before the first compass epoch
-                delta = float(buf[i1 - 1, 2]) if np.isfinite(buf[i1 - 1, 2]) else 0.0
+            if not math.isfinite(delta):  # before the first compass epoch
+                delta = float(buf[i1 - 1, 2]) if math.isfinite(buf[i1 - 1, 2]) else 0.0
                 P = math.pi**2
             elapsed = tk - hist[max(k, 0)][0]
-            P = P + s.sigma_rw**2 * elapsed if np.isfinite(P) and np.isfinite(elapsed) else P
+            P = P + s.sigma_rw**2 * elapsed if math.isfinite(P) and math.isfinite(elapsed) else P
             dev = float(wrap(psi_g + delta))
             # compass heading of this step on its own
             dd = buf[i0:i1, 2]
             okd = np.isfinite(dd)
-            if okd.sum() >= 2:
+            if np.count_nonzero(okd) >= 2:
                 ddo = dd[okd]
-                c, sn = np.cos(ddo).mean(), np.sin(ddo).mean()
+                c, sn = float(mean0(np.cos(ddo))), float(mean0(np.sin(ddo)))
                 spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
-                nrm_k = np.array([buf[i0:i1, 3][okd].mean()])
-                sig_m = float(self._measurement_sigma(np.array([spread]), nrm_k, np.array([buf[i0:i1, 4][okd].mean()]),
-                                                      np.array([tk]))[0])
-                if held(float(wrap(math.atan2(sn, c) - delta)), P, bool(self._odd_field(nrm_k, np.array([tk]))[0]), s):
+                nrm_k = float(mean0(buf[i0:i1, 3][okd]))
+                sig_m = self._measurement_sigma(spread, nrm_k, float(mean0(buf[i0:i1, 4][okd])), tk)
+                if held(float(wrap(math.atan2(sn, c) - delta)), P, self._odd_field(nrm_k, tk), s):
                     sig_m = math.inf  # the filter would hold this compass (_accepts): so must the fusion
-                magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if np.isfinite(sig_m) else math.nan
+                magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if math.isfinite(sig_m) else math.nan
             else:
                 sig_m, magh = math.inf, math.nan
             if self._prev_step is None:

@@ -75,6 +75,31 @@ def _all_moving(T, X, start, window, gyr_std, acc_std):  # pragma: no cover - co
 
 
 @njit(cache=True)
+def _sigma_verdict(s1, s2, t1, t2, cnt, limits):  # pragma: no cover - compiled
+    """Rule on the window's σ per column from running sums, where they certainly agree with the
+    two-pass σ: -1 some σ ≥ its limit, 1 every σ < its limit, 0 undecided (the sums decide).
+
+    ``s1``, ``s2``: Σ y, Σ y² over the window, ``y = x − shift`` (a constant per column), kept
+    by adding each sample as it enters and subtracting it as it leaves; ``t1``, ``t2``: Σ |y|,
+    Σ y² over every sample of the call, which bound the magnitude of every partial sum. Each of
+    those additions errs by at most ε = 2⁻⁵³ of such a magnitude, so after k of them
+    ``|s2 − Σ y²| ≤ (k + 4) ε t2`` and likewise for ``s1``; for any window of a call (k below
+    10⁶) that is far below ``1e-9 (t2 / n + (t1 / n)²)``, the tolerance used here on
+    ``σ² ≈ s2/n − (s1/n)²``. The two-pass σ itself is within a relative ~n ε of the true one, so
+    a margin of 1e-9 of the limit² covers it: an answer here is the two-pass answer."""
+    verdict = 1
+    for c in range(limits.shape[0]):
+        var = s2[c] / cnt - (s1[c] / cnt) ** 2
+        tol = 1e-9 * (t2[c] / cnt + (t1[c] / cnt) ** 2) + 1e-300
+        lim2 = limits[c] * limits[c]
+        if var - tol > lim2 * (1.0 + 1e-9):
+            return -1
+        if not var + tol < lim2 * (1.0 - 1e-9):
+            verdict = 0
+    return verdict
+
+
+@njit(cache=True)
 def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma: no cover - compiled
     """Gyro bias for each sample ``start..n-1`` (:class:`pdr.heading.HeadingEstimator`, 1).
 
@@ -103,12 +128,28 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
     full_s = 0.9 * window
     g = np.empty(4)
     sd = np.empty(4)
+    limits = np.array([gyr_std, gyr_std, gyr_std, acc_std])
+    # running sums of the window, only to rule on σ far from its limit (_sigma_verdict)
+    shift, t1, t2 = X[0].copy(), np.zeros(4), np.zeros(4)
+    for i in range(n):
+        for c in range(4):
+            y = X[i, c] - shift[c]
+            t1[c] += abs(y)
+            t2[c] += y * y
+    w1, w2 = np.zeros(4), np.zeros(4)  # Σ y, Σ y² over the window
     for i in range(n):
         for c in range(4):
             tmax[c] = _push(dqmax[c], hmax[c], tmax[c], X, c, i, 1.0)
             tmin[c] = _push(dqmin[c], hmin[c], tmin[c], X, c, i, -1.0)
+            y = X[i, c] - shift[c]
+            w1[c] += y
+            w2[c] += y * y
         lim = T[i] - window
         while j0 < i and T[j0] <= lim:
+            for c in range(4):
+                y = X[j0, c] - shift[c]
+                w1[c] -= y
+                w2[c] -= y * y
             j0 += 1
         if i < start:
             continue
@@ -133,19 +174,37 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
                 sure = False
         if hopeless:
             continue
-        for c in range(3 if sure else 4):
-            s = 0.0
+        if not sure:
+            verdict = _sigma_verdict(w1, w2, t1, t2, cnt, limits)
+            if verdict < 0:
+                continue  # some σ certainly at or above its limit: not still
+            sure = verdict > 0  # every σ certainly below: only the gyro means are summed
+        # each column summed on its own, oldest first (module docstring), the columns side by
+        # side: the same additions in the same order per column, four chains at once
+        s0 = s1 = s2 = s3 = 0.0
+        if sure:
             for j in range(j0, i + 1):
-                s += X[j, c]
-            mu = s / cnt
-            g[c] = mu
-            if sure:
-                continue
-            ss = 0.0
+                s0 += X[j, 0]
+                s1 += X[j, 1]
+                s2 += X[j, 2]
+        else:
             for j in range(j0, i + 1):
-                d = X[j, c] - mu
-                ss += d * d
-            sd[c] = np.sqrt(ss / cnt)
+                s0 += X[j, 0]
+                s1 += X[j, 1]
+                s2 += X[j, 2]
+                s3 += X[j, 3]
+        g[0], g[1], g[2] = s0 / cnt, s1 / cnt, s2 / cnt
+        if not sure:
+            g[3] = s3 / cnt
+            m0, m1, m2, m3 = g[0], g[1], g[2], g[3]
+            q0 = q1 = q2 = q3 = 0.0
+            for j in range(j0, i + 1):
+                d0, d1, d2, d3 = X[j, 0] - m0, X[j, 1] - m1, X[j, 2] - m2, X[j, 3] - m3
+                q0 += d0 * d0
+                q1 += d1 * d1
+                q2 += d2 * d2
+                q3 += d3 * d3
+            sd[0], sd[1], sd[2], sd[3] = np.sqrt(q0 / cnt), np.sqrt(q1 / cnt), np.sqrt(q2 / cnt), np.sqrt(q3 / cnt)
         if ((sure or (sd[0] < gyr_std and sd[1] < gyr_std and sd[2] < gyr_std and sd[3] < acc_std))
                 and math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) < gyr_max):
             still[r] = True
