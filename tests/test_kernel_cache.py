@@ -47,3 +47,25 @@ def test_a_child_process_uses_the_same_folder_and_numba_caches_there(tmp_path):
     want = tmp_path / "firetrack" / "numba" / kernel_cache.fingerprint()
     assert parent == child == str(want)
     assert any(p.suffix == ".nbi" for p in want.rglob("*"))  # numba cached the kernel it compiled there
+
+
+def test_another_checkout_of_the_same_sources_loads_the_kernels_compiled_by_the_first(tmp_path):
+    """A fresh clone (CI, a worktree) finds what a checkout elsewhere compiled: numba's cache
+    hit counts, from a copy of ``pdr`` at two paths (pdr.kernel_locator)."""
+    import shutil
+
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "NUMBA_CACHE_LOCATOR_CLASSES")}
+    env["XDG_CACHE_HOME"] = str(tmp_path / "cache")
+    code = ("import numpy as np\n"
+            "from pdr.detector_kernels import np_sum\n"
+            "np_sum(np.ones(3))\n"
+            "print(sum(np_sum.stats.cache_hits.values()), sum(np_sum.stats.cache_misses.values()))\n")
+    counts = []
+    for checkout in ("a", "b"):
+        shutil.copytree(kernel_cache._PACKAGE, tmp_path / checkout / "pdr", ignore=shutil.ignore_patterns("__pycache__"))
+        out = subprocess.run([sys.executable, "-c", code], env=dict(env, PYTHONPATH=str(tmp_path / checkout)),
+                             cwd=tmp_path / checkout, capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        counts.append(tuple(map(int, out.stdout.split())))
+    assert counts == [(0, 1), (1, 0)]  # (hits, misses): compiled in a, loaded in b
+    assert list((tmp_path / "cache" / "firetrack" / "numba").glob("*/pdr/detector_kernels.np_sum-*.nbi"))

@@ -35,11 +35,11 @@ def test_the_test_command_runs_every_test_once_and_the_serial_ones_alone():
 
 
 def test_every_serial_and_realtime_entry_names_a_test_that_exists():
-    """A renamed test would otherwise leave ``SERIAL`` or ``REALTIME`` silently and run beside the others."""
-    from tests.conftest import REALTIME, SERIAL
+    """A renamed test would otherwise leave ``SERIAL``, ``REALTIME`` or ``SHARED_SETUP`` silently and run beside the others."""
+    from tests.conftest import REALTIME, SERIAL, SHARED_SETUP
 
-    assert not set(SERIAL) & set(REALTIME)
-    for key in [*SERIAL, *REALTIME]:
+    assert not set(SERIAL) & set(REALTIME) and not (set(SERIAL) | set(REALTIME)) & set(SHARED_SETUP)
+    for key in [*SERIAL, *REALTIME, *SHARED_SETUP]:
         path, _, name = key.partition("::")
         assert (ROOT / path).is_file(), key
         assert not name or re.search(rf"^def {re.escape(name)}\(", (ROOT / path).read_text(), flags=re.M), key

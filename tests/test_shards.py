@@ -195,7 +195,9 @@ def test_a_route_stays_while_its_responder_is_away_and_goes_when_the_core_lets_i
         assert wait_until(gone, 30, step=0.1), "the core did not let the silent responder go"
         w2.close()
         assert wait_until(lambda: rid not in svc.routes.routes, 5), "the route outlived its responder"
-        assert svc.routes.routed_keys == {wire.key(cfg.id, other, k) for k in ("imu", "fix")}  # the walker still tracked
+        # (forget() pops the route, undeclares its subscribers, then drops their keys: waited for)
+        kept = {wire.key(cfg.id, other, k) for k in ("imu", "fix")}  # the walker still tracked
+        assert wait_until(lambda: svc.routes.routed_keys == kept, 5), svc.routes.routed_keys
     finally:
         svc.close()
         for s in (cl, svc_session, rs):
