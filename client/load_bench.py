@@ -110,38 +110,28 @@ def _wait_publisher(child, svc, seconds: float) -> None:
 
 
 DRILL_CONFIRM_S = 3.0  # s: four steps at 1.8 Hz and the ramp up to speed
+EVEN_MIN_SPAN_S = 5.0  # s of poses a responder needs in the window to have rates
 
 
 def _even(poses, names, lo: float, hi: float, workers: int) -> dict:
-    """How evenly the responders were tracked between wall times ``lo`` and ``hi``, each over
-    that same window: poses published per second, and frames its track advanced per second (the
-    seq of its newest pose at ``hi`` less that at ``lo``; 10 keeps up with a wearable). Min,
-    median, max of each and the largest deviation from the median, relative. A responder with no
-    pose in the window counts with 0.
-
-    The window is common to all, so every responder is measured over the same rounds of its
-    worker: an overloaded worker publishes a round's poses together, rounds seconds apart, and
-    a rate over a responder's own span from its first pose to its last depends on which rounds
-    its first and last steps fell in (the fewer rounds in the window, the more), and it left
-    out responders with few poses, the very ones a fairness figure is about.
-    """
+    """How evenly the responders were tracked between wall times ``lo`` and ``hi``: per
+    responder, from its first pose to its last there, poses per second and frames its track
+    advanced per second (the seq its poses reflect; 10 keeps up with a wearable); min, median,
+    max of each and the largest deviation from the median, relative. Responders whose poses
+    there span less than ``EVEN_MIN_SPAN_S`` are left out (and counted out)."""
     rate, progress, shard = [], [], []
     by: dict[str, list] = {}
-    for rid, seq, pub in sorted(poses, key=lambda p: p[2]):
-        if pub <= hi:
+    for rid, seq, pub in poses:
+        if lo <= pub <= hi:
             by.setdefault(rid, []).append((pub, seq))
-    span = hi - lo
-    if not span > 0:
-        return {"responders": 0}
     for rid in names:
         mine = by.get(rid, [])
-        inside = [q for pub, q in mine if pub > lo]
-        before = [q for pub, q in mine if pub <= lo]
-        rate.append(len(inside) / span)
-        base = before[-1] if before else (inside[0] if inside else 0)
-        progress.append(((inside[-1] - base) if inside else 0) / span)
-        shard.append(next(k for k in range(workers) if in_shard(rid, k, workers)))
-    out: dict = {"responders": len(rate), "window_s": round(span, 1)}
+        span = mine[-1][0] - mine[0][0] if len(mine) >= 2 else 0.0
+        if span >= EVEN_MIN_SPAN_S:  # from its first pose to its last
+            rate.append((len(mine) - 1) / span)
+            progress.append((mine[-1][1] - mine[0][1]) / span)
+            shard.append(next(k for k in range(workers) if in_shard(rid, k, workers)))
+    out: dict = {"responders": len(rate)}
     if not rate:
         return out
     # the median frames/s of each worker's responders: a worker slower than another is uneven too

@@ -98,26 +98,3 @@ def test_a_drill_crew_steps_alike_where_a_mixed_crew_does_not():
         spreads[name] = float(np.abs(rate - np.median(rate)).max() / np.median(rate))
     assert spreads["drill"] <= 0.1, spreads  # whole steps in a 14 s window: one step is 4 %
     assert spreads["mixed"] > 0.2, spreads
-
-
-def test_rates_of_poses_published_in_rounds_are_taken_over_one_window_for_all():
-    """An overloaded worker publishes a round's poses together, rounds 2 s apart here, four
-    steps (poses) per round. Two responders given the same frames in the same rounds, one of
-    whose steps start a round later, advanced alike: their frames/s over the common window agree
-    exactly, and their poses/s differ by the four poses of that round. A responder with no pose
-    in the window counts with 0: it is not left out."""
-    from client.load_bench import _even
-
-    poses = []
-    for k in range(11):  # rounds at 1, 3, ..., 21 s; each takes 20 frames of every responder
-        pub = 1.0 + 2.0 * k
-        for seq in range(20 * k + 5, 20 * k + 21, 5):  # a step every 5 frames
-            poses.append(("early", seq, pub))
-            if k != 1:  # its steps of round 1 were not yet walking
-                poses.append(("late", seq, pub))
-    d = _even(poses, ["early", "late", "silent"], 2.0, 22.0, 1)
-    assert d["responders"] == 3 and d["frames_per_s"]["min"] == 0.0 and d["poses_per_s"]["min"] == 0.0
-    d = _even(poses, ["early", "late"], 2.0, 22.0, 1)
-    f = d["frames_per_s"]
-    assert f["min"] == f["max"] == (220 - 20) / 20.0 and f["spread"] == 0.0
-    assert d["poses_per_s"]["min"] == 36 / 20.0 and d["poses_per_s"]["max"] == 40 / 20.0
