@@ -74,6 +74,9 @@ def _all_moving(T, X, start, window, gyr_std, acc_std):  # pragma: no cover - co
     return False
 
 
+SUMS_MAX_SAMPLES = 300_000  # a call of more samples (50 min at 100 Hz in one batch) pays the two passes
+
+
 @njit(cache=True)
 def _sigma_verdict(s1, s2, t1, t2, cnt, limits):  # pragma: no cover - compiled
     """Rule on the window's σ per column from running sums, where they certainly agree with the
@@ -137,6 +140,7 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
             t1[c] += abs(y)
             t2[c] += y * y
     w1, w2 = np.zeros(4), np.zeros(4)  # Σ y, Σ y² over the window
+    sums_hold = n < SUMS_MAX_SAMPLES  # the bound of _sigma_verdict holds (fewer than 10⁶ additions per sum)
     for i in range(n):
         for c in range(4):
             tmax[c] = _push(dqmax[c], hmax[c], tmax[c], X, c, i, 1.0)
@@ -174,7 +178,7 @@ def still_bias(T, X, start, window, gyr_std, gyr_max, acc_std, bias0):  # pragma
                 sure = False
         if hopeless:
             continue
-        if not sure:
+        if not sure and sums_hold:
             verdict = _sigma_verdict(w1, w2, t1, t2, cnt, limits)
             if verdict < 0:
                 continue  # some σ certainly at or above its limit: not still
