@@ -69,9 +69,9 @@ def wearable_command(
         fail(f"--responder {responder!r}: use 1-64 letters, digits, '_', '.' or '-'")
         raise typer.Exit(2)
     cfg = incident_or_exit(config, incident_id or (identity.incident if identity is not None else None))
+    stop = stop_on_signals()  # before the warning: a Ctrl-C from here on is this command's stop
     if identity is None:
         insecure("this wearable")
-    stop = stop_on_signals()
     session = client_or_exit(connect, wait_router, tls=identity)
     connect = connect or ("tls/127.0.0.1:7447" if identity is not None else DEFAULT_ENDPOINT)
     key = wire.key(cfg.id, responder, "imu").rsplit("/", 1)[0] + "/{imu,fix}"
@@ -129,9 +129,9 @@ def simulate_command(
 
     identity = tls_or_exit(tls, "simulator", what="simulate")
     cfg = incident_or_exit(config, incident_id or (identity.incident if identity is not None else None))
+    stop = stop_on_signals()  # before the warning: a Ctrl-C from here on is this command's stop
     if identity is None:
         insecure("firetrack simulate")
-    stop = stop_on_signals()
     session = client_or_exit(connect, tls=identity)
     floors = (min(f.number for f in cfg.floors), max(f.number for f in cfg.floors)) if cfg.floors else (0, 0)
     try:
@@ -162,9 +162,9 @@ def demo_command(
     from service.protocol.incident import default_incident
 
     setup_logging(False)
+    stop = stop_on_signals()  # before the warning: a Ctrl-C from here on is this command's stop
     insecure("the demo")
     cfg = default_incident()
-    stop = stop_on_signals()
     data = Path(__file__).resolve().parents[2] / "shared" / "data" / "ipin2023"
     walks = sorted(data.glob("IPIN2023_T3_TrainingTrial*_repetition01.txt.gz"))[:3] if data.is_dir() else []
     with running_service(cfg, [listen], None, None, True, port) as (svc, where):

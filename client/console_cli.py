@@ -52,10 +52,10 @@ def console_command(
              "identity directory, or --roster FILE)")
         raise typer.Exit(2)
     cfg = incident_or_exit(config, incident)
+    stop = stop_on_signals()  # before the warnings: a Ctrl-C from here on is this command's stop
     if identity is None:
         insecure("firetrack console")
     warn_plan_problems(cfg)
-    stop = stop_on_signals()
     session = client_or_exit(connect, tls=identity)
     gateway = None
     if gateway_tls is not None:

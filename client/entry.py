@@ -21,18 +21,22 @@ def main() -> None:
     leave_process(code)
 
 
-def _run() -> int:
-    """Run the command; its exit code (130 after Ctrl-C, 1 after an uncaught error, printed)."""
+def _run(command=None) -> int:
+    """Run the command (``command``: the CLI by default); its exit code (130 after Ctrl-C, 1
+    after an uncaught error, printed)."""
     try:
         from service.protocol.early_interrupt import remember_interrupts
 
         remember_interrupts()  # before the seconds of imports (why: that module's docstring)
-        from client.cli import main as run
-
-        run()
+        if command is None:
+            from client.cli import main as command
+        command()
         return 0
     except SystemExit as e:
-        return _exit_code(e.code)
+        code = _exit_code(e.code)
+        if code == 130:  # typer ends a KeyboardInterrupt as a silent exit 130: say why it ended
+            sys.stderr.write("\ninterrupted\n")
+        return code
     except BaseException as e:  # noqa: BLE001 - only to tell an interrupt from a failure
         if not _interrupted(e):
             traceback.print_exc()

@@ -174,6 +174,27 @@ def test_ctrl_c_during_the_warm_up_ends_the_start_at_once(tmp_path):
     assert "stopped while starting" in out or "interrupted" in out, out
 
 
+def test_a_ctrl_c_before_the_commands_own_handler_says_interrupted(capsys):
+    """typer turns a KeyboardInterrupt into a silent exit 130; CI once saw ``serve`` end that way
+    with nothing printed, after a Ctrl-C that came before its stop handler. The script says why."""
+    import typer
+
+    from client.entry import _run
+
+    app = typer.Typer()
+
+    @app.command()
+    def start() -> None:
+        raise KeyboardInterrupt  # where the first Ctrl-C lands before stop_on_signals
+
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        assert _run(lambda: app([], prog_name="firetrack")) == 130
+    finally:
+        signal.signal(signal.SIGINT, before)  # _run installs the script's own first handler
+    assert "interrupted" in capsys.readouterr().err
+
+
 def test_a_ctrl_c_swallowed_while_importing_still_stops_the_command():
     """A Ctrl-C during the imports that a library swallows (a broad ``except`` around an optional
     import) must still stop the command once its own handler is installed."""

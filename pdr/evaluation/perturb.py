@@ -81,7 +81,7 @@ def browser_stamps(t: np.ndarray, seed, jitter_s: float = 0.003, late_per_s: flo
 
 def timer_ticks(t0: float, t1: float, rate_hz: float, seed, wander_s: float = 0.0029, dispatch_s: float = 0.0023,
                 late_per_s: float = 0.2, late_s: tuple[float, float] = (0.02, 0.1), min_step_s: float = 3e-3) -> np.ndarray:
-    """When a browser reads its motion sensors: the ticks of a ``rate_hz`` timer that wanders.
+    r"""When a browser reads its motion sensors: the ticks of a ``rate_hz`` timer that wanders.
 
     Chromium fires ``devicemotion`` from a timer in the page's process; at each tick it reads
     the sensor's newest value and stamps the event then, so the reading belongs to the tick

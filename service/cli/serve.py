@@ -95,9 +95,9 @@ def serve_command(
     if workers > 1 and record is not None:
         fail("--record records one process's inputs; with --workers > 1 run `firetrack record` beside the service")
         raise typer.Exit(2)
+    stop = stop_on_signals()  # before the warning: a Ctrl-C from here on is this command's stop
     if security is None:
         insecure("firetrack serve")
-    stop = stop_on_signals()
     if foxglove is not None and not 0 <= foxglove <= 65535:
         fail(f"--foxglove must be a port number (0-65535), got {foxglove}")
         raise typer.Exit(2)
