@@ -195,3 +195,40 @@ def test_the_core_parses_each_messages_key_once(monkeypatch):
         core.feed(item)
     assert len(calls) == len(items) - 1 and calls == [i.key for i in items if i.kind != "access"]
     assert core.responders["ff1"].commands["par"]["acked_at"] == 2.0
+
+
+def test_a_checkpoint_held_out_then_shown_right_by_the_next_is_audited_again_as_taken():
+    """Issue 27, point 5, audited: the walk ran 30° off dead reckoning. The first landmark is
+    held out by the walk gate (audited refused, counted); the second shows the walk turned, so
+    the graph takes both, and the first gets a second audit, ``accepted`` / ``fix_readmitted``,
+    naming the same sender, its refusal withdrawn from the counts."""
+    import math
+
+    core = IncidentCore(default_incident())
+    frames = walking_frames("ff1", 60.0)
+    head = [b for b in frames if b.t[-1] <= 1002.0]
+    core.feed_round(_imu(head))
+    door = wire.Fix.checkpoint("ff1", float(head[-1].t[-1]), x=0.0, y=0.0, floor=0, sigma=0.3)
+    core.feed_round([Inbound("fix", wire.key(INC, "ff1", "fix"), wire.encode(door), 0.0)])
+    r = core.responders["ff1"]
+    c, s = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+
+    def landmark_after(until):
+        core.feed_round(_imu([b for b in frames if until - 20.0 < b.t[-1] <= until]))
+        p = r.tracker.live  # dead reckoning: nothing was taken since the door
+        fix = wire.Fix.checkpoint("ff1", p.t, x=c * p.x - s * p.y, y=s * p.x + c * p.y, floor=0, sigma=0.3)
+        return _audits(core.feed_round([Inbound("fix", wire.key(INC, "ff1", "fix"), wire.encode(fix), 0.0)])), fix
+
+    first, a = landmark_after(1022.0)
+    assert [(x.actor, x.outcome, x.reason) for x in first if x.reason == "fix_walk_gate"] == [
+        ("ff1", "refused", "fix_walk_gate")]
+    assert r.tracker.fix_rejects == {"walk_gate": 1} and r.tracker.fixes_rejected == 1
+    applied = r.tracker.fixes_applied
+    second, b = landmark_after(1042.0)
+    again = [x for x in second if x.reason == "fix_readmitted"]
+    assert [(x.actor, x.outcome, x.t) for x in again] == [("ff1", "accepted", a.t)], second
+    assert "fix_walk_gate" not in [x.reason for x in second]  # the second landmark is taken, not held out
+    assert r.tracker.fix_rejects == {} and r.tracker.fixes_rejected == 0
+    assert r.tracker.fixes_applied == applied + 2
+    live = r.tracker.live
+    assert math.hypot(live.x - b.x, live.y - b.y) < 1.0  # the live track starts from the second landmark

@@ -140,7 +140,7 @@ class FixDesk:
                     heard[reading.beacon] = max(heard.get(reading.beacon, -math.inf), domain.t)
         self.audit.sent(r, domain.source, domain.t, sender or r.id)  # for the audit of a later refusal
         pose = r.tracker.on_fix(domain)
-        if (domain.source, float(domain.t)) in self.audit.held_out(r):  # judged at once: held out
+        if (domain.source, float(domain.t)) in self.audit.tracker_verdicts(r):  # judged at once: held out
             return "refused", "walk_gate", "held out by the estimator: further than the walk allows", verdict
         log.info("%s: %s fix at device time %.2f%s", r.id, fix.source, fix.t, " applied" if pose else " queued")
         if pose is not None:

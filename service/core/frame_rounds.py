@@ -186,5 +186,5 @@ class FrameRounds:
                 self.outbox.pose(r, o, self.clock.now)
             elif isinstance(o, MotionEvent):
                 log.info("%s is %s since device time %.1f", r.id, o.state.value, o.since)
-        if r.tracker.held_out:  # a fix queued for its step, held out by the estimator now: audited with its sender
-            self.fix_audit.held_out(r)
+        if r.tracker.held_out or r.tracker.readmitted:  # a queued fix judged at its step: audited with its sender
+            self.fix_audit.tracker_verdicts(r)

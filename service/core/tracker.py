@@ -116,13 +116,16 @@ class ResponderTracker:
         self._degraded_before = 0  # graph restarts of the estimators replaced by a new placement
         self._degraded_at_before = math.nan
         self.held_out: deque = deque(maxlen=HELD_OUT_KEPT)  # (source, t, reason) refused: the core audits them
+        self.readmitted: deque = deque(maxlen=HELD_OUT_KEPT)  # (source, t) held out, then taken: audited again
         self._past: dict[str, np.ndarray] | None = None  # smoothed track of estimators replaced after an error
 
     def __setstate__(self, state: dict) -> None:
-        """A tracker from a snapshot; one pickled before ``held_out`` was kept gets an empty one."""
+        """A tracker from a snapshot; one pickled before ``held_out`` or ``readmitted`` was kept
+        gets an empty one."""
         self.__dict__.update(state)
-        if "held_out" not in state:
-            self.held_out = deque(maxlen=HELD_OUT_KEPT)
+        for name in ("held_out", "readmitted"):
+            if name not in state:
+                setattr(self, name, deque(maxlen=HELD_OUT_KEPT))
         self.__dict__.setdefault("_past", None)
 
     @property
@@ -375,10 +378,24 @@ class ResponderTracker:
             self.fix_rejects[reason] = self.fix_rejects.get(reason, 0) + 1
             self.held_out.append((getattr(fix, "source", type(fix).__name__), float(fix.t), reason))
             return None
+        if outcome.earlier is not None:  # a fix held out before, taken now: its refusal withdrawn
+            self._withdraw_refusal(outcome.earlier)
         self.fixes_applied += 1
         self.last_fix = {"source": getattr(fix, "source", type(fix).__name__), "t": float(fix.t)}
         self.live = self._published(outcome.pose, self.live.steps if self.live else 0)
         return self.live
+
+    def _withdraw_refusal(self, fix) -> None:
+        """``fix`` was held out by the walk gate and counted refused; a later fix showed it right
+        and the graph took it (a turn). Counted applied instead, and queued for its audit."""
+        self.fixes_rejected = max(self.fixes_rejected - 1, 0)
+        left = self.fix_rejects.get("walk_gate", 0) - 1
+        if left > 0:
+            self.fix_rejects["walk_gate"] = left
+        else:
+            self.fix_rejects.pop("walk_gate", None)
+        self.fixes_applied += 1
+        self.readmitted.append((getattr(fix, "source", type(fix).__name__), float(fix.t)))
 
     def _guarded(self, call, t: float):
         """``call()`` on the estimator. Should it raise (a bug: inputs are checked before they get

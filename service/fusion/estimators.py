@@ -32,11 +32,14 @@ from service.fusion.published import FusionEvent
 class FixOutcome(NamedTuple):
     """What an estimator did with a fix: ``verdict`` is ``applied`` (``pose`` is the new live
     estimate), ``rejected`` (a gate refused it: ``reason``) or ``unused`` (nothing in this
-    estimator can use it, e.g. GNSS in dead reckoning)."""
+    estimator can use it, e.g. GNSS in dead reckoning). ``earlier``: a fix refused before
+    (``walk_gate``) that this one showed was right, taken into the graph first (a turn:
+    :mod:`service.fusion.walk_gate`); its refusal is withdrawn."""
 
     verdict: str
     pose: PoseEstimate | None = None
     reason: str = ""
+    earlier: object | None = None
 
 
 class TrackEstimator(Protocol):
@@ -247,8 +250,12 @@ class FusionEstimator:
             self.fusion.events.append(FusionEvent(fix.t, "rejected", getattr(fix, "source", type(fix).__name__),
                                                   f"{verdict.reason}: {verdict.detail}", verdict.info or {}))
             return FixOutcome("rejected", reason=verdict.reason)
-        if verdict.earlier is not None:  # a fix held out before, which this one shows was right: the graph takes it first
-            self._guarded(lambda: self.fusion.add_fix(verdict.earlier) or self.fusion.live, verdict.earlier.t, self._dr[7])
+        earlier = verdict.earlier
+        if earlier is not None:  # a fix held out before, which this one shows was right: the graph takes it first
+            taken = Counter(self.fusion.rejected)
+            self._guarded(lambda: self.fusion.add_fix(earlier) or self.fusion.live, earlier.t, self._dr[7])
+            if Counter(self.fusion.rejected) != taken:
+                earlier = None  # the graph refused it after all: its refusal stands
         before = Counter(self.fusion.rejected)
         degraded = self.degraded
         fp = self._guarded(lambda: self.fusion.add_fix(fix) or self.fusion.live, fix.t, self._dr[7])
@@ -259,7 +266,7 @@ class FusionEstimator:
         if rejected:
             return FixOutcome("rejected", reason=next(iter(rejected)))
         self.gate.take(fix, verdict)
-        return FixOutcome("applied", self._pose(fp))
+        return FixOutcome("applied", self._pose(fp), earlier=earlier)
 
     def set_floor(self, t: float, floor: int) -> PoseEstimate:
         self._flush()
