@@ -12,6 +12,7 @@ import pytest
 
 from pdr.events import MotionEvent
 from pdr.fleet import PdrFleet
+from pdr.fleet_rows import FleetRows
 from pdr.floors import FloorElevations
 from pdr.pipeline import ImuFrame, PdrPipeline, PipelineSettings, frames_of
 from tests.test_pipeline import events_close
@@ -242,11 +243,25 @@ def test_the_service_gives_a_responder_the_same_poses_alone_or_beside_others():
         assert np.array_equal(p.cov, q.cov)
 
 
+_STATE_NOW = FleetRows.__getstate__
+
+
+def _written_before_heading_bases(rows) -> dict:
+    """What a snapshot written before the heading buffers grew in place (cap6, 3b46e2b) held:
+    the same state without ``hbases`` and ``hb_end``."""
+    d = _STATE_NOW(rows)
+    d["layout"] = {k: v for k, v in d["layout"].items() if k != "hb_end"}
+    del d["hbases"], d["hb_end"]
+    return d
+
+
 @pytest.mark.bitexact
-def test_a_pickled_fleet_goes_on_like_the_original():
+@pytest.mark.parametrize("writer", ["now", "before heading bases"])
+def test_a_pickled_fleet_goes_on_like_the_original(writer, monkeypatch):
     """A fleet pickled mid-walk (a service's snapshot: typed lists packed, the rows in use only)
     and read back gives the same events as the original, bit for bit, with its pipelines'
-    floor trackers working on views of the restored rows again."""
+    floor trackers working on views of the restored rows again; so does one written by the
+    version before the heading buffers grew in place (a standby or resume across an upgrade)."""
     import pickle
 
     floors = FloorElevations.uniform(3.0, 0, 2)
@@ -257,7 +272,11 @@ def test_a_pickled_fleet_goes_on_like_the_original():
     walks.pop(3)
     for k in range(200):
         fleet.run([(m, w[k]) for m, w in zip(members, walks)])
-    twin = pickle.loads(pickle.dumps(fleet, protocol=5))
+    with monkeypatch.context() as m:
+        if writer != "now":
+            m.setattr(FleetRows, "__getstate__", _written_before_heading_bases)
+        data = pickle.dumps(fleet, protocol=5)
+    twin = pickle.loads(data)
     assert twin.rows.ring_t.shape == fleet.rows.ring_t.shape and twin.rows.free == fleet.rows.free
     for m in twin.members:
         assert m.floor_tracker.rows()[0].base is twin.rows.fs and m.floor_tracker.rows()[1].base is twin.rows.ring_t
