@@ -119,5 +119,7 @@ def main() -> None:
         raise SystemExit(130) from None
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # `python -m client.cli` ends as the `firetrack` script does (client/entry.py):
+    from client.entry import main as firetrack  # no interpreter finalisation under zenoh's threads
+
+    firetrack()

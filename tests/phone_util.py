@@ -182,7 +182,7 @@ def serving(tmp_path, *args: str):
     port, web = free_port(), free_port()
     log = tmp_path / "serve.log"
     with open(log, "w") as out:
-        proc = subprocess.Popen([sys.executable, "-m", "client.cli", "serve", "--listen", f"tcp/127.0.0.1:{port}",
+        proc = subprocess.Popen([sys.executable, "-m", "client.entry", "serve", "--listen", f"tcp/127.0.0.1:{port}",
                                  "--port", str(web), *args], stdout=out, stderr=subprocess.STDOUT, text=True)
     srv = Served(proc, f"http://127.0.0.1:{web}/", None, default_incident(), log)
     try:

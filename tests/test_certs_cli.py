@@ -117,7 +117,7 @@ def test_serve_with_tls_takes_certified_wearables_and_refuses_the_rest(tmp_path)
     d = _pki(tmp_path)
     port = free_port()
     endpoint = f"tls/127.0.0.1:{port}"
-    proc = subprocess.Popen([sys.executable, "-m", "client.cli", "serve", "--no-console", "--tls", str(d / "svc"),
+    proc = subprocess.Popen([sys.executable, "-m", "client.entry", "serve", "--no-console", "--tls", str(d / "svc"),
                              "--listen", endpoint], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             cwd=ROOT)
     try:
@@ -156,7 +156,7 @@ def test_tls_commands_refuse_plain_tcp_and_a_foreign_identity(tmp_path):
 
 def test_the_demo_runs_with_one_command_without_certificates_and_says_it_is_insecure():
     port, web = free_port(), free_port()
-    proc = subprocess.run([sys.executable, "-m", "client.cli", "demo", "--seconds", "4", "--port", str(web),
+    proc = subprocess.run([sys.executable, "-m", "client.entry", "demo", "--seconds", "4", "--port", str(web),
                            "--listen", f"tcp/127.0.0.1:{port}"], capture_output=True, text=True, timeout=180, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     assert "INSECURE" in proc.stderr and "demo over" in proc.stdout

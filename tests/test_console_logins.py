@@ -66,7 +66,10 @@ def test_one_address_is_limited_whatever_names_it_tries(console):
 
 def test_known_and_unknown_names_take_the_same_time_to_refuse(tmp_path):
     """User enumeration: a known name answered in 40 ms, an unknown one in 3.4 ms. Both now
-    hash (the unknown against a dummy of the same cost); interleaved, medians of 9."""
+    hash (the unknown against a dummy of the same cost); interleaved, medians of 9. The work is
+    compared as this thread's CPU time (the hash runs in it): wall time on a loaded machine also
+    counts the time the thread waited for a core, which CI once saw swing by 1.7x between
+    neighbouring calls."""
     passwords = roster_with_operators(tmp_path / "roster.json", CFG.id, 9)
     clock = [0.0]
     logins = Logins(tmp_path / "roster.json", clock=lambda: clock[0])
@@ -77,12 +80,12 @@ def test_known_and_unknown_names_take_the_same_time_to_refuse(tmp_path):
             clock[0] += 10_000.0  # no lock in the way
             for who, out in (((f"op{k}", known), (f"ghost{k}", unknown)) if k % 2 else
                              ((f"ghost{k}", unknown), (f"op{k}", known))):
-                t0 = time.perf_counter()
+                t0 = time.thread_time()
                 assert logins.with_password(who, "wrong", f"a{k}") is None
-                out.append(time.perf_counter() - t0)
+                out.append(time.thread_time() - t0)
         ratio = statistics.median(known) / statistics.median(unknown)
         print(f"FIGURE wrong password: known {statistics.median(known) * 1e3:.1f} ms, unknown "
-              f"{statistics.median(unknown) * 1e3:.1f} ms (medians of 9), ratio {ratio:.3f}")
+              f"{statistics.median(unknown) * 1e3:.1f} ms of CPU (medians of 9), ratio {ratio:.3f}")
         assert 0.8 <= ratio <= 1.25
         assert logins.with_password("op0", passwords["op0"], "b") is not None
     finally:

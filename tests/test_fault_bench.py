@@ -40,6 +40,6 @@ def test_the_fault_bench_runs_two_attacks_and_compares_with_a_control_run():
 
 
 def test_pairs_without_a_control_run_are_refused_with_the_reason():
-    p = subprocess.run([sys.executable, "-m", "client.cli", "bench", "faults", "--pairs", "2", "--no-cost"],
+    p = subprocess.run([sys.executable, "-m", "client.entry", "bench", "faults", "--pairs", "2", "--no-cost"],
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and "--pairs needs --control" in p.stderr

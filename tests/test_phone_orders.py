@@ -147,7 +147,7 @@ def test_orders_and_the_man_down_prompt_on_a_phone_are_recorded_and_reprocess_ag
     assert sorted(a.action for a in acks) == ["evacuate", "ok", "par"]
     assert [a.t for a in acks if a.action == "ok"] == [pytest.approx(answered, abs=1e-6)]
     # reprocess: the same acknowledgements, the same answer, the same man-down as the live service
-    out = subprocess.run([sys.executable, "-m", "client.cli", "reprocess", str(recording), "--json"],
+    out = subprocess.run([sys.executable, "-m", "client.entry", "reprocess", str(recording), "--json"],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     mine = json.loads(out.stdout)["responders"][RID]

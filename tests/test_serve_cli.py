@@ -18,7 +18,7 @@ from tests.zenoh_util import client, free_port, wait_until
 
 def _serve(port: int, *extra: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "client.cli", "serve", "--no-console", "--listen", f"tcp/127.0.0.1:{port}", *extra],
+        [sys.executable, "-m", "client.entry", "serve", "--no-console", "--listen", f"tcp/127.0.0.1:{port}", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )
 
@@ -256,7 +256,7 @@ def test_the_systemd_unit_restarts_serve_after_sigkill_on_its_fixed_recording_pa
               "--config": ["--config", str(root / "deploy" / "incidents" / "ipin-museum.json")],
               "--record": ["--record", str(tmp_path / Path(argv[argv.index("--record") + 1]).name.replace("%N", "firetrack"))],
               "--port": ["--port", str(web)]}
-    cmd = [sys.executable, "-m", "client.cli", "serve"]
+    cmd = [sys.executable, "-m", "client.entry", "serve"]
     rest = iter(argv[2:])
     for a in rest:
         assert a in mapped, f"an option of the unit this test does not know: {a}"

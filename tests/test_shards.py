@@ -205,7 +205,7 @@ def test_a_route_stays_while_its_responder_is_away_and_goes_when_the_core_lets_i
 
 
 def _serve_shard(endpoint: str, part: str, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "client.cli", "serve", "--no-console", "--connect", endpoint,
+    return subprocess.Popen([sys.executable, "-m", "client.entry", "serve", "--no-console", "--connect", endpoint,
                              "--shard", part, *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 

@@ -62,7 +62,7 @@ class Serve:
     """``firetrack serve --connect EP --no-console [extra]`` whose output lines are read on a thread."""
 
     def __init__(self, endpoint: str, *extra: str):
-        self.proc = subprocess.Popen([sys.executable, "-m", "client.cli", "serve", "--no-console", "--connect", endpoint,
+        self.proc = subprocess.Popen([sys.executable, "-m", "client.entry", "serve", "--no-console", "--connect", endpoint,
                                       *extra], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self.lines: list[tuple[float, str]] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
