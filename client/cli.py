@@ -119,7 +119,6 @@ def main() -> None:
         raise SystemExit(130) from None
 
 
-if __name__ == "__main__":  # `python -m client.cli` ends as the `firetrack` script does (client/entry.py):
-    from client.entry import main as firetrack  # no interpreter finalisation under zenoh's threads
-
-    firetrack()
+if __name__ == "__main__":  # the script (client/entry.py) imports this module; it is not run as a program
+    raise SystemExit("run `firetrack` (or `python -m client.entry`): it ends cleanly after Ctrl-C and under "
+                     "zenoh's threads (client/entry.py)")
