@@ -143,7 +143,7 @@ def _route_after_the_wearable_began(prefix: str, early: int, zenoh_keep: bool) -
         r = svc.core.responders[rid]
         return {"sent": len(frames), "unheard": unheard, "resent": w.resent, "heard": dict(svc.heard),
                 "processed": svc.frames_processed, "accounting": svc.core.frame_accounting(),
-                "first_seq": r.gate.first_of_stream.seq, "held": r.gate.held(), "seq": r.seq,
+                "first_seq": r.gate.first_of_stream.seq, "held": r.gate.held, "seq": r.seq,
                 "behind_max_s": svc.behind_max_s}
     finally:
         w.close()
