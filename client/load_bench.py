@@ -142,8 +142,10 @@ def _even(poses, names, lo: float, hi: float, workers: int, seq_from: int = 0) -
     if not rate:
         return out
     # the median frames/s of each worker's responders: a worker slower than another is uneven too
-    out["frames_per_s_by_worker"] = [round(float(np.median([p for p, k in zip(progress, shard) if k == w] or [0.0])), 3)
-                                     for w in range(workers)]
+    # (None: none of its responders had poses over EVEN_MIN_SPAN_S, a worker too far behind)
+    by_worker = [[p for p, k in zip(progress, shard) if k == w] for w in range(workers)]
+    out["frames_per_s_by_worker"] = [round(float(np.median(ps)), 3) if ps else None for ps in by_worker]
+    out["responders_by_worker"] = [len(ps) for ps in by_worker]
     for name, xs in (("poses_per_s", rate), ("frames_per_s", progress)):
         xs = np.array(xs)
         mid = float(np.median(xs)) if xs.size else 0.0
