@@ -98,3 +98,29 @@ def test_a_drill_crew_steps_alike_where_a_mixed_crew_does_not():
         spreads[name] = float(np.abs(rate - np.median(rate)).max() / np.median(rate))
     assert spreads["drill"] <= 0.1, spreads  # whole steps in a 14 s window: one step is 4 %
     assert spreads["mixed"] > 0.2, spreads
+
+
+def test_tracked_evenly_counts_the_frames_in_which_everyone_walks_and_still_sees_a_slow_responder():
+    """A service behind publishes, inside the bench's wall-time window, the poses of frames from
+    before a late starter walked; its walk's first steps come out four at once when it is
+    confirmed. Counted from the frames in which everyone walks (``seq_from``), a late starter
+    tracked at the service's pace has the same rates as an early one, and a responder that the
+    service advances half as fast is still measured at half."""
+    from client.load_bench import _even
+
+    poses = []
+    for k in range(30):  # a round a second, each runs 5 frames of every responder; a step (a pose) every 5 frames
+        poses.append(("early", 5 * k, float(k)))
+        if k == 12:  # walking from frame 40, confirmed at frame 60: its steps so far come out together
+            poses += [("late", 60, 12.0)] * 5
+        elif k > 12:
+            poses.append(("late", 5 * k, float(k)))
+        if k % 2 == 0:  # advanced half as fast: 5 frames (a step) every other round
+            poses.append(("slow", 5 * (k // 2), float(k)))
+    d = _even(poses, ["early", "late"], 5.0, 29.0, 1)
+    assert d["poses_per_s"]["max"] > 1.2 * d["poses_per_s"]["min"], d  # the confirmed steps counted as if paced
+    d = _even(poses, ["early", "late"], 5.0, 29.0, 1, seq_from=65)
+    assert d["poses_per_s"]["min"] == d["poses_per_s"]["max"] == 1.0, d
+    assert d["frames_per_s"]["min"] == d["frames_per_s"]["max"] == 5.0, d
+    d = _even(poses, ["early", "late", "slow"], 5.0, 29.0, 1, seq_from=30)
+    assert d["frames_per_s"]["min"] == 2.5 and d["poses_per_s"]["min"] == 0.5 and d["poses_per_s"]["spread"] == 0.5, d

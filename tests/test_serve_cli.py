@@ -128,6 +128,7 @@ def test_load_bench_reports_every_figure_and_loses_nothing(tls):
     assert r["frames_sent"] == 6 * 61  # the first frame, then 10 a second
     assert r["frames_lost"] == 0 and r["frames_not_processed"] == {}
     assert r["realtime_factor"] > 1
+    assert len(r["behind_max_s_by_worker"]) == 2 and max(r["behind_max_s_by_worker"]) == round(r["behind_max_s"], 2)
     assert 0 < r["latency_p50_ms"] <= r["latency_p99_ms"]
 
 
