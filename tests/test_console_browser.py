@@ -9,6 +9,7 @@ import io
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -666,8 +667,11 @@ def test_twenty_responders_in_alarm_leave_the_map_usable(browser, tmp_path):
         mapbox = page.page.locator("#map").bounding_box()
         assert bar["height"] <= 0.25 * VIEWPORT["height"], bar  # the bar scrolls instead of growing
         assert mapbox["height"] >= 0.6 * VIEWPORT["height"], mapbox  # the map keeps most of the screen
-        assert "for 40 s" in page.page.locator("#alarms .alarm").first.inner_text() or \
-            "for 41 s" in page.page.locator("#alarms .alarm").first.inner_text()  # the service's clock, not the page's
+        # the service's clock, not the page's: 40 s when sent, plus what this (maybe loaded) machine took since
+        first = page.page.locator("#alarms .alarm").first.inner_text()
+        waited = time.time() - now
+        shown = re.search(r"for (\d+) s", first)
+        assert shown and 40 <= int(shown.group(1)) <= 40 + math.ceil(waited), (first, waited)
         shot = Path(os.environ.get("FIRETRACK_SCREENSHOTS", tmp_path)) / "console-20-alarms.png"
         page.page.screenshot(path=str(shot))
         assert Image.open(shot).size == (VIEWPORT["width"], VIEWPORT["height"])
