@@ -69,6 +69,10 @@ def _run(workers: int, catch_all: bool = False) -> tuple[dict, list[dict], dict]
                 w.send("imu", frames[w.responder][k])
         for w in wearables:  # the owner's Status acknowledges the last frame: all taken
             assert w.flush(90), (w.responder, w.delivery())
+        # taken is not yet processed: this process's worker may still be running its last rounds on a
+        # loaded machine (a phase-1 run on three workers counted 212 of its 240 frames at the close)
+        mine = sum(len(f) for r, f in frames.items() if in_shard(r, 0, workers))
+        wait_until(lambda: svc.frames_processed >= mine, 30)
         tracks = _tracks(cl, cfg)
     finally:
         for w in wearables:
