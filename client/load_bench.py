@@ -346,6 +346,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
     warm = np.array(warm) * 1e3
     when = np.array(when) // 50  # 5 s windows of the run (frames at 10 per second)
     by_window = [round(float(np.percentile(lat[when == w], 99)), 1) for w in np.unique(when)] if lat.size else []
+    even_from = _even_from(drill, start_spread_s)  # s after the start from which every wearer walks
     result = {
         "responders": responders,
         "tls": tls,
@@ -376,8 +377,8 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "behind_max_s_by_worker": [round(x, 2) for x in [svc.behind_max_s] + [s.get("behind_max_s", 0.0) for s in others]],
         "publishing_s": round(end_wall - go_wall, 1),  # longer than seconds: the service pushed back
         # per responder while the wearables published (after the first 3 s): poses/s and frames/s its track advanced
-        "tracked_evenly": _even(poses, list(index), go_wall + _even_from(drill, start_spread_s), end_wall, workers,
-                                seq_from=int(math.ceil(10.0 * _even_from(drill, start_spread_s)))),
+        "tracked_evenly": _even(poses, list(index), go_wall + even_from, end_wall, workers,
+                                seq_from=int(math.ceil(10.0 * even_from))),
         "publisher_cpu_s": publisher_cpu,
         "load_average": [round(x, 2) for x in os.getloadavg()],  # 1, 5, 15 min at the end: a shared machine's load
         "rss_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

@@ -251,12 +251,13 @@ class FusionEstimator:
                                                   f"{verdict.reason}: {verdict.detail}", verdict.info or {}))
             return FixOutcome("rejected", reason=verdict.reason)
         earlier = verdict.earlier
-        if earlier is not None:  # a fix held out before, which this one shows was right: the graph takes it first
-            taken = Counter(self.fusion.rejected)
-            self._guarded(lambda: self.fusion.add_fix(earlier) or self.fusion.live, earlier.t, self._dr[7])
-            if Counter(self.fusion.rejected) != taken:
-                earlier = None  # the graph refused it after all: its refusal stands
         before = Counter(self.fusion.rejected)
+        if earlier is not None:  # a fix held out before, which this one shows was right: the graph takes it first
+            self._guarded(lambda: self.fusion.add_fix(earlier) or self.fusion.live, earlier.t, self._dr[7])
+            after = Counter(self.fusion.rejected)
+            if after != before:
+                earlier = None  # the graph refused it after all: its refusal stands
+            before = after
         degraded = self.degraded
         fp = self._guarded(lambda: self.fusion.add_fix(fix) or self.fusion.live, fix.t, self._dr[7])
         if self.degraded != degraded:  # the graph could not take it: held out, the track restarted
