@@ -34,6 +34,10 @@ its workers with a service certificate, the wearables' process with a simulator 
 (walkers ``sim-000``...), mutual TLS on every link and the router's access control generated
 from the roster, as ``firetrack serve --tls`` runs it. Run it beside a run without, in the same
 conditions, for the cost of security.
+
+``--router-process`` runs the zenoh router in a process of its own (as ``zenohd`` in
+``deploy/`` or a router on another box would), and worker 0 joins it as a client like the
+others, so no worker shares its process with the router. ``router_cpu_s`` is that process's CPU.
 """
 from __future__ import annotations
 
@@ -92,6 +96,27 @@ def _publisher(endpoint: str, incident: str, n: int, seconds: float, rate: float
 
 
 PUBLISHER_STALL_S = 60.0  # s the publisher may go on while the service processes no frame at all
+
+
+def _router(endpoint: str, tls_dir: str | None, acl: dict | None, ready, stop) -> None:  # pragma: no cover - child
+    """A zenoh router alone in its process until ``stop`` is set (``--router-process``)."""
+    from service.protocol.session import open_session
+    from service.protocol.tls import TlsIdentity
+
+    session = open_session([endpoint], tls=TlsIdentity.load(tls_dir) if tls_dir else None, acl=acl)
+    ready.set()
+    stop.wait()
+    session.close()
+    leave_process(0)
+
+
+def _cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of a live process so far (Linux /proc), None elsewhere."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _wait_publisher(child, svc, seconds: float) -> None:
@@ -244,7 +269,8 @@ def _bench_pki(directory: Path, incident: str):
 
 def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 100.0, seed: int = 0,
                   profile: Path | None = None, drain_s: float = 30.0, log=print, workers: int = 2,
-                  start_spread_s: float = 5.0, tls: bool = False, foot: float = 0.0, drill: bool = False) -> dict:
+                  start_spread_s: float = 5.0, tls: bool = False, foot: float = 0.0, drill: bool = False,
+                  router_process: bool = False) -> dict:
 
     from service.protocol.incident import default_incident
     from service.protocol.session import open_session
@@ -264,7 +290,19 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
 
             svc_id, sim_id, roster = _bench_pki(Path(stats_dir) / "pki", cfg.id)
             acl, access = access_control(roster, cfg.id), access_message(roster)
-        session = open_session([endpoint], tls=svc_id, acl=acl)
+        ctx = mp.get_context("spawn")
+        router = None
+        if router_process:  # the router alone; worker 0 a client of it, like the pool's workers
+            r_ready, r_stop = ctx.Event(), ctx.Event()
+            router = ctx.Process(target=_router, args=(endpoint, str(svc_id.dir) if tls else None, acl, r_ready, r_stop))
+            router.start()
+            done.callback(lambda: router.kill() if router.is_alive() else None)
+            done.callback(lambda: (r_stop.set(), router.join(10.0)))
+            if not r_ready.wait(60.0):
+                raise RuntimeError(f"the router process did not start within 60 s (exit code {router.exitcode})")
+            session = open_session(None, endpoint, tls=svc_id)
+        else:
+            session = open_session([endpoint], tls=svc_id, acl=acl)
         done.callback(session.close)
         # the crew is known: admit all of it at once, as `serve --admit-burst N` (or a roster) would at an incident
         # of that size (the default budget, 256 new ids at once then 2/s, is for an unknown crowd)
@@ -284,7 +322,6 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         done.callback(pool.close)
         if not pool.wait_ready(120):
             raise RuntimeError("the service workers did not start within 120 s")
-        ctx = mp.get_context("spawn")
         ready, go = ctx.Event(), ctx.Event()
         out = str(Path(stats_dir) / "sent.npz")
         child = ctx.Process(target=_publisher, args=(endpoint, cfg.id, responders, seconds, rate, seed, out, ready, go,
@@ -317,6 +354,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         svc_frames = svc.frames_processed
         svc_steps = sum(r.tracker.steps for r in list(svc.responders.values()))
         others = pool.close(timeout=30.0)  # a loaded worker drains its backlog
+        router_cpu = _cpu_s(router.pid) if router is not None else None
         wall = time.monotonic() - t0
         accounting = [svc.frame_accounting()] + [s.get("frames_not_processed", {}) for s in others]
     per_sample = rate / 10.0
@@ -380,6 +418,8 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         "tracked_evenly": _even(poses, list(index), go_wall + even_from, end_wall, workers,
                                 seq_from=int(math.ceil(10.0 * even_from))),
         "publisher_cpu_s": publisher_cpu,
+        "router_process": router_process,
+        "router_cpu_s": router_cpu,  # the router's own process (--router-process); else it is in worker 0's
         "load_average": [round(x, 2) for x in os.getloadavg()],  # 1, 5, 15 min at the end: a shared machine's load
         "rss_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
                    + resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0,
@@ -417,13 +457,17 @@ def bench_service_command(
                                                       "(no pauses or stairs), so tracked_evenly's pose rates compare"),
     foot: float = typer.Option(0.0, "--foot", min=0.0, max=1.0,
                                help="share of wearers with a boot-mounted IMU (ZUPT-aided INS), 0..1; the rest handheld"),
+    router_process: bool = typer.Option(False, "--router-process",
+                                        help="the zenoh router in a process of its own, worker 0 a client of it "
+                                             "(default: the router inside worker 0's process, as serve runs it)"),
 ):
     """N simulated wearables through a real zenoh router against the service (see client/load_bench.py)."""
     if ctx.invoked_subcommand is not None:
         return
     try:
         result = bench_service(responders, seconds, rate, profile=profile, log=lambda m: err.print(m),
-                               workers=workers, start_spread_s=start_spread, tls=tls, foot=foot, drill=drill)
+                               workers=workers, start_spread_s=start_spread, tls=tls, foot=foot, drill=drill,
+                               router_process=router_process)
     except RuntimeError as e:  # a process that did not start or failed: one line, not a traceback
         err.print(f"[bold red]error:[/] {e}", highlight=False)
         raise typer.Exit(1) from None

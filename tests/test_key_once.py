@@ -27,7 +27,7 @@ def test_every_message_key_is_read_once_from_the_subscriber_to_the_core(monkeypa
     calls.clear()  # the service's warm-up core is behind it: from here on, the messages' keys
     taken = []
     feed_round = svc.core.feed_round
-    svc.core.feed_round = lambda items: taken.extend(items) or feed_round(items)  # a spy: the real core runs
+    svc.core.feed_round = lambda items, **kw: taken.extend(items) or feed_round(items, **kw)  # a spy: the real core runs
     cl = client(endpoint)
     try:
         w = Wearable(cl, cfg.id, "ff1")

@@ -295,6 +295,32 @@ def test_rounds_of_any_size_give_the_same_poses_bit_for_bit():
         assert np.array_equal(p.cov, q.cov)
 
 
+def test_a_pose_is_stamped_once_when_its_round_answers():
+    """``published_at`` is set in one place: the stamp the round's caller hands in is read once
+    per round that answers poses, and every pose of the round carries that reading; without a
+    stamp (reprocess, benches) a pose carries its round's time. Nothing else differs."""
+    cfg, msgs = _simulated_messages()
+    plain, stamped = IncidentCore(cfg), IncidentCore(cfg)
+    readings: list[float] = []
+
+    def stamp() -> float:
+        readings.append(5000.0 + len(readings))
+        return readings[-1]
+
+    n_rounds_with_poses = 0
+    for i in range(0, len(msgs), 40):
+        items = [Inbound(kind, key, payload, 10.0 + i) for kind, key, payload in msgs[i:i + 40]]
+        a, before = _poses(plain.feed_round(items)), len(readings)
+        b = _poses(stamped.feed_round(items, stamp=stamp))
+        assert len(readings) - before == (1 if b else 0)  # read once for the whole round, and only when it answers
+        n_rounds_with_poses += bool(b)
+        assert all(p.published_at == 10.0 + i for p in a)  # the round's time
+        assert all(q.published_at == readings[-1] for q in b)  # the one reading
+        assert [p.model_copy(update={"published_at": 0.0}) for p in a] == \
+            [q.model_copy(update={"published_at": 0.0}) for q in b]
+    assert n_rounds_with_poses > 10 and len(readings) == n_rounds_with_poses
+
+
 def test_warm_up_takes_a_responder_through_every_kind_of_fix():
     """The service warms its kernels, graph and codecs on a simulated responder before it
     subscribes; every kind of fix the incident supports must go through without an error."""

@@ -80,7 +80,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Self
 
 import numpy as np
@@ -177,23 +177,24 @@ class IncidentCore:
         self.status.recording_failed = failed
 
     # ------------------------------------------------------------------ inputs
-    def feed_round(self, items: Iterable[Inbound]) -> list[Outbound]:
+    def feed_round(self, items: Iterable[Inbound], stamp: Callable[[], float] | None = None) -> list[Outbound]:
         """Messages taken together: each is decoded and gated in turn, then every responder's
         new frames go through its tracker as one batch (a fix first runs the frames that came
-        before it). The poses are those of :meth:`feed` one message at a time, bit for bit."""
+        before it). The poses are those of :meth:`feed` one message at a time, bit for bit.
+        ``stamp``: the clock that stamps the poses' ``published_at`` (:meth:`PoseOutput.take`)."""
         for item in items:
             try:
                 self._take(item)
             except Exception:  # a bug must not stop the incident: log it, count it, go on
                 self.rejects.error(f"while processing {item.key[:200]}", self.clock.now)
         self.frames.run_dirty()
-        return self.outbox.take()
+        return self.outbox.take(stamp)
 
     def feed(self, item: Inbound) -> list[Outbound]:
         """One message: a round of one (what ``reprocess`` of a single message does)."""
         return self.feed_round((item,))
 
-    def tick(self, now: float) -> list[Outbound]:
+    def tick(self, now: float, stamp: Callable[[], float] | None = None) -> list[Outbound]:
         """Time passes: frames held for a missing one beyond the gate's wait are released, and
         every responder's Status is answered: at every tick while it is heard, every
         ``idle_status_every_s`` once it has been silent for ``idle_after_s`` (and at once when
@@ -212,7 +213,7 @@ class IncidentCore:
                 self.rejects.error(f"while releasing the held frames of {r.id}", now)
         self.frames.run_dirty()
         self.status.due(self.roster, now, lambda what: self.rejects.error(what, now))
-        return self.outbox.take()
+        return self.outbox.take(stamp)
 
     def admit(self, kind: str, key: str, size: int, now: float,
               parts: wire.KeyParts | ValueError | None = None) -> str | None:
@@ -247,7 +248,7 @@ class IncidentCore:
         return self.lags.behind_s(self.roster, now)
 
     def pose_message(self, r: Responder, p: PoseEstimate) -> wire.Pose:
-        """The wire form of one pose (``published_at`` the core's time; the shell restamps it)."""
+        """The wire form of one pose (``published_at`` the core's time)."""
         lat, lon = self.outbox.geodetic(np.array([p.x], float), np.array([p.y], float))
         return pose_message(r, p, float(lat[0]), float(lon[0]), max(r.seq, 0), self.clock.now, r.utc_offset)
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -58,16 +59,20 @@ class Outbox:
         self._out.append(None)
         r.poses += 1
 
-    def take(self) -> list[Outbound]:
-        """The answers so far, in order, the poses in their wire form; the outbox is empty after."""
-        self._emit_poses()
+    def take(self, stamp: Callable[[], float] | None = None) -> list[Outbound]:
+        """The answers so far, in order, the poses in their wire form; the outbox is empty after.
+        ``stamp``: the clock whose reading, taken once here as the poses are made, is every
+        pose's ``published_at`` (the live shell's wall clock, just before it publishes them);
+        None: each pose carries the core's time of its round (reprocess, benches, tests)."""
+        self._emit_poses(stamp)
         out, self._out = self._out, []
         return out
 
-    def _emit_poses(self) -> None:
+    def _emit_poses(self, stamp: Callable[[], float] | None) -> None:
         q, self._poses = self._poses, []
         if not q:
             return
+        at = None if stamp is None else float(stamp())
         try:
             lat, lon = self.geodetic(np.array([e.pose.x for e in q], float), np.array([e.pose.y for e in q], float))
             lat, lon = lat.tolist(), lon.tolist()
@@ -79,7 +84,8 @@ class Outbox:
             r = e.responder
             try:
                 self._out[e.place] = Outbound(wire.key(self.incident.id, r.id, "pose"),
-                                              pose_message(r, e.pose, la, lo, e.seq, e.now, e.utc_offset))
+                                              pose_message(r, e.pose, la, lo, e.seq, e.now if at is None else at,
+                                                           e.utc_offset))
             except Exception:  # a pose that is not a valid message is dropped, counted and logged
                 self.counters.errors += 1
                 log.exception("pose of %s", r.id)
@@ -94,8 +100,8 @@ class Outbox:
 
 def pose_message(r: Responder, p: PoseEstimate, lat: float, lon: float, seq: int, now: float, utc_offset) -> wire.Pose:
     """The wire form of a pose: geodetic position, compass bearing, symmetric covariance, the
-    time on the current stream's device clock; ``published_at`` the core's time ``now``, which
-    the shell restamps when it publishes."""
+    time on the current stream's device clock; ``published_at`` is ``now``: the one stamp a
+    pose gets (:meth:`PoseOutput.take`)."""
     cov = np.asarray(p.cov, float)
     cov = 0.5 * (cov + cov.T)
     t = p.t - r.t_offset  # on the current stream's device clock, like every time on the wire

@@ -345,9 +345,9 @@ class IncidentService(SnapshotWriter):
                 self._record(m.key, m.payload, m.received)
             with self._core_lock:
                 self.core.recording_failed = self.recorder_error is not None
-                out = self.core.feed_round(items) if items else []
+                out = self.core.feed_round(items, stamp=self.clock) if items else []
                 if ticks:
-                    out += self.core.tick(self.clock())
+                    out += self.core.tick(self.clock(), stamp=self.clock)
             self._publish(out)
             if ticks:
                 self._note_behind(self.core.behind_s(self.clock()))
@@ -388,9 +388,7 @@ class IncidentService(SnapshotWriter):
             return
         tag = fence.tag if fence is not None else None  # who published: the attachment names the epoch
         for o in out:
-            msg = o.message
-            if isinstance(msg, wire.Pose):  # stamped when it leaves, not when the round began
-                msg = msg.model_copy(update={"published_at": self.clock()})
+            msg = o.message  # a Pose carries its one stamp: the clock as the core made it (PoseOutput.take)
             payload = wire.encode(msg)
             pub = self._publishers.get(o.key)
             if pub is None:
