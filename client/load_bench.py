@@ -347,13 +347,17 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         sent = np.load(out)
         send_t, per_walker, publisher_cpu = sent["send_t"], int(sent["frames_per_walker"]), float(sent["cpu"])
         frames_sent = per_walker * responders
-        deadline = time.monotonic() + drain_s
-        while svc.frames_processed < per_walker * share0 and time.monotonic() < deadline:
+        # the backlog drains for as long as it shrinks: a worker far behind (tens of seconds) is
+        # waited for; one that made no progress for drain_s is given up on, its frames then lost
+        seen, moved = svc.frames_processed, time.monotonic()
+        while svc.frames_processed < per_walker * share0 and time.monotonic() - moved < drain_s:
             time.sleep(0.05)
+            if svc.frames_processed != seen:
+                seen, moved = svc.frames_processed, time.monotonic()
         svc.wait_idle(5.0)
         svc_frames = svc.frames_processed
         svc_steps = sum(r.tracker.steps for r in list(svc.responders.values()))
-        others = pool.close(timeout=30.0)  # a loaded worker drains its backlog
+        others = pool.close(timeout=drain_s)  # a loaded worker drains its backlog (worker 0 has drained by now)
         router_cpu = _cpu_s(router.pid) if router is not None else None
         wall = time.monotonic() - t0
         accounting = [svc.frame_accounting()] + [s.get("frames_not_processed", {}) for s in others]

@@ -117,11 +117,13 @@ def test_schema_command_writes_json_schema(tmp_path):
 @pytest.mark.parametrize("tls", [False, True])
 def test_load_bench_reports_every_figure_and_loses_nothing(tls):
     """``firetrack bench`` end to end at a toy size: a real router, two workers, a publisher process;
-    with ``--tls`` every link is mutual TLS and the router enforces the roster's access control."""
+    with ``--tls`` every link is mutual TLS and the router enforces the roster's access control,
+    and the router runs alone in its process (``--router-process``), worker 0 a client of it."""
     from client.load_bench import bench_service
 
-    r = bench_service(responders=6, seconds=6.0, workers=2, log=lambda m: None, tls=tls)
-    assert r["tls"] is tls
+    r = bench_service(responders=6, seconds=6.0, workers=2, log=lambda m: None, tls=tls, router_process=tls)
+    assert r["tls"] is tls and r["router_process"] is tls
+    assert (r["router_cpu_s"] > 0) if tls else r["router_cpu_s"] is None  # the router's own process worked
     for key in ("responders", "rate_hz", "samples_per_s", "realtime_factor", "latency_p50_ms", "latency_p99_ms",
                 "frames_sent", "frames_processed", "frames_lost", "rss_mb"):
         assert key in r, key
