@@ -19,7 +19,6 @@ The faults themselves (a link that can be cut, walker wearables, hostile message
 """
 from __future__ import annotations
 
-import math
 import os
 import select
 import subprocess
@@ -39,6 +38,7 @@ from client.faults_loopback import (
     hostile_messages,
     walker_frames,
 )
+from client.process_stats import cpu_s, rss_mb
 from service.protocol import wire
 from service.protocol.session import client_config, free_local_port
 from service.protocol.terminal import err, print_json
@@ -60,29 +60,6 @@ def _attacker(endpoint: str, incident: str, mode: str, n: int, seconds: float) -
         time.sleep(max(0.0, t0 + seconds - time.monotonic()))  # the attack lasts its time (0 messages: a control run)
         print(f"sent {len(msgs)} {time.monotonic() - t0:.2f}", flush=True)
     session.close()
-
-
-def _rss_mb(pid: int, field: str = "VmRSS") -> float:
-    """The process's resident memory (MB): ``VmRSS`` in all, or ``RssAnon``, the part that is
-    the process's own (heap, stacks) and not pages of mapped files such as the libraries' code,
-    which the first use of a code path (a flood's error paths in zenoh's 33 MB library) brings
-    in and the kernel may drop again at any time."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith(f"{field}:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return math.nan
-
-
-def _cpu_s(pid: int) -> float:
-    """CPU time (user + system, s) the process has used, all its threads (zenoh's too)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, IndexError, ValueError):
-        return math.nan
 
 
 def _line_or_none(stream, timeout: float) -> str | None:
@@ -212,11 +189,11 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
                 w.start()
             time.sleep(5.0)  # the walkers' first frames: trackers built
             log(f"phase 1: {phase_s:.0f} s without an attack ...")
-            t_before, cpu_before = time.time(), _cpu_s(serve.pid)
+            t_before, cpu_before = time.time(), cpu_s(serve.pid)
             time.sleep(phase_s)
-            cpu_attack = _cpu_s(serve.pid)
-            rss_before = _rss_mb(serve.pid)
-            anon_before = _rss_mb(serve.pid, "RssAnon")
+            cpu_attack = cpu_s(serve.pid)
+            rss_before = rss_mb(serve.pid)
+            anon_before = rss_mb(serve.pid, "RssAnon")
             attacks = []  # per attack: (start, end, attacker's line, log growth, rss and anon kept after expiry)
             peak, anon_peak = rss_before, anon_before
             for k in range(n_attacks):
@@ -227,22 +204,22 @@ def bench_faults(mode: str = "flood", messages: int = 100_000, attack_s: float =
                 attacker.stdin.flush()
                 sent_line = ""
                 while not sent_line:  # the attacker says when it is done
-                    peak = max(peak, _rss_mb(serve.pid))
-                    anon_peak = max(anon_peak, _rss_mb(serve.pid, "RssAnon"))
+                    peak = max(peak, rss_mb(serve.pid))
+                    anon_peak = max(anon_peak, rss_mb(serve.pid, "RssAnon"))
                     sent_line = _line_or_none(attacker.stdout, 0.25) or ""
                     if not sent_line and attacker.poll() is not None:
                         raise RuntimeError(f"the attacker process ended (exit code {attacker.returncode}) "
                                            f"during attack {k + 1}")
                 t_attack_end = time.time()
                 if k == 0:
-                    cpu_attack_end = _cpu_s(serve.pid)
+                    cpu_attack_end = cpu_s(serve.pid)
                 log_attack = logpath.stat().st_size - log0
                 log(f"phase 3: {phase_s:.0f} s after, and until the ids the attack brought have left ...")
                 t_after0 = time.time()
                 rss_samples, anon_samples = [], []
                 while time.time() < t_after0 + max(phase_s, expire_after + settle_s):
-                    rss_samples.append(_rss_mb(serve.pid))
-                    anon_samples.append(_rss_mb(serve.pid, "RssAnon"))
+                    rss_samples.append(rss_mb(serve.pid))
+                    anon_samples.append(rss_mb(serve.pid, "RssAnon"))
                     peak = max(peak, rss_samples[-1])
                     anon_peak = max(anon_peak, anon_samples[-1])
                     time.sleep(0.5)

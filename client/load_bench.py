@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
+from client.process_stats import cpu_s
 from service.protocol.session import free_local_port
 from service.protocol.terminal import err, leave_process, print_json
 from service.shell.sharding import in_shard
@@ -108,15 +109,6 @@ def _router(endpoint: str, tls_dir: str | None, acl: dict | None, ready, stop) -
     stop.wait()
     session.close()
     leave_process(0)
-
-
-def _cpu_s(pid: int) -> float | None:
-    """User + system CPU seconds of a live process so far (Linux /proc), None elsewhere."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 def _wait_publisher(child, svc, seconds: float) -> None:
@@ -358,7 +350,7 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
         svc_frames = svc.frames_processed
         svc_steps = sum(r.tracker.steps for r in list(svc.responders.values()))
         others = pool.close(timeout=drain_s)  # a loaded worker drains its backlog (worker 0 has drained by now)
-        router_cpu = _cpu_s(router.pid) if router is not None else None
+        router_cpu = cpu_s(router.pid) if router is not None else math.nan
         wall = time.monotonic() - t0
         accounting = [svc.frame_accounting()] + [s.get("frames_not_processed", {}) for s in others]
     per_sample = rate / 10.0
@@ -423,7 +415,8 @@ def bench_service(responders: int = 200, seconds: float = 30.0, rate: float = 10
                                 seq_from=int(math.ceil(10.0 * even_from))),
         "publisher_cpu_s": publisher_cpu,
         "router_process": router_process,
-        "router_cpu_s": router_cpu,  # the router's own process (--router-process); else it is in worker 0's
+        # the router's own process (--router-process); null when it is in worker 0's (or /proc cannot say)
+        "router_cpu_s": None if math.isnan(router_cpu) else router_cpu,
         "load_average": [round(x, 2) for x in os.getloadavg()],  # 1, 5, 15 min at the end: a shared machine's load
         "rss_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
                    + resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024.0,
