@@ -64,6 +64,10 @@ def _run(workers: int, catch_all: bool = False) -> tuple[dict, list[dict], dict]
         assert pool is None or pool.wait_ready(300), "the worker process did not start"
         frames = _frames()
         wearables = [Wearable(cl, cfg.id, r) for r in IDS]
+        # a worker declares a responder's route when its presence reaches it; frames sent before then are
+        # the first-frames race, which has tests of its own below: here every wearable waits until it is heard
+        assert wait_until(lambda: all(w.heard for w in wearables), 30), \
+            f"no worker subscribed within 30 s to {[w.responder for w in wearables if not w.heard]}"
         for k in range(len(frames[IDS[0]])):  # interleaved, as live
             for w in wearables:
                 w.send("imu", frames[w.responder][k])
