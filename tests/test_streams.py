@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pdr.simulation import SimulatedWalker, WalkerSettings
-from service.core.gate import FrameGate
+from service.core.gate import MAX_RESEND_SLACK_S, FrameGate
 from service.core.incident_core import CoreSettings, Inbound, IncidentCore
 from service.protocol import wire
 from service.protocol.incident import default_incident
@@ -190,6 +190,34 @@ def test_an_asked_gap_that_is_not_resent_is_lost_after_resend_wait_s_or_max_held
     assert out == list(range(10, 30)) and gate.lost == 8  # one more: the run is lost, and the rest flows
 
 
+def test_the_lag_lengthens_the_wait_for_an_asked_gap_only_and_at_most_max_resend_slack_s():
+    """``slack`` (the responder's lag) adds to ``resend_wait_s`` for an asked gap, up to
+    ``MAX_RESEND_SLACK_S``; a gap nobody asked for still waits ``max_hold_s``; ``max_held``
+    still bounds what waits."""
+    gate = FrameGate(resend_wait_s=2.0, max_held=64)
+    gate.offer(frame(0), 0.0)
+    gate.offer(frame(5), 0.1)
+    assert gate.ask() == (1, 4)
+    assert gate.expire(5.0, slack=3.0) == [] and gate.expire(5.2, slack=3.0)[0].seq == 5 and gate.lost == 4
+    capped = FrameGate(resend_wait_s=2.0)
+    capped.offer(frame(0), 0.0)
+    capped.offer(frame(3), 0.0)
+    assert capped.ask() == (1, 2)
+    assert capped.expire(2.0 + MAX_RESEND_SLACK_S, slack=1e9) == [] and capped.lost == 0
+    assert [b.seq for b in capped.expire(2.1 + MAX_RESEND_SLACK_S, slack=1e9)] == [3] and capped.lost == 2
+    unasked = FrameGate(max_hold_s=1.0)
+    unasked.offer(frame(0), 0.0)
+    unasked.offer(frame(2), 0.0)  # held, not asked for: a reorder within the window
+    assert [b.seq for b in unasked.expire(1.1, slack=5.0)] == [2] and unasked.lost == 1
+    bounded = FrameGate(resend_wait_s=2.0, max_held=8)
+    bounded.offer(frame(0), 0.0)
+    bounded.offer(frame(2), 0.0)
+    assert bounded.ask() == (1, 1)
+    out = [[b.seq for b in bounded.offer(frame(s), 0.1 * s, slack=5.0)] for s in range(3, 11)]
+    # the 9th frame held (seq 10) goes past max_held, whatever the slack: seq 1 lost, the rest flows
+    assert out == [[]] * 7 + [list(range(2, 11))] and bounded.lost == 1
+
+
 def test_a_stream_first_heard_above_seq_0_asks_for_its_beginning_and_counts_what_never_comes():
     """A subscriber declared after the wearable began may be handed seq 12 first (zenoh's
     history reply lost the race): [0, 11] is asked for, and released in order when resent."""
@@ -300,6 +328,38 @@ def test_the_core_asks_for_a_gap_at_once_and_the_resent_frames_give_the_uninterr
     more, _ = run(core, late + [(f, 131.0 + 0.1 * k) for k, f in enumerate(frames[270:])])
     r = core.responders["ff1"]
     assert r.gate.lost == 0 and r.gate.counts == {} and r.gate.missing is None
+    got = [(p.t, p.steps, p.x, p.y) for p in poses + more]
+    assert got == [(p.t, p.steps, p.x, p.y) for p in ref_poses]
+
+
+def test_a_resend_queued_behind_a_worker_that_is_behind_still_fills_its_gap():
+    """A worker 3 s behind its input takes every frame 3 s late, the wearable's resend too: it
+    reaches the gate after the live frames that were queued before it, more than
+    ``resend_wait_s`` (2 s) after the gap was asked for. The wait for an asked gap adds the
+    responder's lag (how late its frames come in, :mod:`service.core.lag`), so the resend fills
+    the gap: nothing lost, the track as if uninterrupted (before, the gap was declared lost 2 s
+    after the ask, while the resend still waited in the worker's channel)."""
+    w = walk(seconds=60.0, seed=7)
+    frames = w.frames
+    ref_poses, _ = run(IncidentCore(CFG), at_rate(frames, 100.0))
+    behind = 3.0  # s: from frame 100 on the worker takes every frame this much later than it came
+    core = IncidentCore(CFG)
+    taken = [(f, rt + (behind if k >= 100 else 0.0)) for k, (f, rt) in enumerate(at_rate(frames, 100.0))]
+    poses, _ = run(core, taken[:200])
+    # frames 200..259 are dropped on the way; 260 is taken at 129 s and asks for them at once
+    asked = [o.message for o in core.feed(Inbound("imu", KEY, wire.encode(frames[260]), taken[260][1]))
+             if isinstance(o.message, wire.Status)]
+    assert [st.missing for st in asked] == [[frames[200].seq, frames[259].seq]]
+    ask_t = taken[260][1]
+    # the resend leaves at once and waits behind `behind` s of frames in the worker's channel
+    resend_t = ask_t + behind + 0.05
+    live = [(f, rt) for f, rt in taken[261:] if rt < resend_t]
+    resent = [(f, resend_t + 0.001 * k) for k, f in enumerate(frames[200:260])]
+    rest = [(f, rt) for f, rt in taken[261:] if rt >= resend_t]
+    assert resend_t - ask_t > 2.0 and live and live[-1][1] - ask_t > 2.0  # past resend_wait_s: the old verdict
+    more, _ = run(core, live + resent + rest)
+    r = core.responders["ff1"]
+    assert r.gate.lost == 0 and r.gate.counts == {} and r.gate.missing is None, (r.gate.lost, list(r.gate.events)[-3:])
     got = [(p.t, p.steps, p.x, p.y) for p in poses + more]
     assert got == [(p.t, p.steps, p.x, p.y) for p in ref_poses]
 

@@ -41,7 +41,7 @@ class FrameRounds:
         if batch.utc_offset is not None:
             r.utc_offset = batch.utc_offset
         rejected_before = r.gate.rejected
-        released = r.gate.offer(batch, now)
+        released = r.gate.offer(batch, now, r.taken_late_s() if r.gate.waiting else 0.0)
         if r.gate.rejected > rejected_before:  # the gate records why in its newest event
             _, reason, detail = r.gate.events[-1]
             self.rejects.noted(r, reason, f"frame {batch.seq}: {detail}", now)

@@ -29,7 +29,8 @@ missing run ``[next, lowest held - 1]`` once per gap, the core puts it in the re
 (:mod:`client.wearable`). While an asked gap waits, the gate holds up to ``max_held`` frames
 (and ``max_held_samples`` samples) for at most ``resend_wait_s`` instead of ``reorder_window``
 frames and ``max_hold_s``, so the resent frames can fill it; what does not come in that time is
-declared lost as before. A stream's asked-for beginning is bounded by ``max_held_samples``
+declared lost as before. A worker that is behind takes the resend as late as the frames queued
+before it, so the wait also counts the responder's lag (``slack`` of :meth:`FrameGate.expire`). A stream's asked-for beginning is bounded by ``max_held_samples``
 only: a worker behind its input takes many frames of one responder in one round, before its
 ask has left. This is what fills a gap that zenoh's own recovery cannot: after a
 service restart the advanced subscriber delivers a wearable's first live frame at once when it
@@ -67,14 +68,10 @@ forgotten) when
 current stream only once the current one has been silent (no frame naming it heard) for
 ``takeover_after_s`` (6 s), or when it *continues* the current one (its seq is the next one and
 its first sample follows the last released one within ``max_gap_s``) after ``restart_quiet_s`` of
-quiet. Silence is weak proof of a restart: an honest wearable whose phone's Wi-Fi stalls in a
-building, or a service starved under load, is silent for seconds (2.4 s seen in CI, where a
-forged boot took the track over with the old 2 s and the real frames after it were refused as
-``old_stream``). 6 s covers such stalls and stays below ``lost_contact_s`` (10 s), so a genuine
-restart is tracked again before its silence is an alarm; it costs a restarted wearable at most
-6 s of delay once (its frames are held, then released with their own times: the track, and
-man-down, which needs the motion model's own stillness *after* a new stream, are decided in
-device time and come out the same). Until then its frames are a **candidate**: held (one
+quiet. Silence is weak proof of a restart (a phone's Wi-Fi stalls, a service starves: 2.4 s seen
+in CI, where a forged boot took a track over with the old 2 s); 6 s covers such stalls and stays
+below ``lost_contact_s`` (10 s). A restarted wearable waits at most 6 s once; its frames keep
+their own times, so the track and man-down come out the same. Until then its frames are a **candidate**: held (one
 candidate at a time, at most ``max_candidate`` frames and ``max_held_samples`` samples, each for
 at most ``2 * takeover_after_s``), so a restart that comes sooner than the old stream's silence
 is proven loses nothing; they are released in order when it takes over, and whatever of it did
@@ -88,7 +85,6 @@ within one ``(device, boot)`` need ``restart_quiet_s`` of quiet; before that the
 away (``seq_jump``, or as duplicates).
 
 Every new stream is a gap (``gaps``, ``gap_s``); the core continues the track across epochs.
-
 Counts. ``lost`` frames (seq never released), ``gaps`` (runs of lost frames, device-time jumps
 over ``max_gap_s``, new streams) and ``gap_s`` (the seconds they span: across lost frames or a
 jump, the receive-time gap before a new stream) are what ``Status`` reports: no silent loss.
@@ -101,7 +97,8 @@ from collections import Counter, deque
 from service.protocol.wire import ImuBatch
 
 GATE_REASONS = ("duplicate", "late", "time_order", "old_stream", "other_stream", "seq_jump")
-RESEND_WAIT_S = 2.0  # s an asked-for gap is waited for
+RESEND_WAIT_S = 2.0  # s an asked-for gap is waited for (beyond the responder's lag: see FrameGate.expire)
+MAX_RESEND_SLACK_S = 10.0  # s the lag may add to that wait at most
 MAX_HELD = 64  # frames held while an asked-for gap is waited for
 MAX_HELD_SAMPLES = 8192  # and samples in them (a frame holds up to MAX_SAMPLES)
 TAKEOVER_AFTER_S = 6.0  # s of silence of the current stream before another (device, boot) may replace it
@@ -234,15 +231,16 @@ class FrameGate:
             self._counts[reason] += n
 
     # -- the gate -----------------------------------------------------------------------
-    def offer(self, batch: ImuBatch, receive_time: float) -> list[ImuBatch]:
-        """Take one frame; return the frames released by it, in order (possibly none)."""
+    def offer(self, batch: ImuBatch, receive_time: float, slack: float = 0.0) -> list[ImuBatch]:
+        """Take one frame; return the frames released by it, in order (possibly none).
+        ``slack``: s an asked-for gap waits beyond ``resend_wait_s`` (:meth:`expire`)."""
         self.offered += 1
         stream = (batch.device, batch.boot)
         # the frame a gap waits for is taken before the wait is judged: after a stall of the
         # worker (the frames and the resend waited in the channel meanwhile) it fills the gap
         # instead of arriving just after the gap was declared lost
         fills = bool(self._held) and stream == self._stream and batch.seq == self._next
-        out = [] if fills else self.expire(receive_time)
+        out = [] if fills else self.expire(receive_time, slack)
         if self._stream is not None and stream != self._stream:
             if batch.boot is not None and stream in self._retired:
                 self._reject(receive_time, "old_stream", f"seq {batch.seq} of device {batch.device!r} boot "
@@ -374,14 +372,17 @@ class FrameGate:
             return samples > self.max_held_samples
         return len(self._held) > self.max_held or samples > self.max_held_samples
 
-    def expire(self, now: float) -> list[ImuBatch]:
-        """Release held frames whose wait exceeded ``max_hold_s`` (``resend_wait_s`` for an asked-for
-        gap); the missing ones are declared lost."""
+    def expire(self, now: float, slack: float = 0.0) -> list[ImuBatch]:
+        """Release held frames whose wait exceeded ``max_hold_s`` (for an asked-for gap
+        ``resend_wait_s + slack``); the missing ones are declared lost.
+
+        ``slack``: how late the responder's frames are taken (its lag, at most ``MAX_RESEND_SLACK_S``):
+        the resend queues behind what waits for a worker that is behind, and is taken that much later."""
         out: list[ImuBatch] = []
         if self._candidate_held:
             out += self._settle_candidate(now)
         while self._held:
-            wait = self.resend_wait_s if self._waiting() else self.max_hold_s
+            wait = self.resend_wait_s + min(max(slack, 0.0), MAX_RESEND_SLACK_S) if self._waiting() else self.max_hold_s
             if not now - min(rt for _, rt in self._held.values()) > wait:
                 break
             self._skip_to_held(now, out, f"not received within {wait:g} s")

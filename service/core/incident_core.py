@@ -207,7 +207,7 @@ class IncidentCore:
                 continue
             r = self.roster.changing(r.id)
             try:
-                for b in r.gate.expire(now):
+                for b in r.gate.expire(now, r.taken_late_s()):
                     self.frames.process(r, b)
             except Exception:
                 self.rejects.error(f"while releasing the held frames of {r.id}", now)

@@ -52,6 +52,12 @@ class Responder:
     last_fix_refused: float = -math.inf  # service time of the newest fix refused for it (the fixes_refused alarm)
     lag: FrameLag = field(default_factory=FrameLag)  # how late its frames reach the core (service.core.lag)
 
+    def taken_late_s(self) -> float:
+        """s: how much later than its quickest its newest released frame was taken (its lag
+        then, :mod:`service.core.lag`); a resend it asks for queues about that long too
+        (:meth:`service.core.gate.FrameGate.expire`). 0 before any frame."""
+        return self.lag.at(self.last_rt) if self.last_rt is not None else 0.0
+
 
 @dataclass
 class Newcomer:
