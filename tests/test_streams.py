@@ -218,6 +218,31 @@ def test_the_lag_lengthens_the_wait_for_an_asked_gap_only_and_at_most_max_resend
     assert out == [[]] * 7 + [list(range(2, 11))] and bounded.lost == 1
 
 
+def test_a_resend_that_comes_in_pieces_waits_from_its_newest_frame():
+    """The resend of [0, 11] reaches the gate 2.5 s after the ask (a worker behind), its first
+    frame in one round and the rest in the next: the tick between them must not declare the rest
+    lost (phase 1 on three workers: 109 of 120 frames, first_seq 0, lost 11, all acknowledged)."""
+    gate = FrameGate(resend_wait_s=2.0, ask_from_start=100)
+    released = [b.seq for b in gate.offer(frame(12), 0.0)]
+    assert gate.ask() == (0, 11)  # the core asks after each frame
+    released += [b.seq for s in range(13, 20) for b in gate.offer(frame(s), 0.1 * (s - 12))]
+    assert released == []
+    released += [b.seq for b in gate.offer(frame(0), 2.5)]
+    released += [b.seq for b in gate.expire(3.0)]  # the tick between the two rounds
+    assert released == [0] and gate.lost == 0 and gate.missing == (1, 11)
+    released += [b.seq for s in range(1, 12) for b in gate.offer(frame(s), 3.1)]
+    assert released == list(range(20)) and gate.lost == 0 and gate.counts == {}
+    # a resend that stops half-way is lost, counted, resend_wait_s after its newest frame
+    cut = FrameGate(resend_wait_s=2.0, ask_from_start=100)
+    cut.offer(frame(12), 0.0)
+    assert cut.ask() == (0, 11)
+    for s in range(13, 20):
+        cut.offer(frame(s), 0.1 * (s - 12))
+    cut.offer(frame(0), 2.5)
+    cut.offer(frame(1), 2.6)
+    assert cut.expire(4.6) == [] and [b.seq for b in cut.expire(4.7)] == list(range(12, 20)) and cut.lost == 10
+
+
 def test_a_stream_first_heard_above_seq_0_asks_for_its_beginning_and_counts_what_never_comes():
     """A subscriber declared after the wearable began may be handed seq 12 first (zenoh's
     history reply lost the race): [0, 11] is asked for, and released in order when resent."""

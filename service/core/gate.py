@@ -26,17 +26,13 @@ delivers a live frame that beats its history reply and then drops the older hist
 Resend. A gap in front of held frames is also *asked for*: :meth:`FrameGate.ask` names the
 missing run ``[next, lowest held - 1]`` once per gap, the core puts it in the responder's
 ``Status.missing`` and the wearable resends those frames from its own keep
-(:mod:`client.wearable`). While an asked gap waits, the gate holds up to ``max_held`` frames
-(and ``max_held_samples`` samples) for at most ``resend_wait_s`` instead of ``reorder_window``
-frames and ``max_hold_s``, so the resent frames can fill it; what does not come in that time is
-declared lost as before. A worker that is behind takes the resend as late as the frames queued
-before it, so the wait also counts the responder's lag (``slack`` of :meth:`FrameGate.expire`). A stream's asked-for beginning is bounded by ``max_held_samples``
-only: a worker behind its input takes many frames of one responder in one round, before its
-ask has left. This is what fills a gap that zenoh's own recovery cannot: after a
-service restart the advanced subscriber delivers a wearable's first live frame at once when it
-beats the history reply, and then drops the older history frames (zenoh-ext
-``advanced_subscriber.rs``, ``handle_sample`` checks only the initial query, not the query
-for a publisher detected later).
+(:mod:`client.wearable`). Meanwhile the gate holds up to ``max_held`` frames (and
+``max_held_samples``; a stream's asked-for beginning by samples only) for ``resend_wait_s``
+plus the responder's lag (a worker behind takes the resend as late as what queued before it),
+counted from the newest resent frame once the resend comes; what does not come is declared
+lost as before. This fills a gap zenoh's own recovery cannot: after a service restart the
+advanced subscriber delivers a wearable's first live frame when it beats the history reply,
+then drops the older history frames (zenoh-ext ``advanced_subscriber.rs``).
 
 Rejects (counted by reason in :attr:`FrameGate.counts`, logged in :attr:`FrameGate.events`):
 
@@ -114,6 +110,7 @@ class FrameGate:
     resend_wait_s, max_held, max_held_samples = RESEND_WAIT_S, MAX_HELD, MAX_HELD_SAMPLES
     restart_quiet_s, max_candidate = RESTART_QUIET_S, MAX_CANDIDATE
     _stream_heard: float | None = None  # receive time of the newest frame naming the current stream
+    _resend_heard = -math.inf  # receive time of the newest frame of the asked-for run
     _candidate: tuple[str, str | None] | None = None  # the stream that waits to take over ...
     _candidate_held: dict | None = None  # ... its frames: seq -> (frame, receive time)
     ask_from_start = 0  # a stream's first seq up to which its frames [0, seq - 1] are asked for (0: never)
@@ -133,15 +130,10 @@ class FrameGate:
             raise ValueError(f"max_seq_jump must be >= 1 frames, got {max_seq_jump}")
         if not resend_wait_s >= max_hold_s or max_held < reorder_window or max_held_samples < 1:
             raise ValueError("resend_wait_s must be >= max_hold_s, max_held >= reorder_window, max_held_samples >= 1")
-        self.reorder_window = int(reorder_window)
-        self.resend_wait_s = float(resend_wait_s)
-        self.max_held = int(max_held)
-        self.max_held_samples = int(max_held_samples)
-        self.max_gap_s = float(max_gap_s)
-        self.max_hold_s = float(max_hold_s)
-        self.restart_after_s = float(restart_after_s)
+        self.reorder_window, self.max_held, self.max_held_samples = int(reorder_window), int(max_held), int(max_held_samples)
+        self.resend_wait_s, self.max_gap_s, self.max_hold_s = float(resend_wait_s), float(max_gap_s), float(max_hold_s)
+        self.restart_after_s, self.takeover_after_s = float(restart_after_s), float(takeover_after_s)
         self.max_seq_jump = int(max_seq_jump)
-        self.takeover_after_s = float(takeover_after_s)
         if not takeover_after_s > 0 or max_candidate < 1:
             raise ValueError(f"takeover_after_s must be positive and max_candidate >= 1, got {takeover_after_s}, "
                              f"{max_candidate}")
@@ -240,6 +232,8 @@ class FrameGate:
         # worker (the frames and the resend waited in the channel meanwhile) it fills the gap
         # instead of arriving just after the gap was declared lost
         fills = bool(self._held) and stream == self._stream and batch.seq == self._next
+        if stream == self._stream and self._waiting() and self._asked[0] <= batch.seq <= self._asked[1]:
+            self._resend_heard = receive_time  # the resend is coming (in pieces, late): its wait starts again
         out = [] if fills else self.expire(receive_time, slack)
         if self._stream is not None and stream != self._stream:
             if batch.boot is not None and stream in self._retired:
@@ -377,13 +371,16 @@ class FrameGate:
         ``resend_wait_s + slack``); the missing ones are declared lost.
 
         ``slack``: how late the responder's frames are taken (its lag, at most ``MAX_RESEND_SLACK_S``):
-        the resend queues behind what waits for a worker that is behind, and is taken that much later."""
+        the resend queues behind what waits for a worker that is behind, and is taken that much later.
+        The wait counts from the newest resent frame taken, if that is later than the oldest held."""
         out: list[ImuBatch] = []
         if self._candidate_held:
             out += self._settle_candidate(now)
         while self._held:
-            wait = self.resend_wait_s + min(max(slack, 0.0), MAX_RESEND_SLACK_S) if self._waiting() else self.max_hold_s
-            if not now - min(rt for _, rt in self._held.values()) > wait:
+            since, wait = min(rt for _, rt in self._held.values()), self.max_hold_s
+            if self._waiting():  # from the newest resent frame, if later: the rest of the resend follows it
+                since, wait = max(since, self._resend_heard), self.resend_wait_s + min(max(slack, 0.0), MAX_RESEND_SLACK_S)
+            if not now - since > wait:
                 break
             self._skip_to_held(now, out, f"not received within {wait:g} s")
         return out
