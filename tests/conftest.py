@@ -225,7 +225,7 @@ SLOW: dict[str, str] = {
 
 # Tests that must have the machine to themselves: their assertions measure rates, latencies or
 # a browser's sampling pace, which a busy neighbour bends. The README's test command runs the
-# rest on two workers (pytest-xdist) and these afterwards, one at a time (``-m serial``).
+# rest on parallel workers (pytest-xdist) and these afterwards, one at a time (``-m serial``).
 # Key: a file (every test in it) or a nodeid without parameters -> why.
 SERIAL: dict[str, str] = {
     "tests/test_overload.py::test_an_overloaded_worker_tracks_everyone_alike_loses_nothing_and_says_it_is_behind":
@@ -238,16 +238,18 @@ SERIAL: dict[str, str] = {
 
 # Tests on real-time schedules (outages of 10 s and 40 s, a router restart, a flood, forged
 # streams against the 6 s takeover rule, shard processes on a mesh): most of their time is
-# waiting, so they run in the parallel phase, but one after another on one worker (an xdist
-# group, ``--dist loadgroup``), never two schedules at once. Key and value as in SERIAL.
-REALTIME: dict[str, str] = {
-    "tests/test_faults.py": "outages, a router restart, a killed service and a flood on real-time schedules",
-    "tests/test_faults_tls.py": "outages and a killed service on real-time schedules, with TLS",
-    "tests/test_shards.py": "worker processes and a mesh of routers tracking walkers in real time",
-    "tests/test_attacks_tls.py": "an honest wearable's frames against forged streams within the takeover time",
+# waiting, so they run in the parallel phase, one after another within a lane (an xdist group,
+# ``--dist loadgroup``: one worker each). Two lanes run side by side: each test starts its own
+# router, service and wearables on free loopback ports, so two schedules share nothing but the
+# CPU, and their assertions are counts and tracks, not rates. Key: a file -> (lane, why).
+REALTIME: dict[str, tuple[str, str]] = {
+    "tests/test_faults.py": ("realtime_a", "outages, a router restart, a killed service and a flood on real-time schedules"),
+    "tests/test_shards.py": ("realtime_a", "worker processes and a mesh of routers tracking walkers in real time"),
+    "tests/test_faults_tls.py": ("realtime_b", "outages and a killed service on real-time schedules, with TLS"),
+    "tests/test_attacks_tls.py": ("realtime_b", "an honest wearable's frames against forged streams within the takeover time"),
     # (serial before issue 30's suite time: its assertions are that every part of the bench runs and
     # reports consistent figures, none a rate or a latency; 52.6 and 60.1 s under load 2-3)
-    "tests/test_fault_bench.py": "the fault bench: a service, walkers and an attacker on a real-time schedule",
+    "tests/test_fault_bench.py": ("realtime_b", "the fault bench: a service, walkers and an attacker on a real-time schedule"),
 }
 
 # Test files whose module-scoped fixture costs seconds: every test of the file on one worker
@@ -260,9 +262,10 @@ SHARED_SETUP: dict[str, str] = {
 }
 
 
-def _listed(item, table: dict[str, str]) -> bool:
+def _listed(item, table: dict):
+    """The entry of ``table`` for the item: by its nodeid (without parameters), else its file; or None."""
     base = item.nodeid.split("[", 1)[0]
-    return base in table or base.split("::", 1)[0] in table
+    return table.get(base, table.get(base.split("::", 1)[0]))
 
 
 def _code_names(code: types.CodeType) -> set[str]:
@@ -346,8 +349,8 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.recording)
         if _listed(item, SERIAL):
             item.add_marker(pytest.mark.serial)
-        elif _listed(item, REALTIME):
-            item.add_marker(pytest.mark.xdist_group("realtime"))
+        elif lane := _listed(item, REALTIME):
+            item.add_marker(pytest.mark.xdist_group(lane[0]))
         elif _listed(item, SHARED_SETUP):
             item.add_marker(pytest.mark.xdist_group(Path(item.nodeid.split("::", 1)[0]).stem))
 
