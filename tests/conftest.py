@@ -237,6 +237,8 @@ SERIAL: dict[str, str] = {
     "tests/test_phone_browser.py::test_a_real_ipin_walk_played_into_the_phones_sensors_tracks_like_the_recording":
         "Chromium's motion events at a browser's sampling pace, a real walk scored in metres",
     "tests/test_standby.py": "a takeover within 10 s of a killed primary",
+    "tests/test_console_browser.py::test_the_page_keeps_up_with_200_responders":
+        "the page's draw and frame-interval p95 (a phase-1 run on three workers at load 15: frame p95 250 ms > 200)",
     "tests/test_console_logins.py::test_known_and_unknown_names_take_the_same_time_to_refuse":
         "the ratio of two medians of 9 password checks of ~40 ms (CI at b0f3288, beside the other worker: 1.70 > 1.25)",
 }
