@@ -266,7 +266,7 @@ REALTIME: dict[str, tuple[str, str]] = {
 SHARED_SETUP: dict[str, str] = {
     "tests/test_foxglove.py": "22 s: a recorded live incident with the Foxglove server, and its export",
     "tests/test_ahrs_recordings_defaults.py": "9 s: every BROAD trial through two filters",
-    "tests/test_phone_browser.py": "Chromium with the sensor flags, and a router, service and console",
+    "tests/test_phone_browser.py": "1.6-2.6 s (phase-1 runs, load 8-15): Chromium with the sensor flags, a router, service and console",
 }
 
 
