@@ -232,8 +232,8 @@ class FrameGate:
         # worker (the frames and the resend waited in the channel meanwhile) it fills the gap
         # instead of arriving just after the gap was declared lost
         fills = bool(self._held) and stream == self._stream and batch.seq == self._next
-        if stream == self._stream and self._waiting() and self._asked[0] <= batch.seq <= self._asked[1]:
-            self._resend_heard = receive_time  # the resend is coming (in pieces, late): its wait starts again
+        if stream == self._stream and self._waiting() and self._next <= batch.seq <= self._asked[1]:
+            self._resend_heard = receive_time  # a missing frame came (the resend, late, in pieces): wait again
         out = [] if fills else self.expire(receive_time, slack)
         if self._stream is not None and stream != self._stream:
             if batch.boot is not None and stream in self._retired:
