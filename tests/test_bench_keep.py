@@ -30,13 +30,17 @@ def test_a_precomputed_run_resends_frames_beyond_the_old_simulator_keep():
     pub = SimulationPublisher(pub_s, cfg.id, 2, 100.0, 0, truth=False)
     try:
         assert SECONDS * 10 > SIM_KEEP_FRAMES
+        # the subscriber's declaration must reach the wearable's side first, or frame 0 goes to nobody
+        # (CI with three workers once heard one frame fewer than sent)
+        assert wait_until(lambda: pub.wearables[0].heard), "the test's subscriber never matched the frames"
         pub.step(1)
         frames = pub.precompute(SECONDS)
         keep = PrecomputedKeep(frames, 0, 1, pub.seq, KEEP_FRAMES)
         assert len(keep) == 0  # nothing of the table is sent yet
         pub.run_precomputed(frames, frames_per_s=1000.0)  # 10 times faster than real time
         assert len(keep) == len(frames) and keep[5] is frames[4][0]  # a view of the table, not a copy
-        assert wait_until(lambda: len(heard) == 1 + len(frames))
+        assert wait_until(lambda: len(heard) == 1 + len(frames)), \
+            (len(heard), 1 + len(frames), pub.wearables[0].unheard)
         boot = pub.wearables[0].boot
         status = wire.Status(responder="sim-000", t=0.0, motion="walking", motion_since=0.0, last_heard=time.time(),
                              device="sim:sim-000", boot=boot, seq=0, missing=[0, 20])
