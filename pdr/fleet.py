@@ -409,9 +409,11 @@ class PdrFleet:
         height and floor. A fix is applied when the first step after it arrives; if the
         barometer has changed floor since ``t`` (a lift between the fix and the next step), the
         fix speaks of the floor left behind: when that was right nothing is re-referenced, when
-        it was wrong the current floor is shifted by the same number of floors."""
+        it was wrong the current floor is shifted by the same number of floors. When the
+        barometer has since reached the fix's floor, it was only late (a landmark pressed on
+        the last stairs, before the change was decided): the fix holds as it is."""
         R, r, tracker = self.rows, m.slot, m.floor_tracker
-        if t is not None and tracker.floor_at(t) != tracker.floor:
+        if t is not None and tracker.floor_at(t) != tracker.floor and int(floor) != tracker.floor:
             then = tracker.floor_at(t)
             if then == floor:
                 return

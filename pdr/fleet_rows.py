@@ -156,6 +156,10 @@ class FleetRows:
             d["layout"]["hb_end"] = ((), "i8", -1)
             d["hb_end"] = np.full(d["n"], -1, np.int64)
             d["hbases"] = (np.zeros(len(d["hbufs"][0]), np.int64), np.empty((0, HBUF_COLS)))
+        fs_shape, fs_type, fs_fill = d["layout"]["fs"]
+        if fs_shape[0] < F_STATE:  # a snapshot from before the floor tracker's later fields: they start empty
+            d["layout"]["fs"] = ((F_STATE,), fs_type, fs_fill)
+            d["fs"] = np.concatenate([d["fs"], np.full((d["fs"].shape[0], F_STATE - fs_shape[0]), np.nan)], axis=1)
         for k, (dim, _) in TYPED_LISTS.items():
             out = List.empty_list(types.float64[:, ::1] if dim == 2 else types.float64[::1])
             lens, rows = d[k]

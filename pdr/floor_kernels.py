@@ -13,13 +13,15 @@ import numpy as np
 from numba import njit
 
 # state vector of the tracker (float64), see track_run
-F_K, F_B, F_PEND, F_PEND_TO, F_TPREV, F_IN_DWELL, F_DWELL_ID, F_DSUM, F_DCNT, F_DFLOOR, F_HEAD, F_COUNT, F_REJECTED, F_DSTART, F_RATE = range(15)
-F_STATE = 15
+F_K, F_B, F_PEND, F_PEND_TO, F_TPREV, F_IN_DWELL, F_DWELL_ID, F_DSUM, F_DCNT, F_DFLOOR, F_HEAD, F_COUNT, F_REJECTED, F_DSTART, F_RATE, F_PROV_FROM = range(16)
+F_STATE = 16
 MAX_DRIFT_RATE = 25.0 / 3600.0  # m/s: 3 hPa/h, a fast weather change; the drift rate estimate stays below it
 F_UNDECIDED = -2.0  # the open dwell's floor while it is too young to teach a new level
 F_EXIT_FACTOR = 2.0  # a dwell ends when the window's rate or range passes this many times the entry limits
 F_RING = 1024  # samples the dwell window can hold (6 s at 170 Hz; barometers give 1-25 Hz)
 REASONS = ("", "height", "dwell")  # why a floor changed, by the code track_run gives
+KNOWN_PROVISIONAL = 3  # ``known`` of a level a fix taught while the walker was moving in height (on stairs):
+# used for the floor's thresholds, not for the scale α̂ nor the drift, and replaced by the first dwell near it
 
 
 @njit(cache=True)
@@ -28,7 +30,7 @@ def predict(r, known, elev, pred):  # pragma: no cover - compiled
     nf = elev.shape[0]
     lo, hi, n = -1, -1, 0
     for f in range(nf):
-        if known[f] > 0:
+        if known[f] > 0 and known[f] != KNOWN_PROVISIONAL:  # a level taught on the stairs does not set the scale
             n += 1
             if lo < 0:
                 lo = f
@@ -134,7 +136,7 @@ def track_run(t, h, S, ring_t, ring_z, r, known, learned_in, pred, elev, P):  # 
     pending threshold switch, the last time, the open dwell (flag, id, running sum and count of
     z, its floor) and the ring buffer's head and count; ``ring_t``/``ring_z`` the dwell window;
     ``r``/``known``/``learned_in`` the learned levels (known: 0 not seen, 1 seen on a dwell,
-    2 start or fix), ``pred`` the predicted levels. ``P`` = switch margin, dwell_s, window,
+    2 start or fix, 3 a fix's while moving: :data:`KNOWN_PROVISIONAL`), ``pred`` the predicted levels. ``P`` = switch margin, dwell_s, window,
     max rate, band, match fraction, scale lo, scale hi, τ_d, max_dt, learn_s, drift band. All updated in place.
     """
     margin, hold, window, max_rate, band, match, s_lo, s_hi, tau, max_dt, learn_s, drift_fraction = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7], P[8], P[9], P[10], P[11]
@@ -164,6 +166,13 @@ def track_run(t, h, S, ring_t, ring_z, r, known, learned_in, pred, elev, P):  # 
             head = (head + 1) % cap
             count -= 1
         S[F_HEAD], S[F_COUNT] = head, count
+        if known[k] == KNOWN_PROVISIONAL and S[F_IN_DWELL] == 0.0 and not math.isnan(S[F_PROV_FROM]):
+            # a level named on the stairs follows the climb to where it ends (the walker pressed
+            # the landmark before reaching the level), at most the threshold path's reach from
+            # where it was named: farther, the walker went on to another floor
+            reach = (0.5 + margin) * alpha * _local_gap(elev, k)
+            r[k] = min(max(z, S[F_PROV_FROM] - reach), S[F_PROV_FROM] + reach)
+            alpha = predict(r, known, elev, pred)
         # threshold path on the predicted levels
         c = k
         while c + 1 < nf and z > pred[c] + (0.5 + margin) * (pred[c + 1] - pred[c]):
@@ -210,6 +219,13 @@ def track_run(t, h, S, ring_t, ring_z, r, known, learned_in, pred, elev, P):  # 
                 S[F_DSTART] = ring_t[head]
                 S[F_DSUM], S[F_DCNT] = mz * count, float(count)
                 f = _match(mz, r, known, pred, match)
+                if known[k] == KNOWN_PROVISIONAL and abs(mz - r[k]) <= (0.5 + margin) * alpha * _local_gap(elev, k):
+                    # the first dwell after a fix taught on the stairs is that floor's real level (within
+                    # the threshold path's reach of the provisional one, on the configured gaps: the
+                    # predicted ones lean on the provisional level itself)
+                    f, r[k], known[k] = k, mz, 2
+                    S[F_PROV_FROM] = math.nan
+                    alpha = predict(r, known, elev, pred)
                 S[F_DFLOOR] = f if f >= 0 else F_UNDECIDED
             else:
                 S[F_DSUM] += z
@@ -233,7 +249,7 @@ def track_run(t, h, S, ring_t, ring_z, r, known, learned_in, pred, elev, P):  # 
                 S[F_PEND] = math.nan
         else:
             S[F_IN_DWELL] = 0.0
-        if tau > 0.0 and known[new_k] > 0 and abs(z - r[new_k]) <= drift_fraction * _local_gap(pred, new_k):
+        if tau > 0.0 and known[new_k] > 0 and known[new_k] != KNOWN_PROVISIONAL and abs(z - r[new_k]) <= drift_fraction * _local_gap(pred, new_k):
             e = z - r[new_k]  # near a seen floor's level: follow the drift (critically damped, ramps without lag)
             g = dt / tau
             S[F_B] += 2.0 * g * e
@@ -242,6 +258,7 @@ def track_run(t, h, S, ring_t, ring_z, r, known, learned_in, pred, elev, P):  # 
             S[F_K] = new_k
             S[F_PEND] = math.nan
             S[F_REJECTED] = math.nan
+            S[F_PROV_FROM] = math.nan
         else:
             why = 0
         out_k[i] = new_k

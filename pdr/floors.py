@@ -39,7 +39,12 @@ predicts the levels it has not seen from the ones it has:
   overrides it.
 * **Fixes.** :meth:`FloorTracker.anchor` (a checkpoint that names the floor) sets the floor and
   makes the current height that floor's level; a level the current dwell had taught to
-  another floor is forgotten (it was that one, mislabelled).
+  another floor is forgotten (it was that one, mislabelled). A fix given while the height is
+  still changing (pressed on the last stairs) sets the floor only: the height there is not the
+  level, so a floor seen before keeps its level and a floor not seen gets a *provisional* one,
+  which follows the climb to its end (at most the threshold's reach), sets no scale, and is
+  replaced by the first dwell on that floor (``eval floors``,
+  scenario ``named_on_arrival``).
 
 What this buys and its limit. A single-floor trip is labelled right for any real spacing
 within the scale range of the configured one (the ratio rule puts the boundary between one
@@ -74,8 +79,8 @@ from collections.abc import Mapping
 
 import numpy as np
 from pdr.floor_kernels import (
-    F_B, F_COUNT, F_DCNT, F_DFLOOR, F_DSUM, F_DWELL_ID, F_HEAD, F_IN_DWELL, F_K, F_PEND, F_PEND_TO, F_RATE, F_RING,
-    F_STATE, F_TPREV, MAX_DRIFT_RATE, REASONS, predict, track_run,
+    F_B, F_COUNT, F_DCNT, F_DFLOOR, F_DSUM, F_DWELL_ID, F_HEAD, F_IN_DWELL, F_K, F_PEND, F_PEND_TO, F_PROV_FROM, F_RATE, F_RING,
+    F_STATE, F_TPREV, KNOWN_PROVISIONAL, MAX_DRIFT_RATE, REASONS, predict, track_run,
 )
 
 
@@ -312,6 +317,26 @@ class FloorTracker:
         self._history.extend(changes)
         return FloorTrack(self._floors[k_out], z_out, changes)
 
+    CLIMB_WINDOW_S = 3.0  # s of heights :meth:`climbing` judges
+
+    def climbing(self) -> bool:
+        """Whether the height is changing like stairs or a lift now: the least-squares rate of the
+        last :attr:`CLIMB_WINDOW_S` of the dwell window beyond twice ``dwell_max_rate`` (stairs climb
+        0.15-0.3 m/s, a floor's walk stays within 0.05 m/s). Too few heights (a window just begun) say no."""
+        S = self._state
+        count, head = int(S[F_COUNT]), int(S[F_HEAD])
+        if count < 3:
+            return False
+        idx = (head + np.arange(count)) % F_RING
+        t, z = self._ring_t[idx], self._ring_z[idx]
+        recent = t >= t[-1] - self.CLIMB_WINDOW_S
+        t, z = t[recent], z[recent]
+        if t.size < 3 or t[-1] - t[0] < 0.5 * self.CLIMB_WINDOW_S:
+            return False
+        dt = t - t.mean()
+        rate = float(np.sum(dt * (z - z.mean())) / np.sum(dt * dt))  # elementwise sums: no BLAS order
+        return abs(rate) > 2.0 * self.settings.dwell_max_rate
+
     def anchor(self, floor: int, height_m: float | None = None, t: float | None = None,
                shift: float = 0.0) -> FloorChange | None:
         """A fix says the responder is on ``floor`` now; ``height_m`` is the input height at
@@ -319,6 +344,9 @@ class FloorTracker:
         jumped at this moment without the responder moving (an altimeter re-referenced to the
         configured elevation): the level frame is kept continuous across it. The current height
         becomes that floor's level; a level the open dwell taught another floor is forgotten.
+        While the height is :meth:`climbing` (a landmark pressed on the last stairs) it is not a
+        level: a floor seen before keeps its level, one not seen gets a provisional level
+        (:data:`~pdr.floor_kernels.KNOWN_PROVISIONAL`) that the first dwell near it replaces.
         Returns the floor change this makes, if any."""
         k_new = self._index(floor)
         k_old = int(self._state[F_K])
@@ -327,14 +355,28 @@ class FloorTracker:
         if math.isfinite(shift) and not math.isnan(S[F_B]):
             S[F_B] += shift
         S[F_K] = k_new
-        S[F_PEND] = math.nan
+        S[F_PEND] = S[F_PROV_FROM] = math.nan
         wrong = (self._known == 1) & (self._learned_in == S[F_DWELL_ID]) & (np.arange(self._known.size) != k_new)
         self._known[wrong] = 0
+        sure = 2
         if math.isfinite(h):
-            if math.isnan(S[F_B]) or self._known[k_new] > 0:
+            climbing = self.climbing()
+            if math.isnan(S[F_B]) or (self._known[k_new] > 0 and not climbing):
                 S[F_B] = h - self._r[k_new]
                 S[F_COUNT] = 0.0  # the window's heights were in the old frame: start it again
                 S[F_IN_DWELL] = 0.0
+            elif self._known[k_new] > 0:
+                # a floor seen before, named while not on a steady level (on the stairs): the floor
+                # is set and its level kept; re-referencing here put the height of the stairs at the
+                # floor's level (0.8 m off with a fix 3 s early) and the next dwell then matched no floor
+                sure = int(self._known[k_new]) if self._known[k_new] == KNOWN_PROVISIONAL else 2
+            elif climbing:
+                # not on a steady level (a landmark pressed on the last stairs): the height is a
+                # provisional level, which the first dwell near it replaces; it sets no scale and
+                # forgets nothing (a fix 3 s early, 0.8 m off, had made the scale 0.6 and mislabelled
+                # the next floor)
+                self._r[k_new] = S[F_PROV_FROM] = h - S[F_B]
+                sure = KNOWN_PROVISIONAL
             else:
                 self._r[k_new] = h - S[F_B]
                 # levels that cannot lie where they are with this floor here were assumptions or
@@ -343,7 +385,7 @@ class FloorTracker:
                 sep = (self._r - self._r[k_new]) * np.sign(self._elev - self._elev[k_new])
                 self._known[(sep < lo * np.abs(self._elev - self._elev[k_new])) & (np.arange(self._known.size) != k_new)] = 0
             self._last_h = h
-        self._known[k_new] = 2
+        self._known[k_new] = sure
         if S[F_IN_DWELL] != 0.0:
             S[F_DFLOOR] = k_new
         predict(self._r, self._known, self._elev, self._pred)

@@ -192,6 +192,22 @@ def test_every_perturbation_gives_a_valid_reproducible_recording(name):
     assert changed
 
 
+@pytest.mark.parametrize("name, angle", [("steep25", 25.0), ("flat30", -30.0)])
+def test_a_phone_held_steeper_or_flatter_is_turned_about_x_from_the_first_sample(name, angle):
+    """The whole-walk attitudes: every reading of gravity and of the field turned by the angle
+    about the phone's x axis, from the first sample to the last, and no turn in the gyro."""
+    rec = _recording()
+    a = perturbed(rec, name)
+    for s in ("acc", "mag"):
+        before, after = getattr(rec, s).values, getattr(a, s).values
+        cos = np.einsum("ij,ij->i", before[:, 1:], after[:, 1:]) / (
+            np.linalg.norm(before[:, 1:], axis=1) * np.linalg.norm(after[:, 1:], axis=1))
+        assert np.degrees(np.arccos(np.clip(cos, -1, 1))) == pytest.approx(np.full(cos.size, abs(angle)), abs=1e-6), s
+        assert np.allclose(before[:, 0], after[:, 0], rtol=0, atol=1e-12), s
+    turned = P.in_turned_phone(rec.gyr.values, (1.0, 0.0, 0.0), np.radians(angle))
+    assert np.allclose(a.gyr.values, turned)
+
+
 def test_each_walk_has_its_own_draw():
     rec = _recording()
     other = Recording("walk_b.txt", "ipin", acc=rec.acc, gyr=rec.gyr, mag=rec.mag, pressure=rec.pressure)

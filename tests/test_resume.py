@@ -404,3 +404,23 @@ def test_a_snapshot_of_an_older_version_restores_with_every_declared_field():
     st = twin.status_of(r, items[39].received)
     assert st.beacons_heard == {} and "degraded" not in st.fixes
     assert poses(twin.feed_round(items[40:])) == poses(core.feed_round(items[40:]))
+
+
+def test_a_snapshot_from_before_the_provisional_floor_level_restores():
+    """The floor tracker's state rows were 15 numbers wide before a fix on the stairs could leave a
+    provisional level (``F_PROV_FROM``): such a snapshot restores with that field empty, and the
+    core goes on as the live one does."""
+    from pdr.floor_kernels import F_PROV_FROM, F_STATE
+
+    core = IncidentCore(CFG)
+    items = inputs_of(walk(seconds=8.0, seed=3))
+    core.feed_round(items[:40])
+    state = snapshots.loads(core.snapshot())
+    rows = state["fleet"].rows
+    assert rows.fs.shape[1] == F_STATE == F_PROV_FROM + 1
+    rows.fs = rows.fs[:, :F_PROV_FROM].copy()
+    rows.layout["fs"] = ((F_PROV_FROM,), "f8", np.nan)
+    twin = IncidentCore.restore(snapshots.dumps(state), CFG)
+    fs = twin.fleet.rows.fs
+    assert fs.shape[1] == F_STATE and np.isnan(fs[:, F_PROV_FROM]).all()
+    assert poses(twin.feed_round(items[40:])) == poses(core.feed_round(items[40:]))

@@ -20,6 +20,11 @@ Scenarios (floors ``0 .. n-1``):
   floor), up to the top in one go, down to 1, down to 0;
 * ``between_known``: from 0 straight up to 2 passing 1, where a checkpoint names floor 2; then
   down to 1 — a floor never seen, between two known ones — then to 0.
+* ``named_on_arrival``: from the top floor down one floor at a time to 0 and back up (a walk
+  through 0, -1 and -2 of a basement, seen from below), a checkpoint naming every floor
+  arrived at, pressed ``fix_offset_s`` from the arrival on the level (negative: on the last
+  stairs, as an IPIN landmark at the stairs' end) and reaching the tracker ``fix_delay_s``
+  later (a radio's latency: the barometer may have decided the change in between).
 """
 from __future__ import annotations
 
@@ -75,7 +80,10 @@ def scenario_floors(name: str, n: int) -> tuple[list[int], dict[int, int]]:
         return list(range(n)) + [0, n - 1, 1, 0], {}
     if name == "between_known":
         return [0, 2, 1, 0], {1: 2}
-    raise ValueError(f"unknown floor scenario {name!r}; choose floor_by_floor or between_known")
+    if name == "named_on_arrival":
+        visits = list(range(n - 1, -1, -1)) + list(range(1, n))
+        return visits, {i: f for i, f in enumerate(visits) if i}
+    raise ValueError(f"unknown floor scenario {name!r}; choose floor_by_floor, between_known or named_on_arrival")
 
 
 def route_for(visits: list[int], spacing_m: float) -> Route:
@@ -103,8 +111,13 @@ def route_for(visits: list[int], spacing_m: float) -> Route:
 
 
 def run_scenario(building: Building, scenario: str, seed: int = 0, drift_hpa_per_h: float = 0.5,
-                 settings: PipelineSettings | None = None) -> FloorScore:
-    """Simulate ``scenario`` in ``building`` and score the pipeline's floors (module docstring)."""
+                 settings: PipelineSettings | None = None, fix_offset_s: float | None = None,
+                 fix_delay_s: float = 0.0) -> FloorScore:
+    """Simulate ``scenario`` in ``building`` and score the pipeline's floors (module docstring).
+
+    A checkpoint is pressed ``fix_offset_s`` after the arrival on its floor's level (default
+    :data:`FIX_AFTER_S`; ``named_on_arrival``: :data:`FIX_ON_STAIRS_S`) and handed to the
+    pipeline ``fix_delay_s`` later."""
     visits, fixes = scenario_floors(scenario, building.floors)
     walker = WalkerSettings(floor_height_m=building.spacing_m, pressure_drift_hpa_per_h=drift_hpa_per_h)
     climbed = sum(abs(b - a) for a, b in zip(visits, visits[1:])) * building.spacing_m
@@ -113,10 +126,12 @@ def run_scenario(building: Building, scenario: str, seed: int = 0, drift_hpa_per
     on_level = np.abs(sim.z - np.rint(sim.z / building.spacing_m) * building.spacing_m) < 1e-6
     stays = _runs(on_level, np.rint(sim.z / building.spacing_m).astype(int), sim.t_truth)
     pipe = PdrPipeline(settings or PipelineSettings(), building.configured, start_floor=visits[0])
-    checkpoints = sorted((stays[_visit_stay(stays, visits, i)][0] + FIX_AFTER_S, f) for i, f in fixes.items())
+    if fix_offset_s is None:
+        fix_offset_s = FIX_ON_STAIRS_S if scenario == "named_on_arrival" else FIX_AFTER_S
+    checkpoints = sorted((stays[_visit_stay(stays, visits, i)][0] + fix_offset_s, f) for i, f in fixes.items())
     for frame in frames_of(sim.t, sim.acc, sim.gyr, sim.mag, sim.pressure_t, sim.pressure, per_frame=100):
         pipe.update(frame)
-        while checkpoints and frame.t[-1] >= checkpoints[0][0]:
+        while checkpoints and frame.t[-1] >= checkpoints[0][0] + fix_delay_s:
             t_fix, f = checkpoints.pop(0)
             pipe.anchor_floor(f, t_fix)
     pipe.finish()
@@ -136,6 +151,7 @@ def run_scenario(building: Building, scenario: str, seed: int = 0, drift_hpa_per
 
 
 FIX_AFTER_S = 10.0  # s after arriving on a floor that a checkpoint names it
+FIX_ON_STAIRS_S = -3.0  # s, ``named_on_arrival``: pressed about five stairs before the level
 
 
 def _runs(mask: np.ndarray, floor: np.ndarray, t: np.ndarray) -> list[tuple[float, float, int]]:

@@ -86,12 +86,14 @@ def quantized_readings(rec: Recording, seed) -> Recording:
     return _each(rec, lambda name, s: (s.t, P.quantize(s.values, {"acc": 0.1, "gyr": 0.1 * DEG}[name])), names=("acc", "gyr"))
 
 
-def turned_in_hand(axis, angle_deg: float = 90.0, at: float = 0.5, back_at: float | None = None, turn_s: float = 0.5):
+def turned_in_hand(axis, angle_deg: float = 90.0, at: float | None = 0.5, back_at: float | None = None,
+                   turn_s: float = 0.5):
     """The phone turned by ``angle_deg`` about its ``axis`` at share ``at`` of the walk (and turned
-    back at share ``back_at``)."""
+    back at share ``back_at``); ``at=None``: held so for the whole recording."""
     def apply(rec: Recording, seed) -> Recording:
         t0, t1 = _t0_t1(rec)
-        start, back = t0 + at * (t1 - t0), (None if back_at is None else t0 + back_at * (t1 - t0))
+        start = -math.inf if at is None else t0 + at * (t1 - t0)
+        back = None if back_at is None else t0 + back_at * (t1 - t0)
 
         def one(name, s):
             th, dth = P.grip_angle(s.t, start, angle_deg * DEG, turn_s, back)
@@ -170,6 +172,10 @@ PERTURBATIONS: dict[str, Perturbation] = {p.name: p for p in [
                  turned_in_hand(Z, at=0.4, back_at=0.6)),
     Perturbation("hold_x", "tilted 60° about x (screen raised to the eyes) from 40 % to 60 % of the walk, then back",
                  turned_in_hand(X, angle_deg=60.0, at=0.4, back_at=0.6)),
+    Perturbation("steep25", "held 25° steeper about x for the whole walk (long axis near vertical; the unseen route 25's "
+                 "failure as far as it can be reproduced, docs/heading.md)", turned_in_hand(X, angle_deg=25.0, at=None, turn_s=0.0)),
+    Perturbation("flat30", "held 30° flatter about x for the whole walk (screen facing up, read like a map)",
+                 turned_in_hand(X, angle_deg=-30.0, at=None, turn_s=0.0)),
     Perturbation("gyro_bias", "gyroscope bias 0.5 °/s in a random direction", gyro_bias(0.5)),
     Perturbation("gyro_scale+2", "gyroscope scale +2 % on every axis", gyro_scale(1.02)),
     Perturbation("gyro_scale-2", "gyroscope scale -2 % on every axis", gyro_scale(0.98)),

@@ -10,7 +10,7 @@ from rich.table import Table
 from pdr.evaluation.floors import Building, run_scenario
 from service.protocol.terminal import fail, out, print_json, progress
 
-SCENARIOS = ("floor_by_floor", "between_known")
+SCENARIOS = ("floor_by_floor", "between_known", "named_on_arrival")
 
 
 def eval_floors(
@@ -18,6 +18,8 @@ def eval_floors(
     spacing: list[float] = typer.Option([2.6, 3.2, 3.8, 4.5], "--spacing", help="real floor spacing, m (repeat)"),
     ratio: list[float] = typer.Option([0.6, 0.8, 1.0, 1.2, 1.4], "--ratio", help="real / configured spacing (repeat): 0.6 and 1.4 are a config 40 % off"),
     seeds: int = typer.Option(2, "--seeds", help="walks per building and scenario (different walkers and noise)"),
+    fix_delay: list[float] = typer.Option([0.0, 3.0], "--fix-delay", help="named_on_arrival: s from pressing a "
+                                          "checkpoint (3 s before the level) to the tracker hearing it (repeat)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
 ):
     """Floor accuracy at every dwell, and whether every trip up or down was counted right."""
@@ -25,11 +27,15 @@ def eval_floors(
         fail("need --floors >= 3 (the scenarios use floors 0-2), --seeds >= 1, positive --spacing and --ratio")
         raise typer.Exit(2)
     started = time.process_time()
-    cases = list(itertools.product(floors, spacing, ratio, SCENARIOS, range(seeds)))
+    if min(fix_delay) < 0:
+        fail("--fix-delay must not be negative")
+        raise typer.Exit(2)
+    variants = [(sc, 0.0) for sc in SCENARIOS if sc != "named_on_arrival"] + [("named_on_arrival", d) for d in fix_delay]
+    cases = list(itertools.product(floors, spacing, ratio, variants, range(seeds)))
     rows = []
-    for n, s, r, scenario, seed in progress(cases, "simulated walks"):
-        sc = run_scenario(Building(n, s, r), scenario, seed=seed)
-        rows.append({"floors": n, "spacing_m": s, "ratio": r, "scenario": scenario, "seed": seed,
+    for n, s, r, (scenario, delay), seed in progress(cases, "simulated walks"):
+        sc = run_scenario(Building(n, s, r), scenario, seed=seed, fix_delay_s=delay)
+        rows.append({"floors": n, "spacing_m": s, "ratio": r, "scenario": scenario, "fix_delay_s": delay, "seed": seed,
                      "dwell_samples": sc.dwell_samples, "dwell_accuracy": sc.accuracy, "trips_right": sc.trips_right,
                      "visits_true": list(sc.visits_true), "visits_seen": list(sc.visits_seen)})
     samples = sum(r["dwell_samples"] for r in rows)
