@@ -148,6 +148,15 @@ def gaps(rec: Recording, seed) -> Recording:
     return _each(rec, one)
 
 
+def together(*parts):
+    """Several perturbations at once, in order, each with its own draw from the walk's seed."""
+    def apply(rec: Recording, seed) -> Recording:
+        for i, part in enumerate(parts):
+            rec = part(rec, [*seed, i])
+        return rec
+    return apply
+
+
 @dataclass(frozen=True)
 class Perturbation:
     name: str
@@ -181,6 +190,14 @@ PERTURBATIONS: dict[str, Perturbation] = {p.name: p for p in [
     Perturbation("gyro_scale-2", "gyroscope scale -2 % on every axis", gyro_scale(0.98)),
     Perturbation("acc_bias", "accelerometer bias 0.15 m/s² in a random direction", acc_bias(0.15)),
     Perturbation("mag_steel", "magnetometer near steel: +20-50 µT for 4-15 s stretches, 2 a minute", mag_near_steel),
+    Perturbation("phone50_steep", "another phone and hand: 50 Hz, held 25° steeper (route 25's phone as far as known)",
+                 together(resampled(50.0), turned_in_hand(X, angle_deg=25.0, at=None, turn_s=0.0))),
+    Perturbation("phone50_worn", "phone50_steep with an uncalibrated gyro (0.5 °/s) and accelerometer (0.15 m/s²)",
+                 together(resampled(50.0), turned_in_hand(X, angle_deg=25.0, at=None, turn_s=0.0), gyro_bias(0.5),
+                          acc_bias(0.15))),
+    Perturbation("phone50_steel", "phone50_worn walking past steel (mag_steel)",
+                 together(resampled(50.0), turned_in_hand(X, angle_deg=25.0, at=None, turn_s=0.0), gyro_bias(0.5),
+                          acc_bias(0.15), mag_near_steel)),
     Perturbation("drops", "10 % of the samples of each sensor lost at random", dropped_samples(0.1)),
     Perturbation("gaps", "one gap of 0.2-2 s (nothing logged) in every 30 s", gaps),
 ]}

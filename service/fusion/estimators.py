@@ -138,16 +138,53 @@ class FusionEstimator:
         self.degraded_reason = ""
 
     def start(self, t, x, y, heading, heading_sigma, position_sigma, floor) -> None:
+        self._fixed_since_start = False
         self.gate.start(t, x, y, position_sigma, floor, heading, heading_sigma)
         self._base(self.fusion.start(t, x, y, heading, heading_sigma, position_sigma, floor))
 
     def add_step(self, ev: StepEvent) -> PoseEstimate:
         self._steps = ev.index
+        jumped = self._pdr_heading_jumped(ev)
+        if jumped is not None:
+            self._flush()
+            fp = self._restart(jumped, self._dr[0], self._dr[7], heading=wrap(ev.heading - ev.heading_change),
+                               heading_sigma=max(ev.heading_sigma, self.fusion.settings.restart_heading_sigma_rad))
+            self._last_update_t = fp.t
+            self._base(fp)
+        self._prev_pdr_heading = ev.heading
         self.gate.add_step(ev, *self._heading_after(ev))
         self._pending.append(ev)
         if ev.t - self._last_update_t >= self._every:
             return self._pose(self._flush())
         return self._propagate(ev)
+
+    _prev_pdr_heading = math.nan  # (class defaults: estimators pickled before them read as none)
+    _fixed_since_start = False  # a precise position fix taken since the graph's start
+
+    def _pdr_heading_jumped(self, ev: StepEvent) -> str | None:
+        """Why the graph should restart on the PDR's heading at step ``ev``, or None.
+
+        The PDR's absolute heading moved by more than ``pdr_heading_jump_rad`` beyond the gyro's
+        turn: its compass offset restarted, on a run of epochs that proved itself (pdr/heading.py,
+        across a 45° turn or after 20 s). A graph that started on the PDR's earlier heading, or
+        followed it, is then as far off, and its compass and PDR-heading factors, all that far
+        from it, are what the Cauchy kernel ignores: it cannot turn by itself. Measured: T21r02
+        under the robustness suite's phone50_steel draw, a start on steel (PDR heading σ 15°, then
+        168° off), live p75 22.0 m against 3.0 m dead reckoning."""
+        s = self.fusion.settings
+        limit = s.pdr_heading_jump_rad
+        prev = self._prev_pdr_heading
+        if limit is None or not (math.isfinite(prev) and math.isfinite(ev.heading) and math.isfinite(ev.heading_change)
+                                 and math.isfinite(ev.heading_change_sigma)):
+            return None
+        if not ev.heading_sigma < s.pdr_heading_max_sigma_rad or self._fixed_since_start:
+            return None  # a graph with two precise positions knows its heading from them (K = 3: T53r02 +1.1 m)
+        jump = wrap(ev.heading - prev - ev.heading_change)
+        apart = wrap(ev.heading - self._heading_after(ev)[0])
+        if abs(jump) > limit and abs(apart) > limit:
+            return (f"the PDR's heading jumped {math.degrees(jump):.0f}° (its compass offset restarted); "
+                    f"the graph's was {math.degrees(apart):.0f}° from it")
+        return None
 
     def _heading_after(self, ev: StepEvent) -> tuple[float, float]:
         """(heading, sigma) (rad) the live pose walks step ``ev`` along (the graph's, turned by the
@@ -185,8 +222,10 @@ class FusionEstimator:
         self._base(fp)
         return fp
 
-    def _restart(self, why: str, t: float, floor: int):
-        """A new graph from dead reckoning since the last trusted fix; the old one's track kept."""
+    def _restart(self, why: str, t: float, floor: int, heading: float | None = None, heading_sigma: float | None = None):
+        """A new graph from dead reckoning since the last trusted fix; the old one's track kept.
+        It starts on the reference's heading, or ``heading`` (rad) ± ``heading_sigma``: a new
+        heading is no failure of the graph (not counted in ``degraded``; a ``restarted`` event)."""
         old = self.fusion
         try:
             past = old.smoothed_track()
@@ -197,16 +236,22 @@ class FusionEstimator:
             past = {k: v[ok] for k, v in past.items()}
             self._past = past if self._past is None else joined_tracks(self._past, past)
         p, walked = self.gate.point
-        heading = p.heading if math.isfinite(p.heading) else (self._dr[3] if self._dr else 0.0)
+        if heading is None:
+            heading = p.heading if math.isfinite(p.heading) else (self._dr[3] if self._dr else 0.0)
         sigma = math.sqrt(max(float(np.linalg.eigvalsh(np.asarray(p.cov, float))[-1]), 0.0)) + self.gate.allowance(walked)
         s = old.settings
+        self._fixed_since_start = False
         self.fusion = self._make(s)
         self.fusion.events.extend(old.events)
         self.fusion.rejected.update(old.rejected)
-        self.degraded += 1
-        self.degraded_at = max(t, p.t)
-        self.degraded_reason = why
-        return self.fusion.start(max(t, p.t), p.x, p.y, wrap(heading), s.restart_heading_sigma_rad,
+        if heading_sigma is None:
+            self.degraded += 1
+            self.degraded_at = max(t, p.t)
+            self.degraded_reason = why
+        else:
+            self.fusion.events.append(FusionEvent(max(t, p.t), "restarted", "heading", why, {}))
+        return self.fusion.start(max(t, p.t), p.x, p.y, wrap(heading),
+                                 s.restart_heading_sigma_rad if heading_sigma is None else heading_sigma,
                                  max(sigma, s.checkpoint_sigma_floor_m), floor)
 
     def _base(self, fp) -> None:
@@ -267,6 +312,11 @@ class FusionEstimator:
         if rejected:
             return FixOutcome("rejected", reason=next(iter(rejected)))
         self.gate.take(fix, verdict)
+        from service.fusion.walk_gate import observation
+
+        obs = observation(fix)
+        if obs is not None and obs[0] != "range" and obs[-1] <= self.fusion.settings.walk_gate_margin_m:
+            self._fixed_since_start = True  # a precise position besides the start: the heading rests on fixes
         return FixOutcome("applied", self._pose(fp), earlier=earlier)
 
     def set_floor(self, t: float, floor: int) -> PoseEstimate:

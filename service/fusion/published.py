@@ -31,7 +31,7 @@ class FusionEvent:
     """Something the fusion decided about an input: accepted or rejected fix, a step gap."""
 
     t: float  # s, time of the input
-    kind: str  # "accepted", "rejected", "step_gap"
+    kind: str  # "accepted", "rejected", "step_gap", "restarted" (on a new heading)
     what: str  # "checkpoint", "gnss", "uwb", "step", "compass"
     detail: str = ""  # the rejection reason or a short note
     values: dict = field(default_factory=dict)
