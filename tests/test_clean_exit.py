@@ -4,8 +4,10 @@ A process whose zenoh threads are still calling into Python when the interpreter
 aborted by glibc ("FATAL: exception not rethrown", exit code -6): the load generator of
 ``bench --responders 500`` did so in 2 of 3 runs on a quiet machine. The reproduction here
 keeps the wearables' Status subscribers busy to the end (a router puts a Status-sized message
-to every walker's status key every 50 ms while ``simulate`` runs and closes), which is when
-a callback is most likely in flight. Before the fix (main at 220d6c1), the same harness run as
+to every walker's status key every 250 ms while ``simulate`` runs and closes: 4,000 callbacks a
+second), which is when a callback is most likely in flight. Every 50 ms, the 2 s run of 1,000
+walkers took 20 s, 103 s and 187 s in three CI runs (the callbacks starve it), too near the
+300 s bound for another machine; at 250 ms it takes 17 s here. Before the fix (main at 220d6c1), the same harness run as
 a spawned child with 500 walkers aborted in 1 of 4, 2 of 4 and 1 of 8 runs on this machine.
 """
 from __future__ import annotations
@@ -24,7 +26,7 @@ def _spam_status(session, incident: str, n: int, stop: threading.Event) -> None:
     while not stop.is_set():
         for k in keys:
             session.put(k, b"\x80")  # not a Status: each wearable's callback runs and drops it
-        stop.wait(0.05)
+        stop.wait(0.25)
 
 
 @pytest.mark.parametrize("walkers", [1000])
