@@ -74,6 +74,13 @@ def _local_gap(pred, f):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def _reach(margin, alpha, elev, k):  # pragma: no cover - compiled
+    """How far (m) the threshold path reaches from floor ``k``'s level: (½ + margin) of its
+    configured gap, scaled by α̂ (the predicted gaps may lean on a provisional level itself)."""
+    return (0.5 + margin) * alpha * _local_gap(elev, k)
+
+
+@njit(cache=True)
 def _match(level, r, known, pred, match_fraction):  # pragma: no cover - compiled
     """The seen floor whose level is within ``match_fraction`` of its local gap of ``level`` (nearest), else -1."""
     best, best_d = -1, np.inf
@@ -170,7 +177,7 @@ def track_run(t, h, S, ring_t, ring_z, r, known, learned_in, pred, elev, P):  # 
             # a level named on the stairs follows the climb to where it ends (the walker pressed
             # the landmark before reaching the level), at most the threshold path's reach from
             # where it was named: farther, the walker went on to another floor
-            reach = (0.5 + margin) * alpha * _local_gap(elev, k)
+            reach = _reach(margin, alpha, elev, k)
             r[k] = min(max(z, S[F_PROV_FROM] - reach), S[F_PROV_FROM] + reach)
             alpha = predict(r, known, elev, pred)
         # threshold path on the predicted levels
@@ -219,10 +226,9 @@ def track_run(t, h, S, ring_t, ring_z, r, known, learned_in, pred, elev, P):  # 
                 S[F_DSTART] = ring_t[head]
                 S[F_DSUM], S[F_DCNT] = mz * count, float(count)
                 f = _match(mz, r, known, pred, match)
-                if known[k] == KNOWN_PROVISIONAL and abs(mz - r[k]) <= (0.5 + margin) * alpha * _local_gap(elev, k):
+                if known[k] == KNOWN_PROVISIONAL and abs(mz - r[k]) <= _reach(margin, alpha, elev, k):
                     # the first dwell after a fix taught on the stairs is that floor's real level (within
-                    # the threshold path's reach of the provisional one, on the configured gaps: the
-                    # predicted ones lean on the provisional level itself)
+                    # the threshold path's reach of the provisional one)
                     f, r[k], known[k] = k, mz, 2
                     S[F_PROV_FROM] = math.nan
                     alpha = predict(r, known, elev, pred)

@@ -138,7 +138,7 @@ class FusionEstimator:
         self.degraded_reason = ""
 
     def start(self, t, x, y, heading, heading_sigma, position_sigma, floor) -> None:
-        self._fixed_since_start = False
+        self._precise_at_start = self.gate.precise_taken
         self.gate.start(t, x, y, position_sigma, floor, heading, heading_sigma)
         self._base(self.fusion.start(t, x, y, heading, heading_sigma, position_sigma, floor))
 
@@ -147,8 +147,9 @@ class FusionEstimator:
         jumped = self._pdr_heading_jumped(ev)
         if jumped is not None:
             self._flush()
-            fp = self._restart(jumped, self._dr[0], self._dr[7], heading=wrap(ev.heading - ev.heading_change),
-                               heading_sigma=max(ev.heading_sigma, self.fusion.settings.restart_heading_sigma_rad))
+            fp = self._restart(jumped, self._dr[0], self._dr[7], failure=False,
+                               heading=(wrap(ev.heading - ev.heading_change),
+                                        max(ev.heading_sigma, self.fusion.settings.restart_heading_sigma_rad)))
             self._last_update_t = fp.t
             self._base(fp)
         self._prev_pdr_heading = ev.heading
@@ -159,7 +160,7 @@ class FusionEstimator:
         return self._propagate(ev)
 
     _prev_pdr_heading = math.nan  # (class defaults: estimators pickled before them read as none)
-    _fixed_since_start = False  # a precise position fix taken since the graph's start
+    _precise_at_start = 0  # the walk gate's count of precise fixes taken when the graph (re)started
 
     def _pdr_heading_jumped(self, ev: StepEvent) -> str | None:
         """Why the graph should restart on the PDR's heading at step ``ev``, or None.
@@ -170,14 +171,14 @@ class FusionEstimator:
         followed it, is then as far off, and its compass and PDR-heading factors, all that far
         from it, are what the Cauchy kernel ignores: it cannot turn by itself. Measured: T21r02
         under the robustness suite's phone50_steel draw, a start on steel (PDR heading σ 15°, then
-        168° off), live p75 22.0 m against 3.0 m dead reckoning."""
+        166° off), live p75 22.0 m against 3.0 m dead reckoning."""
         s = self.fusion.settings
         limit = s.pdr_heading_jump_rad
         prev = self._prev_pdr_heading
         if limit is None or not (math.isfinite(prev) and math.isfinite(ev.heading) and math.isfinite(ev.heading_change)
                                  and math.isfinite(ev.heading_change_sigma)):
             return None
-        if not ev.heading_sigma < s.pdr_heading_max_sigma_rad or self._fixed_since_start:
+        if not ev.heading_sigma < s.pdr_heading_max_sigma_rad or self.gate.precise_taken > self._precise_at_start:
             return None  # a graph with two precise positions knows its heading from them (K = 3: T53r02 +1.1 m)
         jump = wrap(ev.heading - prev - ev.heading_change)
         apart = wrap(ev.heading - self._heading_after(ev)[0])
@@ -222,10 +223,11 @@ class FusionEstimator:
         self._base(fp)
         return fp
 
-    def _restart(self, why: str, t: float, floor: int, heading: float | None = None, heading_sigma: float | None = None):
+    def _restart(self, why: str, t: float, floor: int, failure: bool = True,
+                 heading: tuple[float, float] | None = None):
         """A new graph from dead reckoning since the last trusted fix; the old one's track kept.
-        It starts on the reference's heading, or ``heading`` (rad) ± ``heading_sigma``: a new
-        heading is no failure of the graph (not counted in ``degraded``; a ``restarted`` event)."""
+        It starts on the reference's heading, or ``heading`` = (rad, sigma). A ``failure`` is
+        counted in ``degraded`` (the track_degraded alarm); otherwise a ``restarted`` event."""
         old = self.fusion
         try:
             past = old.smoothed_track()
@@ -237,21 +239,21 @@ class FusionEstimator:
             self._past = past if self._past is None else joined_tracks(self._past, past)
         p, walked = self.gate.point
         if heading is None:
-            heading = p.heading if math.isfinite(p.heading) else (self._dr[3] if self._dr else 0.0)
+            heading = (p.heading if math.isfinite(p.heading) else (self._dr[3] if self._dr else 0.0),
+                       old.settings.restart_heading_sigma_rad)
         sigma = math.sqrt(max(float(np.linalg.eigvalsh(np.asarray(p.cov, float))[-1]), 0.0)) + self.gate.allowance(walked)
         s = old.settings
-        self._fixed_since_start = False
+        self._precise_at_start = self.gate.precise_taken
         self.fusion = self._make(s)
         self.fusion.events.extend(old.events)
         self.fusion.rejected.update(old.rejected)
-        if heading_sigma is None:
+        if failure:
             self.degraded += 1
             self.degraded_at = max(t, p.t)
             self.degraded_reason = why
         else:
             self.fusion.events.append(FusionEvent(max(t, p.t), "restarted", "heading", why, {}))
-        return self.fusion.start(max(t, p.t), p.x, p.y, wrap(heading),
-                                 s.restart_heading_sigma_rad if heading_sigma is None else heading_sigma,
+        return self.fusion.start(max(t, p.t), p.x, p.y, wrap(heading[0]), heading[1],
                                  max(sigma, s.checkpoint_sigma_floor_m), floor)
 
     def _base(self, fp) -> None:
@@ -312,11 +314,6 @@ class FusionEstimator:
         if rejected:
             return FixOutcome("rejected", reason=next(iter(rejected)))
         self.gate.take(fix, verdict)
-        from service.fusion.walk_gate import observation
-
-        obs = observation(fix)
-        if obs is not None and obs[0] != "range" and obs[-1] <= self.fusion.settings.walk_gate_margin_m:
-            self._fixed_since_start = True  # a precise position besides the start: the heading rests on fixes
         return FixOutcome("applied", self._pose(fp), earlier=earlier)
 
     def set_floor(self, t: float, floor: int) -> PoseEstimate:

@@ -176,6 +176,7 @@ class WalkGate:
     """The dead-reckoning reference of one track and the gate it gives (module docstring)."""
 
     _held: _Held | None = None  # (class default: snapshots pickled before it existed)
+    precise_taken = 0  # precise position fixes the graph took (σ at most walk_gate_margin_m; class default: as above)
 
     def __init__(self, settings):
         self.s = settings
@@ -316,6 +317,8 @@ class WalkGate:
         obs = observation(fix)
         if obs is None or obs[0] != "position" or not self._rows:
             return
+        if obs[3] <= self.s.walk_gate_margin_m:
+            self.precise_taken += 1
         if verdict.trusted:
             self._held = None  # a new start: a fix held out before it no longer tells a turn
         row = self._at(float(fix.t))
