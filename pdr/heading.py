@@ -61,6 +61,16 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
    straight but not across a turn. Later, an offset far from δ in a field whose strength is off
    the reference is *held* (:func:`pdr.compass_streak.held`), for the filter and the step's compass.
 
+   **A jump is held too** (:meth:`HeadingEstimator._jump_held`), whatever the field's strength:
+   an offset δ_m that moves by more than ``jump_angle`` (60°) within ``jump_window_s`` (2.5 s)
+   while the gyro turns by at most ``jump_max_turn`` (20°), to farther than
+   ``max(jump_angle, hold_sigmas·√P)`` from δ. Between epochs without a gap the gyro saw every
+   turn and cannot drift so far, so the change is the field's (steel met walking or standing,
+   bending the field without changing its strength). It waits in the rejected run like a held
+   epoch, and ends when the compass comes back near δ or the gyro turns by ``jump_max_turn``.
+   Only a δ already borne out by compass epochs across a ``confirm_turn`` is defended so: a δ
+   set by a start in steel must yield to the clean field's own jump back.
+
    **The gate does not lock out.** Once δ is wrong by more than the gate (a gyro drift while
    the field was rejected, a device frame that moved), every later epoch would be gated out
    until ``P`` had grown past the error. So a streak of gated-out epochs that agree among
@@ -173,6 +183,17 @@ class HeadingEstimator:
     compass offset, norm, inclination, stillness, bias) for plots and tests.
     """
 
+    # class defaults: an estimator restored from a snapshot taken before jumps were held
+    _jumped, _jump_psi = False, math.nan
+    _tested = (math.inf, -math.inf)  # range of ψ_g over which compass epochs bore δ out since it (re)started
+
+    @property
+    def _recent(self) -> deque:
+        """The compass epochs (t_end, ψ_g, δ_m) of the last ``jump_window_s`` (:meth:`_jump_held`)."""
+        if "_recent_epochs" not in self.__dict__:  # an estimator restored from an older snapshot
+            self._recent_epochs = deque()
+        return self._recent_epochs
+
     def __init__(self, settings: HeadingSettings | None = None):
         self.settings = s = settings or HeadingSettings()
         self._ahrs = make_filter(s.ahrs, dict(s.ahrs_params))
@@ -195,6 +216,8 @@ class HeadingEstimator:
         self._hist = deque([(-math.inf, math.nan, math.inf)])  # (epoch end, δ, P) for step lookups
         # runs of compass epochs that agree with each other (pdr.compass_streak): the epochs the
         # filter turned away, and before the first δ the epochs that would set it
+        self._jumped, self._jump_psi = False, math.nan  # the compass jumped away from δ (at this ψ_g) and has not come back
+        self._recent_epochs: deque = deque()  # (t_end, ψ_g, δ_m) of the last jump_window_s
         self._rejected = OffsetStreak(s.gate_recover_spread, s.confirm_turn, s.confirm_min_s, s.gate_recover_s)
         self._start_run = OffsetStreak(s.gate_recover_spread, s.confirm_turn, s.confirm_min_s, s.start_confirm_s)
         self.grip = GripTracker(s.grip)
@@ -342,6 +365,7 @@ class HeadingEstimator:
             if np.isfinite(sig) and self._start_run.add(t_end, dm, psi_end):
                 self._delta = self._start_run.mean
                 self._P = s.sigma_init**2
+                self._tested = (self._start_run.psi_lo, self._start_run.psi_hi)
                 self._start_run.clear()
         else:
             dt = t_end - self._kf_t
@@ -349,11 +373,13 @@ class HeadingEstimator:
             self._P += s.sigma_rw**2 * dt + (s.scale_error * dpsi) ** 2
             if dt > 1.5 * s.epoch:  # epochs without a sample between: a gap the gyro did not see
                 self._P += (s.gap_turn_rate * (dt - s.epoch)) ** 2
+            odd = self._jump_held(t_end, psi_end, dm) or odd
             if np.isfinite(sig):
                 nu = float(wrap(dm - self._delta))
                 if self._gate(t_end, psi_end, dm, self._accepts(nu, sig, odd)):
                     nu = float(wrap(dm - self._delta))
                 if self._accepts(nu, sig, odd):
+                    self._tested = (min(self._tested[0], psi_end), max(self._tested[1], psi_end))
                     S = self._P + sig**2
                     K = self._P / S
                     self._delta = float(wrap(self._delta + K * nu))
@@ -362,7 +388,49 @@ class HeadingEstimator:
         if self._delta is None:
             self._hist.append((t_end, self._start_run.mean, math.pi**2))
         else:
-            self._hist.append((t_end, self._delta, self._P))
+            self._hist.append((t_end, self._delta, self._P, self._jumped))
+
+    def _jump_held(self, t_end: float, psi_end: float, dm: float) -> bool:
+        """Is the compass offset ``dm`` of the epoch ending at ``t_end`` part of a *jump*? A jump
+        begins when ``dm`` differs by more than ``jump_angle`` from the offset of an epoch less
+        than ``jump_window_s`` before, while the gyro heading ``psi_end`` turned by at most
+        ``jump_max_turn`` since that epoch, and lies farther than ``max(jump_angle,
+        hold_sigmas·√P)`` from δ. The gyro cannot drift so fast and saw every turn, so such a
+        change is the field's: steel met walking or standing (seen in ``mag_steel --seed 1``:
+        after a stand had grown P, a 40 µT offset that left the field's strength as it was was
+        taken at 72° from δ and turned the walk 86°). The jump is held like an epoch in an odd
+        field (:func:`pdr.compass_streak.held`), so it waits in the rejected run until that run
+        proves itself (a turn, or ``gate_recover_s``). It ends when the compass comes back within
+        that distance of δ, or once the gyro has turned by ``jump_max_turn`` since it began (a
+        field seen across a turn is no longer the one that jumped)."""
+        s = self.settings
+        if not math.isfinite(dm) or self._delta is None:
+            return self._jumped
+        recent = self._recent
+        while recent and recent[0][0] < t_end - s.jump_window_s:
+            recent.popleft()
+        if self._tested[1] - self._tested[0] < s.confirm_turn:  # δ not yet borne out across a turn: it may be the jump
+            self._jumped = False
+        elif abs(float(wrap(dm - self._delta))) <= max(s.jump_angle, s.hold_sigmas * math.sqrt(self._P)):
+            self._jumped = False
+        elif self._jumped:
+            self._jumped = abs(psi_end - self._jump_psi) <= s.jump_max_turn
+        else:
+            self._jumped = any(abs(psi_end - p) <= s.jump_max_turn and abs(float(wrap(dm - d))) > s.jump_angle
+                               for _, p, d in recent)
+            self._jump_psi = psi_end
+        recent.append((t_end, psi_end, dm))
+        return self._jumped
+        a = abs(float(wrap(dm - self._delta)))
+        if a <= max(s.jump_angle, s.hold_sigmas * math.sqrt(self._P)):
+            self._jumped = False
+            if a <= s.hold_angle:
+                self._near_t, self._near_psi = t_end, psi_end
+        elif abs(psi_end - self._near_psi) > s.jump_max_turn:  # the gyro has turned since: no longer a jump
+            self._jumped = False
+        elif not self._jumped:
+            self._jumped = t_end - self._near_t <= s.jump_window_s
+        return self._jumped
 
     def _accepts(self, nu: float, sig: float, odd: bool = False) -> bool:
         """The innovation gate ``ν² ≤ n_σ² (P + σ_m²)``, unless :func:`pdr.compass_streak.held`."""
@@ -384,6 +452,7 @@ class HeadingEstimator:
             return False
         if r.add(t_end, dm, psi_end):
             self._delta = r.mean
+            self._tested = (r.psi_lo, r.psi_hi)
             self._P = max(self._P, s.sigma_init**2)
             r.clear()
             return True
@@ -449,7 +518,7 @@ class HeadingEstimator:
                                             qm / math.sqrt(float(row_dot(qm, qm))), before)
             off = off + omega
             k = bisect.bisect_right(hist_t, tk) - 1
-            _, delta, P = hist[max(k, 0)]
+            _, delta, P, *jump = hist[max(k, 0)]
             if not math.isfinite(delta):  # before the first compass epoch
                 delta = float(buf[i1 - 1, 2]) if math.isfinite(buf[i1 - 1, 2]) else 0.0
                 P = math.pi**2
@@ -465,7 +534,7 @@ class HeadingEstimator:
                 spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, sn), 1e-12), 1.0)))
                 nrm_k = float(mean0(buf[i0:i1, 3][okd]))
                 sig_m = self._measurement_sigma(spread, nrm_k, float(mean0(buf[i0:i1, 4][okd])), tk)
-                if held(float(wrap(math.atan2(sn, c) - delta)), P, self._odd_field(nrm_k, tk), s):
+                if held(float(wrap(math.atan2(sn, c) - delta)), P, self._odd_field(nrm_k, tk) or bool(jump and jump[0]), s):
                     sig_m = math.inf  # the filter would hold this compass (_accepts): so must the fusion
                 magh = float(wrap(psi_g + math.atan2(sn, c) + off)) if math.isfinite(sig_m) else math.nan
             else:

@@ -60,6 +60,12 @@ class HeadingSettings:
     hold_norm: float = 15.0  # µT (route 02 starts in a 24 µT field and walks on in 35-40 µT: 10 µT held its real compass)
     hold_angle: float = math.radians(35.0)  # rad
     hold_sigmas: float = 3.0
+    # a jump: the compass offset moves by more than jump_angle within jump_window_s while the gyro
+    # turns by at most jump_max_turn, to farther than max(jump_angle, hold_sigmas·√P) from δ, once
+    # δ has been borne out across a turn (pdr.heading, _jump_held): held like an odd field's
+    jump_window_s: float = 2.5  # s (0: no jump is held)
+    jump_angle: float = math.radians(60.0)  # rad (at 35° an earlier form held route 02's own field swings: T02r04 DR +1.4 m)
+    jump_max_turn: float = math.radians(20.0)  # rad (route 53's phone turns 150° in 2 s, its compass with it)
     gap_turn_rate: float = 1.0  # rad/s, δ's variance grows by (rate · gap)² over a gap in the samples
     # changes of grip (walking direction − device heading as a jump state; pdr.grip)
     grip: GripSettings = dataclasses.field(default_factory=GripSettings)

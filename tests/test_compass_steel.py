@@ -95,3 +95,32 @@ def test_the_steel_model_of_the_test_bends_the_compass():
     turn = abs(math.degrees(math.atan2(bent[1], bent[0]) - math.atan2(FIELD_ENU[1], FIELD_ENU[0])))
     assert turn > math.degrees(HeadingSettings().hold_angle)
     assert abs(np.linalg.norm(bent) - np.linalg.norm(FIELD_ENU)) > HeadingSettings().hold_norm
+
+
+def test_a_compass_that_jumps_while_the_gyro_sees_no_turn_is_held_whatever_the_fields_strength():
+    # a left turn of 90° at 4-5 s bears δ out across a turn; then straight. From 30 s to 42 s
+    # steel bends the field by 75° without changing its strength (the hold by strength cannot
+    # see it; seen in the suite's mag_steel --seed 1 on T21r02): the compass jumps while the
+    # gyro turns by nothing, so the jump is held and the heading stays
+    bent = _rotated_field(75.0)
+    field = lambda t: np.where(((t >= 30.0) & (t < 42.0))[:, None], bent, FIELD_ENU)  # noqa: E731
+    turn = lambda t: np.where((t >= 4.0) & (t < 5.0), math.pi / 2, 0.0)  # noqa: E731
+    data = walk(turn, 60.0, field=field)
+    during = lambda t: (t > 30.5) & (t < 50.0)  # noqa: E731
+    t, err = _errors(HeadingSettings(), *data)
+    assert err[during(t)].max() < 8.0
+    # without the rule the filter follows the bent field
+    t0, err0 = _errors(HeadingSettings(jump_window_s=0.0), *data)
+    assert err0[during(t0)].max() > 20.0
+
+
+def test_the_clean_fields_jump_back_after_a_start_in_steel_is_not_held():
+    # the start's δ comes from 6 s next to steel (field turned 100°, straight, no turn to test it);
+    # then the clean field: its compass jumps by 100° with no turn, but δ was never borne out
+    # across a turn, so the clean compass is taken (a jump held here would leave the walk 100°
+    # off until gate_recover_s had passed)
+    bad = _rotated_field(100.0)
+    field = lambda t: np.where((t < 6.0)[:, None], bad, FIELD_ENU)  # noqa: E731
+    t, err = _errors(HeadingSettings(), *walk(lambda t: 0.0 * t, 40.0, field=field))
+    assert err[(t > 4.0) & (t < 6.0)].min() > 60.0  # the start's δ was the steel's
+    assert err[(t > 20.0) & (t < 30.0)].max() < 10.0

@@ -43,6 +43,29 @@ def test_the_suite_scores_each_perturbation_as_eval_ipin_would(walks):
     assert len(lines) == 3 and lines[1].startswith("grip_z: pooled p75")
 
 
+def test_several_seeds_run_each_perturbation_once_per_draw(walks):
+    # one draw of a random perturbation is luck (mag_steel passed at seed 27 and broke 3 walks at
+    # seed 1): with several seeds every perturbation is a row per seed, each its own draw
+    rep = run_suite(walks[:1], CFG, ["gaps"], settings=SETTINGS, seed=[5, 6])
+    assert rep["seed"] == [5, 6]
+    rows = rep["perturbations"]
+    assert [(r["name"], r["perturbation"], r["seed"]) for r in rows] == [("gaps@5", "gaps", 5), ("gaps@6", "gaps", 6)]
+    for r in rows:
+        direct = figures([run_ipin(perturbed(walks[0], "gaps", r["seed"]), CFG, 0, True, SETTINGS)])
+        assert r["walks"] == direct["walks"]
+    assert rows[0]["walks"] != rows[1]["walks"]  # two draws, two walks
+
+
+def test_the_seed_option_reads_one_seed_or_several_and_names_what_is_not_one():
+    from pdr.evaluation.robustness import seeds_from
+
+    assert seeds_from("27") == [27] and seeds_from(" 27, 1,2,1 ") == [27, 1, 2]
+    with pytest.raises(ValueError, match=r"'x1' is not a whole number"):
+        seeds_from("27,x1")
+    with pytest.raises(ValueError, match="empty list"):
+        seeds_from(" , ")
+
+
 def test_a_perturbation_the_pipeline_cannot_run_fails_and_the_suite_goes_on(walks, monkeypatch):
     import dataclasses
 

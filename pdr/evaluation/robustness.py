@@ -213,6 +213,16 @@ def names_from(spec: str) -> list[str]:
     return names
 
 
+def seeds_from(spec: str | int) -> list[int]:
+    """``"27"`` or ``"27,1,2"`` -> ``[27, 1, 2]``; a clear error naming what is not a seed."""
+    parts = [p.strip() for p in str(spec).split(",") if p.strip()]
+    bad = [p for p in parts if not p.lstrip("-").isdigit()]
+    if bad or not parts:
+        raise ValueError(f"--seed: {', '.join(repr(b[:20]) for b in bad[:3]) or 'empty list'} is not a whole number; "
+                         f"give one seed or several, e.g. 27 or 27,1,2")
+    return list(dict.fromkeys(int(p) for p in parts))
+
+
 def perturbed(rec: Recording, name: str, seed: int = DEFAULT_SEED) -> Recording:
     """``rec`` under the named perturbation; the walk's own seed from :func:`walk_seed`."""
     out = PERTURBATIONS[name].apply(rec, walk_seed(seed, rec.source, name))

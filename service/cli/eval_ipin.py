@@ -47,7 +47,7 @@ def eval_ipin(
                                                        "score those files the organisers' way"),
     perturb: str = typer.Option(None, "--perturb", help="robustness suite: run every walk as logged and under each "
                                 "perturbation NAME[,NAME...] or 'all' (names: pdr/evaluation/robustness.py)"),
-    seed: int = typer.Option(27, "--seed", help="the robustness suite's random seed"),
+    seed: str = typer.Option("27", "--seed", help="the robustness suite's random seed, or several (27,1,2): every perturbation once per seed"),
     write_baseline: Path = typer.Option(None, "--write-baseline", help="track every walk at K = 0 and 3 and write "
                                         "the per-walk regression baseline (JSON) to this path"),
     check_baseline: Path = typer.Option(None, "--check-baseline", help="track every walk of this baseline at K = 0 "
@@ -78,10 +78,11 @@ def eval_ipin(
         fail(f"{' and '.join(modes)} cannot be combined")
         raise typer.Exit(2)
     if perturb is not None:
-        from pdr.evaluation.robustness import names_from
+        from pdr.evaluation.robustness import names_from, seeds_from
 
         try:
             names = names_from(perturb)
+            seeds = seeds_from(seed)
         except ValueError as e:
             fail(str(e))
             raise typer.Exit(2)
@@ -101,7 +102,7 @@ def eval_ipin(
     if perturb is not None:
         from service.cli.eval_ipin_robust import robustness
 
-        robustness(recordings, cfg, names, fix_every, not no_gnss, settings, seed, as_json)
+        robustness(recordings, cfg, names, fix_every, not no_gnss, settings, seeds[0] if len(seeds) == 1 else seeds, as_json)
         raise typer.Exit(1 if bad else 0)
     if write_baseline is not None or check_baseline is not None:
         from service.cli.eval_ipin_baseline import baseline_command

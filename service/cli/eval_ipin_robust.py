@@ -38,7 +38,8 @@ def _worst(name: str, p75: float) -> str:
 def table(report: dict) -> Table:
     base = report["unperturbed"]
     t = Table(title=f"robustness suite at K = {report['fix_every']}, {len(base['walks'])} walks, "
-                    f"seed {report['seed']}")
+                    + (f"seeds {', '.join(map(str, report['seed']))}" if isinstance(report["seed"], list)
+                       else f"seed {report['seed']}"))
     for col, just in (("perturbation", "left"), ("p75", "right"), ("change", "right"), ("DR p75", "right"),
                       ("floors", "right"), ("worst walk", "left"), ("was", "right"), ("broken", "left"),
                       ("verdict", "left")):

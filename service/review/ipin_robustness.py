@@ -7,7 +7,7 @@ worst walk and the walks it breaks. No PDR cache: every run is a different recor
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from pdr.evaluation.ipin import summary
@@ -36,46 +36,53 @@ def figures(runs: list[IpinRun]) -> dict:
 
 
 def run_suite(recordings: list[Recording], incident, names: list[str], fix_every: int = 0, use_gnss: bool = True,
-              settings=None, seed: int = DEFAULT_SEED,
+              settings=None, seed: int | Sequence[int] = DEFAULT_SEED,
               progress: Callable = lambda items, what, total=None: items,
               log: Callable[[str], None] = lambda line: None) -> dict:
     """Run the walks as logged, then under each named perturbation; see the module docstring.
 
+    ``seed``: one seed, or several: then every perturbation runs once per seed (one draw of a
+    random perturbation is luck), a row each with its ``seed``, named ``NAME@SEED``.
     ``progress(items, description, total)`` wraps the loop (a bar on a terminal), ``log`` gets a
     line per finished perturbation (for logs that are not terminals)."""
-    jobs = [(name, rec) for name in [UNPERTURBED, *names] for rec in recordings]
+    seeds = [int(seed)] if isinstance(seed, int) else [int(x) for x in seed]
+    if not seeds:
+        raise ValueError("the robustness suite needs a seed")
+    several = len(seeds) > 1
+    cases = [(UNPERTURBED, UNPERTURBED, seeds[0])] + [(f"{n}@{s}" if several else n, n, s) for s in seeds for n in names]
+    jobs = [(case, rec) for case in cases for rec in recordings]
     runs: dict[str, list[IpinRun]] = {}
     errors: dict[str, list[dict]] = {}
     rows: list[dict] = []
-    for name, rec in progress(jobs, "robustness suite", len(jobs)):
-        r = rec if name == UNPERTURBED else perturbed(rec, name, seed)
+    for (label, name, sd), rec in progress(jobs, "robustness suite", len(jobs)):
+        r = rec if name == UNPERTURBED else perturbed(rec, name, sd)
         try:
-            runs.setdefault(name, []).append(run_ipin(r, incident, fix_every, use_gnss, settings))
+            runs.setdefault(label, []).append(run_ipin(r, incident, fix_every, use_gnss, settings))
         except Exception as e:  # noqa: BLE001 -- a perturbation that breaks the pipeline is a finding, not the end
             if name == UNPERTURBED:
                 raise
-            errors.setdefault(name, []).append({"walk": walk_name(rec.source), "error": f"{type(e).__name__}: {e}"[:300]})
-            runs.setdefault(name, [])
-            log(f"{name}: {walk_name(rec.source)} failed: {errors[name][-1]['error']}")
-        if len(runs[name]) + len(errors.get(name, [])) < len(recordings):
+            errors.setdefault(label, []).append({"walk": walk_name(rec.source), "error": f"{type(e).__name__}: {e}"[:300]})
+            runs.setdefault(label, [])
+            log(f"{label}: {walk_name(rec.source)} failed: {errors[label][-1]['error']}")
+        if len(runs[label]) + len(errors.get(label, [])) < len(recordings):
             continue
-        fig = figures(runs.pop(name))
-        fig["errors"] = errors.get(name, [])
+        fig = figures(runs.pop(label))
+        fig["errors"] = errors.get(label, [])
         if name == UNPERTURBED:
             base = fig
             base["worst_walk"] = max(fig["walks"], key=fig["walks"].get)
             base["worst_p75_m"] = fig["walks"][base["worst_walk"]]
             log(f"unperturbed: pooled p75 {fig['p75_m']:.2f} m, worst {base['worst_walk']} {base['worst_p75_m']:.2f} m")
             continue
+        head = {"name": label, "perturbation": name, "seed": sd, "what": PERTURBATIONS[name].what}
         if not fig["walks"]:
-            rows.append({"name": name, "what": PERTURBATIONS[name].what, **fig, "passes": False, "broken": []})
-            log(f"{name}: no walk could be run: FAIL")
+            rows.append({**head, **fig, "passes": False, "broken": []})
+            log(f"{label}: no walk could be run: FAIL")
             continue
-        row = {"name": name, "what": PERTURBATIONS[name].what, **fig,
-               **verdict(base["p75_m"], base["walks"], fig["p75_m"], fig["walks"])}
+        row = {**head, **fig, **verdict(base["p75_m"], base["walks"], fig["p75_m"], fig["walks"])}
         row["passes"] = row["passes"] and not fig["errors"]  # a walk the pipeline could not run is broken
         rows.append(row)
-        log(f"{name}: pooled p75 {row['p75_m']:.2f} m ({row['pooled_change']:+.0%}), worst {row['worst_walk']} "
+        log(f"{label}: pooled p75 {row['p75_m']:.2f} m ({row['pooled_change']:+.0%}), worst {row['worst_walk']} "
             f"{row['worst_p75_m']:.2f} m, {len(row['broken'])} broken: {'pass' if row['passes'] else 'FAIL'}")
-    return {"seed": seed, "fix_every": fix_every, "gnss": use_gnss, "unperturbed": base, "perturbations": rows,
-            "passes": all(r["passes"] for r in rows)}
+    return {"seed": seeds[0] if not several else seeds, "fix_every": fix_every, "gnss": use_gnss, "unperturbed": base,
+            "perturbations": rows, "passes": all(r["passes"] for r in rows)}
