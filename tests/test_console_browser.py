@@ -705,6 +705,10 @@ def test_a_roll_call_flags_the_one_who_does_not_answer(browser):
         page.wait("() => ['p1', 'p2', 'p3'].every(r => window.__firetrack.responders.get(r)?.status)")
         page.page.locator("#btn-par").click()
         page.wait("() => [...document.querySelectorAll('.toast.ok')].some(e => e.textContent.includes('Roll call'))")
+        # the toast says the console sent it; the wearables hear it over zenoh a moment later (a loaded
+        # CI machine once checked before the last had: only the toast was awaited)
+        assert wait_until(lambda: all(w.commands for w in wearables.values()), 10), \
+            {r: len(w.commands) for r, w in wearables.items()}
         assert all(len(w.commands) == 1 and w.commands[0].action == "par" for w in wearables.values())
         par = lambda r: f"document.querySelector(\"#roster tr[data-id='{r}'] td.par\")?.textContent"  # noqa: E731
         page.wait(f"() => {par('p1')} === '✓' && {par('p2')} === '✓'")
