@@ -214,10 +214,10 @@ class HeadingEstimator:
         self._kf_t = -math.inf  # end time of the last epoch the filter has seen
         self._kf_psi: float | None = None  # gyro heading at that epoch end
         self._hist = deque([(-math.inf, math.nan, math.inf)])  # (epoch end, δ, P) for step lookups
-        # runs of compass epochs that agree with each other (pdr.compass_streak): the epochs the
-        # filter turned away, and before the first δ the epochs that would set it
         self._jumped, self._jump_psi = False, math.nan  # the compass jumped away from δ (at this ψ_g) and has not come back
         self._recent_epochs: deque = deque()  # (t_end, ψ_g, δ_m) of the last jump_window_s
+        # runs of compass epochs that agree with each other (pdr.compass_streak): the epochs the
+        # filter turned away, and before the first δ the epochs that would set it
         self._rejected = OffsetStreak(s.gate_recover_spread, s.confirm_turn, s.confirm_min_s, s.gate_recover_s)
         self._start_run = OffsetStreak(s.gate_recover_spread, s.confirm_turn, s.confirm_min_s, s.start_confirm_s)
         self.grip = GripTracker(s.grip)
@@ -420,16 +420,6 @@ class HeadingEstimator:
                                for _, p, d in recent)
             self._jump_psi = psi_end
         recent.append((t_end, psi_end, dm))
-        return self._jumped
-        a = abs(float(wrap(dm - self._delta)))
-        if a <= max(s.jump_angle, s.hold_sigmas * math.sqrt(self._P)):
-            self._jumped = False
-            if a <= s.hold_angle:
-                self._near_t, self._near_psi = t_end, psi_end
-        elif abs(psi_end - self._near_psi) > s.jump_max_turn:  # the gyro has turned since: no longer a jump
-            self._jumped = False
-        elif not self._jumped:
-            self._jumped = t_end - self._near_t <= s.jump_window_s
         return self._jumped
 
     def _accepts(self, nu: float, sig: float, odd: bool = False) -> bool:
