@@ -105,3 +105,41 @@ def test_an_answer_says_when_on_the_device_clock():
     core.feed(Inbound("imu", KEY, wire.encode(FRAMES[0]), 100.0))
     core.feed(Inbound("ack", ACK_KEY, b"\x81\xa1v\x01", 100.1))  # not an Ack: counted, the core goes on
     assert core.unattributed.get("ack_invalid") == 1 and core.counters.errors == 0
+
+
+def test_an_answer_from_a_responder_gone_quiet_reaches_the_console_at_the_next_tick():
+    """A silent responder's Status goes out every ``idle_status_every_s``; the wearer's answer is
+    not left waiting for it (CI saw the console learn of an answer 5 s late, after the phone's
+    frames had stopped): the tick after the answer carries it."""
+    core = IncidentCore(CFG)
+    for k, f in enumerate(FRAMES[:50]):
+        core.feed(Inbound("imu", KEY, wire.encode(f), 100.0 + 0.1 * k))
+    sent = {}
+    for k in range(1, 31):  # 30 s of silence, a tick a second: idle Statuses only every few seconds
+        now = 105.0 + k
+        sent[now] = [o.message for o in core.tick(now) if isinstance(o.message, wire.Status)]
+    quiet = [now for now, st in sent.items() if now > 115.0 and st]
+    assert len(quiet) < 15, quiet  # idle: not every tick (else this test shows nothing)
+    answer = FRAMES[49].t[-1] + 1.0
+    for now in (136.0, 136.5):  # whichever tick comes next after the answer
+        core.feed(Inbound("ack", ACK_KEY, _ok(answer), now - 0.2))
+        out = [o.message for o in core.tick(now) if isinstance(o.message, wire.Status)]
+        assert out and out[-1].ok_at == pytest.approx(answer), (now, out)
+        answer += 1.0
+
+
+def test_a_quiet_responders_roll_call_answer_reaches_the_console_at_the_next_tick():
+    """The same for a roll call: the order and its acknowledgement, on a responder gone quiet,
+    show in the Status of the tick that follows the acknowledgement."""
+    core = IncidentCore(CFG)
+    for k, f in enumerate(FRAMES[:50]):
+        core.feed(Inbound("imu", KEY, wire.encode(f), 100.0 + 0.1 * k))
+    for k in range(1, 21):
+        core.tick(105.0 + k)
+    order = wire.Command(responder="ff1", id="par-1", action="par", issued_at=1.7e9 + 125.0)
+    core.feed(Inbound("command", wire.key(CFG.id, "ff1", "command"), wire.encode(order), 125.2))
+    core.tick(126.0)
+    core.feed(Inbound("ack", ACK_KEY, wire.encode(wire.Ack(responder="ff1", id="par-1", action="par",
+                                                           at=1.7e9 + 126.3)), 126.4))
+    out = [o.message for o in core.tick(127.0) if isinstance(o.message, wire.Status)]
+    assert out and out[-1].commands["par"]["acked_at"] == pytest.approx(1.7e9 + 126.3), out

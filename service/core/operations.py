@@ -6,6 +6,7 @@ the core parses each message's key and hands the desk the id it names.
 from __future__ import annotations
 
 import logging
+import math
 
 from service.core.core_types import MAX_EARLY_ACKS, CoreCounters
 from service.core.fix_intake import FixDesk
@@ -66,6 +67,7 @@ class OperatorDesk:
             t = msg.t + r.t_offset  # the current stream's device clock -> the track's
             if t > r.ok_at:
                 r.ok_at = t
+                r.last_status = -math.inf  # the answer goes out at the next tick, not with an idle Status seconds later
                 log.info("%s answered the man-down prompt: I'm OK (device t %.1f s)", rid, msg.t)
             return
         if kind == "command":  # an acknowledgement may have overtaken its order (other key, other path)
@@ -78,6 +80,7 @@ class OperatorDesk:
         if order is not None and order["id"] == msg.id:
             if order["acked_at"] is None:
                 order["acked_at"] = msg.at
+                r.last_status = -math.inf  # the console sees the answer at the next tick
                 log.info("%s acknowledged %s %s", rid, msg.action, msg.id)
         elif len(r.early_acks) < MAX_EARLY_ACKS:
             r.early_acks[(msg.action, msg.id)] = msg.at
