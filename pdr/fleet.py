@@ -39,6 +39,7 @@ from pdr.floor_kernels import REASONS
 from pdr.floors import FloorChange, FloorElevations, FloorTracker
 from pdr.frames import ImuFrame
 from pdr.heading import HeadingEstimator
+from pdr.heading_kernels import EPOCH_COLUMNS
 from pdr.height import ALTIMETER_START, reanchor, relative_height
 from pdr.pipeline_settings import PipelineSettings
 from pdr.step_events import FloorEvents, StepAssembler, assemble_round
@@ -305,7 +306,7 @@ class PdrFleet:
         AN = norm3(ACC)
         # heading, per sample
         hs = s.heading
-        ep_rows = np.empty((T.size + J, 7))
+        ep_rows = np.empty((T.size + J, len(EPOCH_COLUMNS)))
         ep_slot = np.empty(T.size + J, np.int64)
         n_ep = K.heading_stage(slots, off, T, ACC, GYR, MAG, has_mag, AN, R.ahrs, self._ahrs_p, self._turn,
                                R.bias, R.bias_tails, self._bias_cfg, self._fwd, bool(hs.use_mag), hs.declination,

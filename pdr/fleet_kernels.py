@@ -122,7 +122,7 @@ def heading_stage(slots, off, T, ACC, GYR, MAG, has_mag, AN,
         w = np.empty(n)
         for i in range(n):
             w[i] = _norm3(g[i, 0], g[i, 1], g[i, 2])
-        rows = close_epochs(t, psi, d, nrm, inc, w, t0h[r], epoch, ep_state[r])
+        rows = close_epochs(t, psi, d, nrm, inc, w, an, t0h[r], epoch, ep_state[r])
         for i in range(rows.shape[0]):
             ep_rows[n_ep] = rows[i]
             ep_slot[n_ep] = j

@@ -160,6 +160,10 @@ class FleetRows:
         if fs_shape[0] < F_STATE:  # a snapshot from before the floor tracker's later fields: they start empty
             d["layout"]["fs"] = ((F_STATE,), fs_type, fs_fill)
             d["fs"] = np.concatenate([d["fs"], np.full((d["fs"].shape[0], F_STATE - fs_shape[0]), np.nan)], axis=1)
+        ep_shape, ep_type, ep_fill = d["layout"]["ep"]
+        if ep_shape[0] < EPOCH_STATE:  # a snapshot from before the epochs summed ‖f‖: the open epoch's sums of it start at 0
+            d["layout"]["ep"] = ((EPOCH_STATE,), ep_type, ep_fill)
+            d["ep"] = np.concatenate([d["ep"], np.zeros((d["ep"].shape[0], EPOCH_STATE - ep_shape[0]))], axis=1)
         for k, (dim, _) in TYPED_LISTS.items():
             out = List.empty_list(types.float64[:, ::1] if dim == 2 else types.float64[::1])
             lens, rows = d[k]

@@ -71,6 +71,23 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
    Only a δ already borne out by compass epochs across a ``confirm_turn`` is defended so: a δ
    set by a start in steel must yield to the clean field's own jump back.
 
+   **A stand is one piece of evidence.** The compass error is a property of the place: a
+   walker standing (an epoch whose specific-force norm ‖f‖ varies by less than
+   ``stand_acc_std``, 0.3 m/s²; walking gives 1-3) reads the same bent field epoch after epoch.
+   So an epoch of a stand measures ``δ_m = δ + d + v``: ``d`` the place's disturbance, held for
+   the stand, ``v`` the epoch's own noise (σ_v = ``stand_sigma``, 5°). ``d`` enters with the
+   stand's first epoch, ``d ~ N(0, σ_m² − σ_v²)`` (so that epoch weighs as a walking one), and
+   the filter carries ``[δ, d]`` with ``H = [1 1]``, ``R = σ_v²``: ``S = P + 2C + D + σ_v²``,
+   ``K_δ = (P + C)/S``, ``K_d = (C + D)/S`` (C the covariance of δ and d, D the variance of d).
+   The stand's further epochs follow δ's drift (the gyro's) but add no absolute evidence. A
+   stand ends with a step, a gyro turn of ``stand_turn`` (20°; a field bent by the place
+   changes with the heading), a compass offset ``stand_turn`` from the stand's first, or an
+   epoch the stand's prediction ``δ + d`` gates out (the place's field changed: steel moved
+   away); the next epoch begins afresh. Before, a 30 s stand beside steel took √P from 30° to
+   7°, and the walk's clean field then needed some 20 s to pull δ back (T01r04 under the
+   robustness suite's ``phone50_steel``); dead reckoning on the development walks gains most
+   (docs/robustness.md, round 9).
+
    **The gate does not lock out.** Once δ is wrong by more than the gate (a gyro drift while
    the field was rejected, a device frame that moved), every later epoch would be gated out
    until ``P`` had grown past the error. So a streak of gated-out epochs that agree among
@@ -186,6 +203,9 @@ class HeadingEstimator:
     # class defaults: an estimator restored from a snapshot taken before jumps were held
     _jumped, _jump_psi = False, math.nan
     _tested = (math.inf, -math.inf)  # range of ψ_g over which compass epochs bore δ out since it (re)started
+    # a stand (:meth:`_stand_update`): its disturbance d, d's variance D and its covariance C with δ;
+    # ψ_g where it began (NaN: the walker is not standing, or δ restarted since)
+    _stand_d, _stand_D, _stand_C, _stand_psi, _stand_dm = 0.0, 0.0, 0.0, math.nan, 0.0
 
     @property
     def _recent(self) -> deque:
@@ -251,7 +271,9 @@ class HeadingEstimator:
         self._raw_last = float(raw[-1])
         psi = raw + TWO_PI * turns
         self.samples = {"t": t, "psi_gyro": psi, "delta_mag": d, "norm": norm, "inclination": inc, "bias": bias, "q": q}
-        self.take_epochs(close_epochs(t, psi, d, norm, inc, norm3(gyr - bias), self._t0, s.epoch, self._epoch_state))
+        if self._epoch_state.size < EPOCH_STATE:  # restored from a snapshot before the epochs summed ‖f‖
+            self._epoch_state = np.concatenate([self._epoch_state, np.zeros(EPOCH_STATE - self._epoch_state.size)])
+        self.take_epochs(close_epochs(t, psi, d, norm, inc, norm3(gyr - bias), an, self._t0, s.epoch, self._epoch_state))
         # older samples leave before the new ones come in: steps found in this batch later (or
         # held back by the detector, a few steps before it) still find their samples
         keep = self._buf[:, 0] > (t[0] - 4 * s.max_step_duration)
@@ -303,16 +325,16 @@ class HeadingEstimator:
         s = self.settings
         if not len(rows):
             return
-        t_end, psi_end, cs, sn, nrm, inc_m, rate = rows.T
+        t_end, psi_end, cs, sn, nrm, inc_m, rate, acc_std = rows.T
         dm = np.arctan2(sn, cs)
         rho = np.clip(np.hypot(cs, sn), 1e-12, 1.0)
         spread = np.sqrt(-2.0 * np.log(rho))
         # a few epochs per second: the rest in Python floats (a scalar filter loop, each epoch's weight)
         epochs = list(zip(*(c.tolist() for c in (t_end, psi_end, dm, spread, nrm, inc_m, rate))))
         self._learn_reference(epochs)
-        for t, psi, d, sp, f, inc, w in epochs:
+        for (t, psi, d, sp, f, inc, w), a in zip(epochs, acc_std.tolist()):
             sig = math.inf if w > s.max_rate else self._measurement_sigma(sp, f, inc, t)
-            self._kf_step(t, psi, d, sig, self._odd_field(f, t))
+            self._kf_step(t, psi, d, sig, self._odd_field(f, t), a < s.stand_acc_std)
 
     def _learned_by(self) -> float:
         """From when a learned field reference counts (:mod:`pdr.compass_weight`)."""
@@ -356,7 +378,7 @@ class HeadingEstimator:
         return measurement_sigma(self.settings, spread, nrm, inc_m, t, self._ref_norm, self._ref_inc,
                                  self._learned_by())
 
-    def _kf_step(self, t_end, psi_end, dm, sig, odd: bool = False) -> None:
+    def _kf_step(self, t_end, psi_end, dm, sig, odd: bool = False, standing: bool = False) -> None:
         s = self.settings
         if self._delta is None:
             # initial heading: a run of epochs that pass the gates and agree with each other, tested
@@ -367,28 +389,65 @@ class HeadingEstimator:
                 self._P = s.sigma_init**2
                 self._tested = (self._start_run.psi_lo, self._start_run.psi_hi)
                 self._start_run.clear()
+                self._stand_psi = math.nan
+                if standing:  # δ is this place's field: δ + d is known, d is not (C = −D)
+                    self._begin_stand(psi_end, dm, self._P - s.stand_sigma**2)
+                    self._stand_C = -self._stand_D
         else:
             dt = t_end - self._kf_t
             dpsi = psi_end - self._kf_psi
             self._P += s.sigma_rw**2 * dt + (s.scale_error * dpsi) ** 2
             if dt > 1.5 * s.epoch:  # epochs without a sample between: a gap the gyro did not see
                 self._P += (s.gap_turn_rate * (dt - s.epoch)) ** 2
-            odd = self._jump_held(t_end, psi_end, dm) or odd
+            odd_field, odd = odd, self._jump_held(t_end, psi_end, dm) or odd
+            if not (standing and s.stand_acc_std > 0 and abs(psi_end - self._stand_psi) <= s.stand_turn
+                    and not abs(float(wrap(dm - self._stand_dm))) > s.stand_turn):
+                self._stand_psi = math.nan  # walking, turned, a field that moved, or no stand told apart: a new place
             if np.isfinite(sig):
-                nu = float(wrap(dm - self._delta))
-                if self._gate(t_end, psi_end, dm, self._accepts(nu, sig, odd)):
-                    nu = float(wrap(dm - self._delta))
-                if self._accepts(nu, sig, odd):
-                    self._tested = (min(self._tested[0], psi_end), max(self._tested[1], psi_end))
-                    S = self._P + sig**2
-                    K = self._P / S
-                    self._delta = float(wrap(self._delta + K * nu))
-                    self._P *= 1.0 - K
+                if standing and s.stand_acc_std > 0 and (math.isnan(self._stand_psi)
+                                                         or not self._accepts(*self._innovation(dm, sig), odd)):
+                    self._begin_stand(psi_end, dm, sig**2 - s.stand_sigma**2)  # a new stand, or the place's field changed
+                nu, sig_e = self._innovation(dm, sig)
+                if self._gate(t_end, psi_end, dm, self._accepts(nu, sig_e, odd)):
+                    self._stand_psi = math.nan
+                    nu, sig_e = self._innovation(dm, sig)
+                if self._accepts(nu, sig_e, odd):
+                    if not odd_field:  # only a field of the usual strength bears δ out (the jump rule's test)
+                        self._tested = (min(self._tested[0], psi_end), max(self._tested[1], psi_end))
+                    self._update(nu, sig_e)
         self._kf_t, self._kf_psi = t_end, psi_end
         if self._delta is None:
             self._hist.append((t_end, self._start_run.mean, math.pi**2))
         else:
             self._hist.append((t_end, self._delta, self._P, self._jumped))
+
+    def _begin_stand(self, psi: float, dm: float, D: float) -> None:
+        """A stand begins at gyro heading ``psi`` with compass offset ``dm``: its disturbance
+        d = 0 ± √D, uncorrelated with δ."""
+        self._stand_psi, self._stand_dm, self._stand_d, self._stand_D, self._stand_C = psi, dm, 0.0, max(D, 0.0), 0.0
+
+    def _innovation(self, dm: float, sig: float) -> tuple[float, float]:
+        """(ν, σ) of the epoch: ν = wrap(δ_m − δ) and σ = σ_m while walking; in a stand the
+        epoch measures δ + d with the epoch's own noise σ_v (``stand_sigma``), so ν = wrap(δ_m −
+        δ − d) and σ² = D + 2C + σ_v² (S = P + σ² as for a walking epoch)."""
+        if math.isnan(self._stand_psi):
+            return float(wrap(dm - self._delta)), sig
+        var = self._stand_D + 2.0 * self._stand_C + self.settings.stand_sigma**2
+        return float(wrap(dm - self._delta - self._stand_d)), math.sqrt(max(var, 1e-12))
+
+    def _update(self, nu: float, sig: float) -> None:
+        """The Kalman update of δ (and, in a stand, of d: H = [1 1], R = σ_v²; seed 000 eqs. 5.6-5.8)."""
+        S = self._P + sig**2
+        if math.isnan(self._stand_psi):
+            K = self._P / S
+            self._delta = float(wrap(self._delta + K * nu))
+            self._P *= 1.0 - K
+            return
+        P, C, D = self._P, self._stand_C, self._stand_D
+        k_delta, k_d = (P + C) / S, (C + D) / S
+        self._delta = float(wrap(self._delta + k_delta * nu))
+        self._stand_d = float(wrap(self._stand_d + k_d * nu))
+        self._P, self._stand_C, self._stand_D = P - k_delta * (P + C), C - k_delta * (C + D), D - k_d * (C + D)
 
     def _jump_held(self, t_end: float, psi_end: float, dm: float) -> bool:
         """Is the compass offset ``dm`` of the epoch ending at ``t_end`` part of a *jump*? A jump

@@ -97,17 +97,20 @@ def level_and_compass(q, fwd, acc, mag, use_mag, declination):  # pragma: no cov
     return raw, d, norm, inc, af, al, az
 
 
-# running sums of the open epoch: index, count, Σcos d, Σsin d, Σ|b|, ΣI, Σ|ω|, last ψ
-EPOCH_STATE = 8
+# running sums of the open epoch: index, count, Σcos d, Σsin d, Σ|b|, ΣI, Σ|ω|, last ψ, Σ‖f‖, Σ‖f‖²
+EPOCH_STATE = 10
+EPOCH_COLUMNS = ("t_end", "psi", "cos_d", "sin_d", "norm", "inc", "rate", "acc_std")
 
 
 @njit(cache=True)
-def close_epochs(t, psi, d, norm, inc, w, t0, epoch, state):  # pragma: no cover - compiled
+def close_epochs(t, psi, d, norm, inc, w, a, t0, epoch, state):  # pragma: no cover - compiled
     """Fold samples into compass epochs ``k = ⌊(t − t0) / epoch⌋``; an epoch closes when a
-    sample of a later one arrives. Returns one row per closed epoch: end time
-    ``t0 + (k + 1)·epoch``, ψ at its last sample, then the means of cos δ, sin δ, |b|, I and
-    |ω| over its samples. ``state`` (EPOCH_STATE,) carries the open epoch between calls."""
-    out = np.empty((t.shape[0] + 1, 7))
+    sample of a later one arrives. Returns one row per closed epoch (:data:`EPOCH_COLUMNS`): end
+    time ``t0 + (k + 1)·epoch``, ψ at its last sample, the means of cos δ, sin δ, |b|, I and |ω|
+    over its samples, and the standard deviation of the specific force's norm ``a`` (‖f‖: near 0
+    while the walker stands, 1-3 m/s² while walking). ``state`` (EPOCH_STATE,) carries the open
+    epoch between calls."""
+    out = np.empty((t.shape[0] + 1, 8))
     m = 0
     for i in range(t.shape[0]):
         k = math.floor((t[i] - t0) / epoch)
@@ -120,9 +123,13 @@ def close_epochs(t, psi, d, norm, inc, w, t0, epoch, state):  # pragma: no cover
             out[m, 4] = state[4] / c
             out[m, 5] = state[5] / c
             out[m, 6] = state[6] / c
+            ma = state[8] / c
+            out[m, 7] = math.sqrt(max(state[9] / c - ma * ma, 0.0))
             m += 1
             for j in range(1, 7):
                 state[j] = 0.0
+            state[8] = 0.0
+            state[9] = 0.0
         if state[1] == 0:
             state[0] = k
         state[1] += 1.0
@@ -132,6 +139,8 @@ def close_epochs(t, psi, d, norm, inc, w, t0, epoch, state):  # pragma: no cover
         state[5] += inc[i]
         state[6] += w[i]
         state[7] = psi[i]
+        state[8] += a[i]
+        state[9] += a[i] * a[i]
     return out[:m]
 
 
