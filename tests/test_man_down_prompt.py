@@ -138,8 +138,34 @@ def test_a_quiet_responders_roll_call_answer_reaches_the_console_at_the_next_tic
         core.tick(105.0 + k)
     order = wire.Command(responder="ff1", id="par-1", action="par", issued_at=1.7e9 + 125.0)
     core.feed(Inbound("command", wire.key(CFG.id, "ff1", "command"), wire.encode(order), 125.2))
-    core.tick(126.0)
+    out = [o.message for o in core.tick(126.0) if isinstance(o.message, wire.Status)]
+    assert out and out[-1].commands["par"]["acked_at"] is None, out  # the order itself: waiting
     core.feed(Inbound("ack", ACK_KEY, wire.encode(wire.Ack(responder="ff1", id="par-1", action="par",
                                                            at=1.7e9 + 126.3)), 126.4))
     out = [o.message for o in core.tick(127.0) if isinstance(o.message, wire.Status)]
     assert out and out[-1].commands["par"]["acked_at"] == pytest.approx(1.7e9 + 126.3), out
+
+
+def test_a_crowd_gone_quiet_shows_a_roll_call_and_its_answers_at_the_next_tick():
+    """Idle Statuses go out a share per tick (a crowd does not answer in step); an order and the
+    answers to it are not idle news: every responder's Status carries them at the next tick
+    (CI's console once showed two answers while the third responder's order was not yet known)."""
+    core = IncidentCore(CFG)
+    ids = [f"q{k}" for k in range(6)]
+    for rid in ids:
+        for k, f in enumerate(FRAMES[:50]):
+            core.feed(Inbound("imu", wire.key(CFG.id, rid, "imu"), wire.encode(f.model_copy(update={"responder": rid})),
+                              100.0 + 0.1 * k))
+    for k in range(1, 21):
+        core.tick(105.0 + k)
+    for rid in ids:
+        order = wire.Command(responder=rid, id="par-2", action="par", issued_at=1.7e9 + 125.0)
+        core.feed(Inbound("command", wire.key(CFG.id, rid, "command"), wire.encode(order), 125.2))
+    seen = {o.message.responder: o.message for o in core.tick(126.0) if isinstance(o.message, wire.Status)}
+    assert sorted(seen) == ids and all(s.commands["par"]["acked_at"] is None for s in seen.values())
+    for rid in ids[:3]:
+        core.feed(Inbound("ack", wire.key(CFG.id, rid, "ack"),
+                          wire.encode(wire.Ack(responder=rid, id="par-2", action="par", at=1.7e9 + 126.3)), 126.4))
+    seen = {o.message.responder: o.message for o in core.tick(127.0) if isinstance(o.message, wire.Status)}
+    assert set(ids[:3]) <= set(seen), sorted(seen)
+    assert all(seen[rid].commands["par"]["acked_at"] is not None for rid in ids[:3])

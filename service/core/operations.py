@@ -74,6 +74,7 @@ class OperatorDesk:
             early = r.early_acks.pop((msg.action, msg.id), None)
             r.commands[msg.action] = {"id": msg.id, "issued_at": msg.issued_at, "issued_by": msg.issued_by,
                                       "acked_at": early}
+            r.last_status = -math.inf  # the console sees the order (who is waiting) at the next tick
             log.info("%s: %s %s issued by %s", rid, msg.action, msg.id, msg.issued_by or "?")
             return
         order = r.commands.get(msg.action)

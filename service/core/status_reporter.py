@@ -1,5 +1,6 @@
 """A responder's Status: its alarms judged at a time, and when a Status is answered (every tick
-while it is heard, seldom once it is silent, at once when its alarms change).
+while it is heard, seldom once it is silent, at once when its alarms change or an order, an
+acknowledgement or the wearer's answer to the man-down prompt came since the last).
 
 A collaborator of :class:`service.core.incident_core.IncidentCore`.
 """
@@ -52,7 +53,9 @@ class StatusReporter:
         for r in responders:
             try:
                 current = self.alarms_now(r, now)
-                if now - r.last_input < s.idle_after_s or current != r.last_alarms:
+                # heard lately, its alarms changed, or owed (last_status -inf: an order, an
+                # acknowledgement or an "I'm OK" since its last Status): answered now, not budgeted
+                if now - r.last_input < s.idle_after_s or current != r.last_alarms or r.last_status == -math.inf:
                     self.send(r, now, current)
                     continue
                 idle += 1
