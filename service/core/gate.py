@@ -87,10 +87,13 @@ jump, the receive-time gap before a new stream) are what ``Status`` reports: no 
 """
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter, deque
 
 from service.protocol.wire import ImuBatch
+
+log = logging.getLogger("firetrack.service")
 
 GATE_REASONS = ("duplicate", "late", "time_order", "old_stream", "other_stream", "seq_jump")
 RESEND_WAIT_S = 2.0  # s an asked-for gap is waited for (beyond the responder's lag: see FrameGate.expire)
@@ -116,6 +119,7 @@ class FrameGate:
     ask_from_start = 0  # a stream's first seq up to which its frames [0, seq - 1] are asked for (0: never)
     contested = 0  # frames of other streams turned away (or of a candidate that did not take over)
     last_contested = -math.inf  # receive time of the newest one
+    who = "?"  # the responder's id, for the log (set by the core)
 
     def __init__(self, reorder_window: int = 4, max_gap_s: float = 0.5, *, max_hold_s: float = 1.0,
                  restart_after_s: float = 30.0, max_events: int = 256, max_seq_jump: int = 100_000,
@@ -479,6 +483,7 @@ class FrameGate:
         self.gaps += 1
         span = f"seq {self._next}" if missing == 1 else f"seq {self._next}..{first - 1} ({missing} frames)"
         self.events.append((now, "lost", f"{span} lost: {why}"))
+        log.warning("%s: %s lost: %s", self.who, span, why)  # counted in its Status too; said here for the log
         batch, _ = self._held.pop(first)
         self._next = first
         self._release(batch, now, out, gap_counted=True)

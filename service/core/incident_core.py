@@ -381,6 +381,7 @@ class IncidentCore:
                       tracker=self._tracker(rid),
                       first_heard=now if n is None else n.first_heard, present=self.roster.presence.pop(rid, None),
                       last_input=now)
+        r.gate.who = rid
         if n is not None:  # what it sent before this is counted as the responder's
             r.rejects.extend(n.rejects)
             r.gate.add_counts(n.frames)
