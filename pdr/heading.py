@@ -203,7 +203,7 @@ class HeadingEstimator:
     # class defaults: an estimator restored from a snapshot taken before jumps were held
     _jumped, _jump_psi = False, math.nan
     _tested = (math.inf, -math.inf)  # range of ψ_g over which compass epochs bore δ out since it (re)started
-    # a stand (:meth:`_stand_update`): its disturbance d, d's variance D and its covariance C with δ;
+    # a stand (:meth:`_innovation`, :meth:`_update`): its disturbance d, d's variance D and its covariance C with δ;
     # ψ_g where it began (NaN: the walker is not standing, or δ restarted since)
     _stand_d, _stand_D, _stand_C, _stand_psi, _stand_dm = 0.0, 0.0, 0.0, math.nan, 0.0
 

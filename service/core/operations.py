@@ -6,13 +6,13 @@ the core parses each message's key and hands the desk the id it names.
 from __future__ import annotations
 
 import logging
-import math
 
 from service.core.core_types import MAX_EARLY_ACKS, CoreCounters
 from service.core.fix_intake import FixDesk
 from service.core.intake import Intake
 from service.core.pose_output import Outbox
 from service.core.rejects import RejectBook
+from service.core.responder import STATUS_OWED
 from service.core.roster import Roster
 from service.protocol import wire
 from service.protocol.incident import IncidentConfig
@@ -67,21 +67,21 @@ class OperatorDesk:
             t = msg.t + r.t_offset  # the current stream's device clock -> the track's
             if t > r.ok_at:
                 r.ok_at = t
-                r.last_status = -math.inf  # the answer goes out at the next tick, not with an idle Status seconds later
+                r.last_status = STATUS_OWED  # the answer goes out at the next tick, not with an idle Status seconds later
                 log.info("%s answered the man-down prompt: I'm OK (device t %.1f s)", rid, msg.t)
             return
         if kind == "command":  # an acknowledgement may have overtaken its order (other key, other path)
             early = r.early_acks.pop((msg.action, msg.id), None)
             r.commands[msg.action] = {"id": msg.id, "issued_at": msg.issued_at, "issued_by": msg.issued_by,
                                       "acked_at": early}
-            r.last_status = -math.inf  # the console sees the order (who is waiting) at the next tick
+            r.last_status = STATUS_OWED  # the console sees the order (who is waiting) at the next tick
             log.info("%s: %s %s issued by %s", rid, msg.action, msg.id, msg.issued_by or "?")
             return
         order = r.commands.get(msg.action)
         if order is not None and order["id"] == msg.id:
             if order["acked_at"] is None:
                 order["acked_at"] = msg.at
-                r.last_status = -math.inf  # the console sees the answer at the next tick
+                r.last_status = STATUS_OWED  # the console sees the answer at the next tick
                 log.info("%s acknowledged %s %s", rid, msg.action, msg.id)
         elif len(r.early_acks) < MAX_EARLY_ACKS:
             r.early_acks[(msg.action, msg.id)] = msg.at

@@ -13,6 +13,10 @@ from service.core.lag import FrameLag
 from service.core.tracker import ResponderTracker
 from service.protocol import wire
 
+# a Responder's last_status when its Status is owed at the next tick, outside the idle budget (a new
+# responder; an order, an acknowledgement or an "I'm OK" since its last Status: service.core.status_reporter)
+STATUS_OWED = -math.inf
+
 
 @dataclass
 class Responder:
@@ -38,7 +42,7 @@ class Responder:
     stream_start: object = None  # the gate's first frame of the stream the tracker follows now
     gap_end: float = -math.inf  # s, track clock: the first sample after the latest gap
     last_input: float = -math.inf  # service time of the newest message of any kind (expiry)
-    last_status: float = -math.inf  # service time of the newest Status answered
+    last_status: float = STATUS_OWED  # service time of the newest Status answered (STATUS_OWED: due at the next tick)
     last_alarms: list = field(default_factory=list)  # the alarms it carried
     alarm_since: dict = field(default_factory=dict)  # alarm -> the service time it began (as ticks saw it)
     commands: dict = field(default_factory=dict)

@@ -13,7 +13,7 @@ from service.core.core_types import CoreSettings, Outbound
 from service.core.intake import Intake
 from service.core.lag import ServiceLag
 from service.core.pose_output import Outbox
-from service.core.responder import Responder
+from service.core.responder import STATUS_OWED, Responder
 from service.protocol import wire
 
 
@@ -53,9 +53,9 @@ class StatusReporter:
         for r in responders:
             try:
                 current = self.alarms_now(r, now)
-                # heard lately, its alarms changed, or owed (last_status -inf: an order, an
+                # heard lately, its alarms changed, or owed (STATUS_OWED: an order, an
                 # acknowledgement or an "I'm OK" since its last Status): answered now, not budgeted
-                if now - r.last_input < s.idle_after_s or current != r.last_alarms or r.last_status == -math.inf:
+                if now - r.last_input < s.idle_after_s or current != r.last_alarms or r.last_status == STATUS_OWED:
                     self.send(r, now, current)
                     continue
                 idle += 1
