@@ -98,7 +98,11 @@ log = logging.getLogger("firetrack.service")
 GATE_REASONS = ("duplicate", "late", "time_order", "old_stream", "other_stream", "seq_jump")
 RESEND_WAIT_S = 2.0  # s an asked-for gap is waited for (beyond the responder's lag: see FrameGate.expire)
 MAX_RESEND_SLACK_S = 10.0  # s the lag may add to that wait at most
-MAX_HELD = 64  # frames held while an asked-for gap is waited for
+# frames held while an asked-for gap is waited for. A takeover's history reply comes as one burst
+# beyond the gap the snapshot left (a standby: the snapshot's age plus the takeover, 50-70 frames at
+# 10 frames/s; a simulated wearable's whole zenoh keep, 100): 64 declared the gap lost before the
+# resend could come. The wait stays bounded by time (resend_wait_s + lag) and by MAX_HELD_SAMPLES.
+MAX_HELD = 256
 MAX_HELD_SAMPLES = 8192  # and samples in them (a frame holds up to MAX_SAMPLES)
 TAKEOVER_AFTER_S = 6.0  # s of silence of the current stream before another (device, boot) may replace it
 MAX_CANDIDATE = 128  # frames of a candidate stream held meanwhile (10 frames/s for 2 * TAKEOVER_AFTER_S, and more)
