@@ -235,3 +235,38 @@ def test_verdict_follows_the_issues_criteria():
     assert not too_much["passes"] and too_much["pooled_change"] == pytest.approx(0.275)
     broken = verdict(4.0, base, 4.0, {"a": 8.1, "b": 5.0})
     assert not broken["passes"] and [b["walk"] for b in broken["broken"]] == ["a"]
+
+
+# --------------------------------------------------------------------------------------------
+# The barometer
+# --------------------------------------------------------------------------------------------
+def test_a_ventilation_fan_raises_the_pressure_for_the_rest_of_the_walk():
+    t = np.arange(0.0, 200.0, 0.1)
+    for seed in range(20):
+        start, end, dp = P.fan_started(0.0, 200.0, seed)
+        assert 40.0 <= start <= 120.0 and end == np.inf and 0.20 <= dp <= 0.50  # hPa: 20-50 Pa
+        p = P.pressure_offsets(t, np.full(t.size, 1000.0), [(start, end, dp)])[:, 0]
+        assert np.all(p[t <= start] == 1000.0) and np.allclose(p[t >= start + 2.0], 1000.0 + dp)
+        assert np.all(np.diff(p) >= 0)  # it rises over the ramp, never back
+
+
+def test_door_pulses_come_and_go_within_their_bounds():
+    t = np.arange(0.0, 600.0, 0.1)
+    pulses = P.door_pulses(0.0, 600.0, seed=3)
+    assert 4 <= len(pulses) <= 20  # about one a minute
+    for a, b, dp in pulses:
+        assert 0.0 < b - a <= 20.0 and 0.10 <= abs(dp) <= 0.40
+    p = P.pressure_offsets(t, np.full(t.size, 1000.0), pulses)[:, 0]
+    quiet = np.ones(t.size, bool)
+    for a, b, _ in pulses:
+        quiet &= (t < a) | (t > b)
+    assert np.all(p[quiet] == 1000.0) and np.abs(p - 1000.0).max() <= 0.40 + 1e-12
+
+
+def test_drift_and_a_cheap_barometer():
+    t = np.arange(0.0, 240.0, 0.1)
+    p = P.pressure_drift(t, np.full(t.size, 1000.0), seed=5)[:, 0]
+    total = p[-1] - p[0]
+    assert 0.15 <= abs(total) <= 0.3 and np.allclose(np.diff(p), total / (t.size - 1))
+    tc, pc = P.cheap_barometer(t, np.full((t.size, 1), 1000.0), seed=5)
+    assert np.median(np.diff(tc)) == pytest.approx(1.0) and np.std(pc - 1000.0) == pytest.approx(0.05, rel=0.3)

@@ -242,3 +242,64 @@ def outside_windows(t: np.ndarray, windows: np.ndarray) -> np.ndarray:
     for start, end in np.asarray(windows, float).reshape(-1, 2):
         keep &= ~((t >= start) & (t < end))
     return keep
+
+
+# --------------------------------------------------------------------------------------------
+# The barometer
+# --------------------------------------------------------------------------------------------
+PA_PER_M = 11.8  # Pa of pressure per metre of height near the ground (ρ g, ρ = 1.2 kg/m³)
+
+
+def fan_started(t0: float, t1: float, seed, rise_pa: tuple[float, float] = (20.0, 50.0),
+                at: tuple[float, float] = (0.2, 0.6)) -> tuple[float, float, float]:
+    """A positive-pressure ventilation fan set in a doorway (a fire service's usual tactic) or a
+    stairwell's pressurisation starting: the building's air pressure rises by ``rise_pa`` Pa
+    (uniform; stairwell pressurisation is designed for 12.5-87 Pa, NFPA 92) at a random share
+    ``at`` of the walk and stays. A barometer reads it as a drop in height of ``rise / 11.8`` m
+    (1.7-4.2 m), with no step taken. Returns ``(start, end, offset hPa)`` with ``end = inf``."""
+    rng = np.random.default_rng(seed)
+    return t0 + rng.uniform(*at) * (t1 - t0), np.inf, rng.uniform(*rise_pa) / 100.0
+
+
+def door_pulses(t0: float, t1: float, seed, per_min: float = 1.0, length_s: tuple[float, float] = (3.0, 20.0),
+                dp_pa: tuple[float, float] = (10.0, 40.0)) -> list[tuple[float, float, float]]:
+    """Doors into pressurised stairwells and lobbies opened and shut, air handling switching:
+    ``per_min`` stretches a minute on average, each ``length_s`` long (uniform), in which the
+    pressure is off by ``dp_pa`` Pa (uniform, either sign; 0.8-3.4 m of apparent height).
+    Returns ``[(start, end, offset hPa), ...]``, in order, not overlapping."""
+    rng = np.random.default_rng(seed)
+    out, t = [], t0 + rng.exponential(60.0 / per_min)
+    while t < t1:
+        length = rng.uniform(*length_s)
+        out.append((t, min(t + length, t1), rng.choice((-1.0, 1.0)) * rng.uniform(*dp_pa) / 100.0))
+        t += length + rng.exponential(60.0 / per_min)
+    return out
+
+
+def pressure_offsets(t: np.ndarray, pressure: np.ndarray, stretches, ramp_s: float = 2.0) -> np.ndarray:
+    """The pressure (hPa) with each stretch's ``(start, end, offset)`` added, faded in and out
+    over ``ramp_s`` (raised cosine: a fan spinning up, a door swinging)."""
+    t = np.asarray(t, float)
+    out = np.array(pressure, float, copy=True).reshape(len(t), -1)
+    for start, end, offset in stretches:
+        up = np.clip((t - start) / ramp_s, 0.0, 1.0)
+        down = np.clip((end - t) / ramp_s, 0.0, 1.0)
+        out += (offset * 0.5 * (1.0 - np.cos(np.pi * np.minimum(up, down))))[:, None]
+    return out
+
+
+def pressure_drift(t: np.ndarray, pressure: np.ndarray, seed, total_hpa: tuple[float, float] = (0.15, 0.3)) -> np.ndarray:
+    """Weather and the building's air handling: the pressure drifts linearly by ``total_hpa``
+    (uniform, either sign; 1.3-2.5 m of apparent height) across the walk."""
+    rng = np.random.default_rng(seed)
+    t = np.asarray(t, float)
+    total = rng.choice((-1.0, 1.0)) * rng.uniform(*total_hpa)
+    share = (t - t[0]) / max(float(t[-1] - t[0]), 1e-9)
+    return np.array(pressure, float, copy=True).reshape(len(t), -1) + (total * share)[:, None]
+
+
+def cheap_barometer(t: np.ndarray, pressure: np.ndarray, seed, rate_hz: float = 1.0,
+                    noise_hpa: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """A cheaper barometer: ``rate_hz`` readings with white noise of ``noise_hpa`` rms (0.4 m)."""
+    tt, v = resample(t, np.asarray(pressure, float).reshape(len(t), -1), rate_hz)
+    return tt, v + np.random.default_rng(seed).normal(0.0, noise_hpa, v.shape)

@@ -129,6 +129,24 @@ def mag_near_steel(rec: Recording, seed) -> Recording:
     return _each(rec, lambda name, s: (s.t, P.near_steel(s.t, s.values, stretches)), names=("mag",))
 
 
+def _pressure(fn):
+    """A barometer perturbation ``fn(t, values, seed) -> values`` or ``-> (t, values)``."""
+    def apply(rec: Recording, seed) -> Recording:
+        def one(name, s):
+            out = fn(s.t, s.values, seed)
+            return out if isinstance(out, tuple) else (s.t, out)
+        return _each(rec, one, names=("pressure",))
+    return apply
+
+
+def _stretches(draw):
+    """Pressure offsets over stretches drawn for the walk (``draw(t0, t1, seed)``)."""
+    def apply(rec: Recording, seed) -> Recording:
+        stretches = draw(*_t0_t1(rec), seed)
+        return _pressure(lambda t, v, _: P.pressure_offsets(t, v, stretches))(rec, seed)
+    return apply
+
+
 def dropped_samples(fraction: float = 0.1):
     def apply(rec: Recording, seed) -> Recording:
         def one(name, s):
@@ -198,6 +216,14 @@ PERTURBATIONS: dict[str, Perturbation] = {p.name: p for p in [
     Perturbation("phone50_steel", "phone50_worn walking past steel (mag_steel)",
                  together(resampled(50.0), turned_in_hand(X, angle_deg=25.0, at=None, turn_s=0.0), gyro_bias(0.5),
                           acc_bias(0.15), mag_near_steel)),
+    Perturbation("ppv_fan", "a ventilation fan (or a stairwell's pressurisation) starts: +20-50 Pa from 20-60 % of the "
+                 "walk on (1.7-4.2 m lower to the barometer, no step taken)",
+                 _stretches(lambda t0, t1, seed: [P.fan_started(t0, t1, seed)])),
+    Perturbation("baro_doors", "doors of pressurised stairwells and lobbies: ±10-40 Pa for 3-20 s, once a minute",
+                 _stretches(P.door_pulses)),
+    Perturbation("baro_drift", "weather and air handling: the pressure drifts by ±0.15-0.3 hPa across the walk",
+                 _pressure(P.pressure_drift)),
+    Perturbation("baro_cheap", "a cheaper barometer: 1 Hz, 0.05 hPa rms noise", _pressure(P.cheap_barometer)),
     Perturbation("drops", "10 % of the samples of each sensor lost at random", dropped_samples(0.1)),
     Perturbation("gaps", "one gap of 0.2-2 s (nothing logged) in every 30 s", gaps),
 ]}
