@@ -409,10 +409,16 @@ class StairsSettings:
     tread_m: float = 0.28  # m, horizontal going of one stair (seed 000: 0.28 m measured)
     riser_m: float = 0.17  # m, rise of one stair
     max_treads_per_step: int = 2
+    # the barometer's own noise per step: the threshold is at least noise_sigmas x its standard
+    # deviation (from the last noise_steps steps, robustly: a flight of stairs is a steady dz, noise
+    # is not) over √window_steps
+    noise_sigmas: float = 1.5
+    noise_steps: int = 16
 
     def __post_init__(self) -> None:
-        if self.window_steps < 1 or self.max_treads_per_step < 1:
-            raise ValueError("window_steps and max_treads_per_step must be at least 1")
+        if self.window_steps < 1 or self.max_treads_per_step < 1 or self.noise_steps < 2 or self.noise_sigmas < 0:
+            raise ValueError("window_steps and max_treads_per_step must be at least 1, noise_steps at least 2, "
+                             "noise_sigmas not negative")
         if self.min_dz_per_step <= 0 or self.tread_m <= 0 or self.riser_m <= 0:
             raise ValueError("min_dz_per_step, tread_m and riser_m must be positive")
 
@@ -448,11 +454,43 @@ class StairsDetector:
     rather than one step, because the barometer's noise (a few cm per step after the
     low-pass, and the phone moving in the hand) is not much smaller than a riser. The
     pipeline then replaces the step's length by ``steps.length`` where ``on_stairs``.
+
+    **A noisy barometer raises the threshold.** A phone whose barometer reads 0.05 hPa of noise
+    at 1 Hz (0.4 m; seed 002 §4.1 names 0.17 hPa) gives steps dz of 0.17 m (std) on a level walk:
+    ``min_dz_per_step`` then put half the steps of a walk on stairs, each 0.28 m long (the
+    robustness suite's ``baro_cheap``: pooled p75 3.50 -> 5.64 m). The threshold is
+    ``max(min_dz_per_step, noise_sigmas · σ / √window_steps)`` with σ the noise of dz from the
+    last ``noise_steps`` steps, ``1.4826 · median|dz_k − dz_{k−1}| / √2`` (a flight is a steady
+    dz, so its differences are small; the noise's are not).
     """
+
+    _diffs: tuple = ()  # the last noise_steps |dz_k - dz_k-1| (a detector restored from before the noise test: none)
+    _last_dz = float("nan")
 
     def __init__(self, settings: StairsSettings | None = None):
         self.settings = settings or StairsSettings()
         self._tail = np.empty(0)  # the last window_steps - 1 step dz (fewer at the start)
+        self._diffs = ()
+        self._last_dz = float("nan")
+
+    def _thresholds(self, dz: np.ndarray) -> np.ndarray:
+        """Each step's threshold: ``min_dz_per_step``, or the noise test's if higher (class docstring);
+        the steps up to it."""
+        s = self.settings
+        out = np.full(dz.size, s.min_dz_per_step)
+        diffs, last = list(self._diffs), self._last_dz
+        scale = s.noise_sigmas * 1.4826 / (np.sqrt(2.0) * np.sqrt(s.window_steps))
+        for i, d in enumerate(dz.tolist()):
+            if d - d == 0.0:
+                if last - last == 0.0:
+                    diffs.append(abs(d - last))
+                    if len(diffs) > s.noise_steps:
+                        del diffs[0]
+                last = d
+            if len(diffs) >= 4:
+                out[i] = max(s.min_dz_per_step, scale * float(np.median(diffs)))
+        self._diffs, self._last_dz = tuple(diffs), last
+        return out
 
     def _window_mean(self, dz: np.ndarray) -> np.ndarray:
         """Mean of ``dz`` over each step's window, with the steps kept from earlier batches.
@@ -482,7 +520,7 @@ class StairsDetector:
     def update(self, dz) -> StairSteps:
         dz = np.asarray(dz, dtype=np.float64).reshape(-1)
         mean = self._window_mean(dz)
-        on = np.abs(mean) >= self.settings.min_dz_per_step
+        on = np.abs(mean) >= self._thresholds(dz)
         length = np.full(mean.shape, np.nan)
         if on.any():  # each element alone: the same lengths as over the whole batch
             length[on] = stair_step_length(mean[on], self.settings)

@@ -369,6 +369,31 @@ def test_stairs_detector_on_synthetic_step_dz():
         np.testing.assert_array_equal(np.concatenate([p.mean_dz for p in parts]), steps.mean_dz)
 
 
+def test_a_noisy_barometer_raises_the_stairs_threshold():
+    """A level walk read by a barometer whose steps' dz have 0.17 m of noise (the robustness
+    suite's baro_cheap) is not put on stairs, while a flight read by the same barometer still
+    is. White noise of σ per step passes the 1.5 σ threshold on the two-step mean about one step
+    in eight (on baro_cheap's walks, where the low-pass correlates it, 14 of 235 on T03r03);
+    with the noise test off (noise_sigmas 0) nearly half the level steps were stairs."""
+    rng = np.random.default_rng(11)
+    level = rng.normal(0.0, 0.17, 400)
+    flight = 0.34 + rng.normal(0.0, 0.01, 20)  # two risers a step (a flight taken briskly)
+    dz = np.concatenate([level[:200], flight, level[200:]])
+    truth = np.zeros(dz.size, bool)
+    truth[200:220] = True
+    steps = StairsDetector().update(dz)
+    assert steps.on_stairs[~truth].mean() < 0.2 and steps.on_stairs[truth].mean() > 0.9
+    old = StairsDetector(StairsSettings(noise_sigmas=0.0)).update(dz)
+    assert old.on_stairs[~truth].mean() > 0.4
+    for size in (1, 9):  # batches equal one batch
+        d = StairsDetector()
+        parts = [d.update(dz[i:i + size]) for i in range(0, dz.size, size)]
+        np.testing.assert_array_equal(np.concatenate([p.on_stairs for p in parts]), steps.on_stairs)
+    restored = StairsDetector()  # a detector pickled before the noise test goes on
+    del restored.__dict__["_diffs"], restored.__dict__["_last_dz"]
+    assert restored.update(dz[:50]).on_stairs.shape == (50,)
+
+
 def test_stairs_from_barometer_heights_at_step_times():
     """Steps every 0.55 s through the two-floor climb: stair steps flagged, level ones not."""
     t, h, _ = two_floors_up()
