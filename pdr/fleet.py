@@ -5,7 +5,8 @@ a second. Run one responder at a time, the cost is the Python around each stage,
 arithmetic (issue 15: 0.4-0.6 ms per frame, for about 2 µs of compiled work). Here a **round**
 — every frame a worker took, for all its responders — goes through each stage once, in
 compiled kernels over rows of state, one row per responder (:class:`pdr.fleet_rows.FleetRows`):
-height and floor (:mod:`pdr.fleet_kernels`), heading per sample, the motion windows, step
+the air guard on the barometer (:mod:`pdr.air_guard`), height and floor
+(:mod:`pdr.fleet_kernels`), heading per sample, the motion windows, step
 detection (:mod:`pdr.detector_kernels`) and the motion-state grid. One responder alone is a
 fleet of one (:class:`pdr.pipeline.PdrPipeline`).
 
