@@ -487,8 +487,10 @@ class StairsDetector:
                     if len(diffs) > s.noise_steps:
                         del diffs[0]
                 last = d
-            if len(diffs) >= 4:
-                out[i] = max(s.min_dz_per_step, scale * float(np.median(diffs)))
+            if len(diffs) >= 4:  # the median of at most noise_steps numbers, per step: sorted, not numpy's
+                ranked, mid = sorted(diffs), len(diffs) // 2
+                median = ranked[mid] if len(ranked) % 2 else (ranked[mid - 1] + ranked[mid]) / 2.0
+                out[i] = max(s.min_dz_per_step, scale * median)
         self._diffs, self._last_dz = tuple(diffs), last
         return out
 

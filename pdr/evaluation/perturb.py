@@ -208,11 +208,16 @@ def near_steel(t: np.ndarray, mag: np.ndarray, stretches, ramp_s: float = 1.0) -
     t = np.asarray(t, float)
     out = np.array(mag, float, copy=True)
     for start, end, offset in stretches:
-        up = np.clip((t - start) / ramp_s, 0.0, 1.0)
-        down = np.clip((end - t) / ramp_s, 0.0, 1.0)
-        w = 0.5 * (1.0 - np.cos(np.pi * np.minimum(up, down)))
-        out += np.outer(w, offset)
+        out += np.outer(faded(t, start, end, ramp_s), offset)
     return out
+
+
+def faded(t: np.ndarray, start: float, end: float, ramp_s: float) -> np.ndarray:
+    """Weight 0..1 of a stretch ``[start, end]`` at times ``t``: faded in after ``start`` and
+    out before ``end`` over ``ramp_s`` (raised cosine)."""
+    up = np.clip((t - start) / ramp_s, 0.0, 1.0)
+    down = np.clip((end - t) / ramp_s, 0.0, 1.0)
+    return 0.5 * (1.0 - np.cos(np.pi * np.minimum(up, down)))
 
 
 # --------------------------------------------------------------------------------------------
@@ -282,9 +287,7 @@ def pressure_offsets(t: np.ndarray, pressure: np.ndarray, stretches, ramp_s: flo
     t = np.asarray(t, float)
     out = np.array(pressure, float, copy=True).reshape(len(t), -1)
     for start, end, offset in stretches:
-        up = np.clip((t - start) / ramp_s, 0.0, 1.0)
-        down = np.clip((end - t) / ramp_s, 0.0, 1.0)
-        out += (offset * 0.5 * (1.0 - np.cos(np.pi * np.minimum(up, down))))[:, None]
+        out += (offset * faded(t, start, end, ramp_s))[:, None]
     return out
 
 
