@@ -175,6 +175,23 @@ def onto_grid(t, a, det, r, max_gap):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def finite_pairs(T, A, a0, a1):  # pragma: no cover - compiled
+    """The samples ``a0 <= i < a1`` whose time ``T[i]`` and value ``A[i]`` are both finite (a
+    frame's NaN padding and unset values left out): ``(t, a, index)``."""
+    k = 0
+    for i in range(a0, a1):
+        if T[i] - T[i] == 0.0 and A[i] - A[i] == 0.0:
+            k += 1
+    t, a, idx = np.empty(k), np.empty(k), np.empty(k, np.int64)
+    k = 0
+    for i in range(a0, a1):
+        if T[i] - T[i] == 0.0 and A[i] - A[i] == 0.0:
+            t[k], a[k], idx[k] = T[i], A[i], i
+            k += 1
+    return t, a, idx
+
+
+@njit(cache=True)
 def detector_stage(slots, off, T, A, use_raw, det, sos, zi, zi_unit, raws, tails, swings, bouts, cfg,
                    out, out_slot):  # pragma: no cover - compiled
     """Band-pass and the norm detector's scan (:class:`pdr.steps.norm.NormDetector`) for
@@ -195,18 +212,7 @@ def detector_stage(slots, off, T, A, use_raw, det, sos, zi, zi_unit, raws, tails
             a = raw[:, 1].copy()
             raws[r] = np.empty((0, 2))
         else:
-            a0, a1 = off[j], off[j + 1]
-            k = 0
-            for i in range(a0, a1):
-                if T[i] - T[i] == 0.0 and A[i] - A[i] == 0.0:
-                    k += 1
-            t = np.empty(k)
-            a = np.empty(k)
-            k = 0
-            for i in range(a0, a1):
-                if T[i] - T[i] == 0.0 and A[i] - A[i] == 0.0:
-                    t[k], a[k] = T[i], A[i]
-                    k += 1
+            t, a, _ = finite_pairs(T, A, off[j], off[j + 1])
         t, a = onto_grid(t, a, det, r, max_gap)
         n = t.shape[0]
         if n == 0:

@@ -31,6 +31,7 @@ from scipy import signal
 
 from pdr import detector_kernels as DK
 from pdr import fleet_kernels as K
+from pdr.air_guard import AirGuardSettings, air_stage
 from pdr.constants import GRAVITY
 from pdr.events import FloorEvent, MotionEvent, MotionState, StepDetection, StepEvent
 from pdr.fleet_buffers import get_rows, set_rows
@@ -157,6 +158,7 @@ class PdrFleet:
         self._rate_window = float(ds.rate_window_s)
         self._elev = self.floors.heights
         self._floor_p = FloorTracker(self.floors, int(self.floors.floors[0]), s.floor).kernel_params
+        self._air_p = s.air.kernel_params
         self._grid_cfg = np.array([s.state_grid_s, s.state_delay_s, s.still_after_s, s.no_motion_after_s])
         self.rows = FleetRows(d.filter_sections(100.0).shape[0], self._bout_n, self._elev.shape[0], capacity)
         self.members: list[FleetMember] = []
@@ -169,6 +171,10 @@ class PdrFleet:
         return d
 
     def __setstate__(self, d: dict) -> None:
+        if "_air_p" not in d:  # a snapshot from before the air guard: its settings gain the default guard
+            if not hasattr(d["settings"], "air"):
+                object.__setattr__(d["settings"], "air", AirGuardSettings())
+            d["_air_p"] = d["settings"].air.kernel_params
         self.__dict__.update(d)
         self._designs = {}
         self._attach()  # pickled with the fleet, the trackers' views came back as copies: views again
@@ -236,6 +242,8 @@ class PdrFleet:
                 pres.append((k, m, _floats(f.pressure_t), _floats(f.pressure)))
             if t.size:
                 imu.append((k, m, t, f))
+        if self.settings.air.enabled and (pres or imu):  # pressure changes no motion explains are the air's
+            pres = self._air_round(imu, pres)
         if pres:
             self._height_round(pres)
         steps: dict[int, list] = {}
@@ -248,6 +256,31 @@ class PdrFleet:
                 ev = self._release(m, [], R.mot[m.slot, K.M_TLAST] - self.settings.floor_event_hold_s)
             results[k] = merge_events(ev or [], motion.get(k, []))
         return results
+
+    def _air_round(self, imu, pres) -> list:
+        """Each member's frame through its air guard (:mod:`pdr.air_guard`): the IMU samples as
+        evidence, the pressure samples less the air offset (returned as ``pres`` is)."""
+        order = [m.slot for _, m, _, _ in imu]
+        at = {slot: i for i, slot in enumerate(order)}
+        alone = [m.slot for _, m, _, _ in pres if m.slot not in at]  # pressure without IMU samples
+        for slot in alone:
+            at[slot] = len(order)
+            order.append(slot)
+        n = len(order)
+        ioff = np.zeros(n + 1, np.int64)
+        ioff[1:len(imu) + 1] = np.cumsum([t.size for _, _, t, _ in imu])
+        ioff[len(imu) + 1:] = ioff[len(imu)]
+        TI = np.concatenate([t for _, _, t, _ in imu]) if imu else np.empty(0)
+        AN = norm3(np.ascontiguousarray(np.concatenate([_floats(f.acc, 3) for _, _, _, f in imu]))) if imu \
+            else np.empty(0)
+        by = {m.slot: (t, p) for _, m, t, p in pres}
+        sizes = [by[slot][0].size if slot in by else 0 for slot in order]
+        poff = np.zeros(n + 1, np.int64)
+        poff[1:] = np.cumsum(sizes)
+        PT = np.concatenate([by[slot][0] for slot in order if slot in by]) if pres else np.empty(0)
+        PV = np.concatenate([by[slot][1] for slot in order if slot in by]) if pres else np.empty(0)
+        PV = air_stage(np.array(order, np.int64), ioff, TI, AN, poff, PT, PV, self.rows.air, self._air_p)
+        return [(k, m, t, PV[poff[at[m.slot]]:poff[at[m.slot] + 1]]) for k, m, t, _ in pres]
 
     def _height_round(self, pres) -> None:
         s, R = self.settings, self.rows

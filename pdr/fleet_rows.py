@@ -18,6 +18,7 @@ rows                   what they hold (one row per responder)
 ``height``             reference height and last height (``pres``: recent (t, height))
 ``fs`` ... ``pred``    the floor tracker (:meth:`pdr.floors.FloorTracker.rows`)
 ``t_first``            the first sample time of the responder's frame in the current round
+``air``                the air guard (:mod:`pdr.air_guard`, ``A_*``)
 =====================  ===================================================================
 """
 from __future__ import annotations
@@ -30,6 +31,7 @@ from pdr import detector_kernels as DK
 from pdr import fleet_buffers as B
 from pdr import fleet_kernels as K
 from pdr.ahrs._decoupled_kernel import N_STATE as AHRS_STATE
+from pdr.air_guard import A_STATE, AIR_START
 from pdr.floor_kernels import F_RING, F_STATE
 from pdr.heading import BUF_COLUMNS
 from pdr.heading_kernels import EPOCH_STATE
@@ -61,7 +63,7 @@ class FleetRows:
             "height": ((), "f8", np.nan), "fs": ((F_STATE,), "f8", np.nan), "ring_t": ((F_RING,), "f8", 0.0),
             "ring_z": ((F_RING,), "f8", 0.0), "rr": ((n_floors,), "f8", 0.0), "known": ((n_floors,), "i8", 0),
             "learned": ((n_floors,), "f8", 0.0), "pred": ((n_floors,), "f8", 0.0), "t_first": ((), "f8", np.nan),
-            "hb_end": ((), "i8", -1),
+            "hb_end": ((), "i8", -1), "air": ((A_STATE,), "f8", AIR_START),
         }
         self.n = 0  # slots in use or free below the top
         self.cap = 0
@@ -156,6 +158,9 @@ class FleetRows:
             d["layout"]["hb_end"] = ((), "i8", -1)
             d["hb_end"] = np.full(d["n"], -1, np.int64)
             d["hbases"] = (np.zeros(len(d["hbufs"][0]), np.int64), np.empty((0, HBUF_COLS)))
+        if "air" not in d["layout"]:  # a snapshot from before the air guard: each guard starts afresh
+            d["layout"]["air"] = ((A_STATE,), "f8", AIR_START)
+            d["air"] = np.full((d["n"], A_STATE), AIR_START)
         fs_shape, fs_type, fs_fill = d["layout"]["fs"]
         if fs_shape[0] < F_STATE:  # a snapshot from before the floor tracker's later fields: they start empty
             d["layout"]["fs"] = ((F_STATE,), fs_type, fs_fill)

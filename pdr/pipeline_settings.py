@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from pdr.air_guard import AirGuardSettings
 from pdr.floors import FloorSettings, StairsSettings
 from pdr.heading import HeadingSettings
 from pdr.height import AltimeterSettings
@@ -19,6 +20,7 @@ class PipelineSettings:
     profile: ResponderProfile = field(default_factory=ResponderProfile)
     heading: HeadingSettings = field(default_factory=HeadingSettings)
     altimeter: AltimeterSettings = field(default_factory=AltimeterSettings)
+    air: AirGuardSettings = field(default_factory=AirGuardSettings)  # pressure changes no motion explains (pdr.air_guard)
     floor: FloorSettings = field(default_factory=FloorSettings)
     stairs: StairsSettings = field(default_factory=StairsSettings)
     length_sigma_m: float = 0.05  # σ_0, m: step-length uncertainty floor
