@@ -23,6 +23,7 @@ then ``fleet.run([(m1, frame1), (m2, frame2), ...])`` per round -> one list of e
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 
@@ -128,6 +129,24 @@ class FleetMember:
         mot = self.fleet.rows.mot[self.slot]
         last, first = float(mot[K.M_LAST_MOVING]), float(mot[K.M_FIRST])
         return last if math.isfinite(last) else first
+
+
+@dataclasses.dataclass(frozen=True)
+class _ImuStack:
+    """A round's IMU samples, every member's frame one after the other: offsets ``off`` (J + 1),
+    times ``T``, specific force ``ACC`` (N, 3) and its norm ``AN``."""
+
+    off: np.ndarray
+    T: np.ndarray
+    ACC: np.ndarray
+    AN: np.ndarray
+
+    @staticmethod
+    def of(imu) -> "_ImuStack":
+        off = np.zeros(len(imu) + 1, np.int64)
+        off[1:] = np.cumsum([t.size for _, _, t, _ in imu])
+        ACC = np.ascontiguousarray(np.concatenate([_floats(f.acc, 3) for _, _, _, f in imu]))
+        return _ImuStack(off, np.concatenate([t for _, _, t, _ in imu]), ACC, norm3(ACC))
 
 
 class PdrFleet:
@@ -242,14 +261,15 @@ class PdrFleet:
                 pres.append((k, m, _floats(f.pressure_t), _floats(f.pressure)))
             if t.size:
                 imu.append((k, m, t, f))
-        if self.settings.air.enabled and (pres or imu):  # pressure changes no motion explains are the air's
-            pres = self._air_round(imu, pres)
+        stack = _ImuStack.of(imu) if imu else None  # the round's IMU samples, stacked once for the guard and the IMU round
+        if self.settings.air.enabled and (pres or imu):  # pressure changes no motion explains are the air's (the IMU samples feed its walking test even without pressure)
+            pres = self._air_round(imu, stack, pres)
         if pres:
             self._height_round(pres)
         steps: dict[int, list] = {}
         motion: dict[int, list] = {}
         if imu:
-            steps, motion = self._imu_round(imu)
+            steps, motion = self._imu_round(imu, stack)
         for k, m, _, _ in imu:  # a frame of pressure alone answers nothing
             ev = steps.get(k)
             if ev is None and m.slot in self._floor_work:
@@ -257,7 +277,7 @@ class PdrFleet:
             results[k] = merge_events(ev or [], motion.get(k, []))
         return results
 
-    def _air_round(self, imu, pres) -> list:
+    def _air_round(self, imu, stack, pres) -> list:
         """Each member's frame through its air guard (:mod:`pdr.air_guard`): the IMU samples as
         evidence, the pressure samples less the air offset (returned as ``pres`` is)."""
         order = [m.slot for _, m, _, _ in imu]
@@ -268,11 +288,10 @@ class PdrFleet:
             order.append(slot)
         n = len(order)
         ioff = np.zeros(n + 1, np.int64)
-        ioff[1:len(imu) + 1] = np.cumsum([t.size for _, _, t, _ in imu])
+        if stack is not None:
+            ioff[:len(imu) + 1] = stack.off
         ioff[len(imu) + 1:] = ioff[len(imu)]
-        TI = np.concatenate([t for _, _, t, _ in imu]) if imu else np.empty(0)
-        AN = norm3(np.ascontiguousarray(np.concatenate([_floats(f.acc, 3) for _, _, _, f in imu]))) if imu \
-            else np.empty(0)
+        TI, AN = (stack.T, stack.AN) if stack is not None else (np.empty(0), np.empty(0))
         by = {m.slot: (t, p) for _, m, t, p in pres}
         sizes = [by[slot][0].size if slot in by else 0 for slot in order]
         poff = np.zeros(n + 1, np.int64)
@@ -309,15 +328,11 @@ class PdrFleet:
             m.floor_events.changed(c)
             self._floor_work.add(m.slot)
 
-    def _imu_round(self, imu):
+    def _imu_round(self, imu, stack: _ImuStack):
         s, R = self.settings, self.rows
         J = len(imu)
         slots = np.array([m.slot for _, m, _, _ in imu], np.int64)
-        sizes = np.array([t.size for _, _, t, _ in imu], np.int64)
-        off = np.zeros(J + 1, np.int64)
-        off[1:] = np.cumsum(sizes)
-        T = np.concatenate([t for _, _, t, _ in imu])
-        ACC = np.ascontiguousarray(np.concatenate([_floats(f.acc, 3) for _, _, _, f in imu]))
+        off, T, ACC, AN = stack.off, stack.T, stack.ACC, stack.AN
         GYR = np.ascontiguousarray(np.concatenate([_floats(f.gyr, 3) for _, _, _, f in imu]))
         has_mag = np.array([f.mag is not None for _, _, _, f in imu], np.bool_)
         if has_mag.all():
@@ -336,7 +351,6 @@ class PdrFleet:
             R.mot[slots[new], K.M_T0] = first[new]
         R.mot[slots, K.M_TLAST] = T[off[1:] - 1]
         R.t_first[slots] = first
-        AN = norm3(ACC)
         # heading, per sample
         hs = s.heading
         ep_rows = np.empty((T.size + J, len(EPOCH_COLUMNS)))
