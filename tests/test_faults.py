@@ -311,7 +311,8 @@ def serve_killed_and_restarted(tmp_path, pki=None) -> dict:
         assert len(f["segments"]) == 2 and f["resumed"], said
         assert f["live_steps"] == f["reference_steps"], said
         assert same and f["final_distance_to_uninterrupted_m"] < 1.0, said
-        assert f["reprocess_max_deviation_m"] == 0.0 and f["unmatched_live_poses"] == 0
+        assert f["reprocess_max_deviation_m"] == 0.0 and f["unmatched_live_poses"] == 0, \
+            (rp["responders"]["ff1"]["worst_pose"], said)
         return f
     finally:
         if serve.poll() is None:

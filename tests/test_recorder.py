@@ -299,3 +299,22 @@ def test_read_only_directory(tmp_path):
             IncidentRecorder(ro / "a.mcap", "demo")
     finally:
         ro.chmod(0o755)
+
+
+def test_a_receive_time_stamped_as_recorded_is_read_back_to_the_bit(tmp_path):
+    """The file keeps whole nanoseconds: a clock reading of today goes through ``round(t·1e9)``
+    and ``/1e9``, and some come back one ulp off. The shell stamps inputs with
+    :func:`as_recorded`, which the recording gives back exactly (live = reprocess)."""
+    from service.review.recorder import as_recorded
+
+    rng = np.random.default_rng(3)
+    raw = sorted((time.time() + rng.uniform(-3e7, 3e7, 2000)).tolist())  # a recording reads back in time order
+    stamped = [as_recorded(t) for t in raw]
+    path = tmp_path / "t.mcap"
+    with IncidentRecorder(path, "demo") as rec:
+        for i, t in enumerate(stamped):
+            rec.write("firetrack/demo/ff1/imu", msgpack.packb(i), t)
+    back = [m.receive_time for m in read_recording(path)]
+    assert back == stamped
+    assert all(abs(a - b) <= 1e-6 for a, b in zip(raw, stamped))  # a nanosecond's rounding at most, in ulps
+    assert sum(round(t * 1e9) / 1e9 != t for t in raw) > 0  # the raw readings would not all come back

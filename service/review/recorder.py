@@ -331,6 +331,21 @@ class _WriteGuard:
         return False
 
 
+def as_recorded(t: float) -> float:
+    """``t`` (Unix s) as a recording gives it back. The file keeps whole nanoseconds
+    (``log_time``) and the reader divides by 10⁹; for about 7 % of today's clock readings
+    ``round(t · 10⁹) / 10⁹`` is not ``t`` but its neighbour, one ulp (238 ns) away. The shell
+    stamps every input with this, so the core live sees the receive times ``reprocess`` will
+    (the promise live = reprocess, bit for bit). One application reaches a value that round-trips
+    (checked on 10⁶ readings); the loop is the guarantee."""
+    for _ in range(4):
+        r = round(t * 1e9) / 1e9
+        if r == t:
+            break
+        t = r
+    return t
+
+
 def _to_ns(t: float, what: str, key: str) -> int:
     try:
         ns = round(float(t) * 1e9)
@@ -342,6 +357,6 @@ def _to_ns(t: float, what: str, key: str) -> int:
 
 
 __all__ = [
-    "INPUT_KINDS", "IncidentRecorder", "RecordedMessage", "RecordingReader", "RecordingWriteError",
+    "INPUT_KINDS", "as_recorded", "IncidentRecorder", "RecordedMessage", "RecordingReader", "RecordingWriteError",
     "TruncatedRecordingWarning", "next_segment_path", "parse_key", "read_recording", "recording_summary", "segment_paths",
 ]

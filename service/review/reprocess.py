@@ -41,6 +41,7 @@ class ResponderReview:
     poses: int = 0
     recorded_poses: int = 0
     max_deviation_m: float | None = None
+    worst_pose: tuple | None = None  # (t, steps, live x, y, reprocessed x, y) where the deviation is largest
     unmatched: int = 0
     xy: list = field(default_factory=list)
     live: list = field(default_factory=list)  # (t, x, y, floor, yaw, cov_xx, cov_xy, cov_yy, unix) per published pose
@@ -102,7 +103,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         if live is None:
             continue
         r.recorded_poses = len(live)
-        r.max_deviation_m, r.unmatched = _compare(live, mine.get(rid, []))
+        r.max_deviation_m, r.unmatched, r.worst_pose = _compare(live, mine.get(rid, []))
         worst = r.max_deviation_m if worst is None else max(worst, r.max_deviation_m)
     duration = _duration(path)
     tracks = {}
@@ -117,6 +118,7 @@ def reprocess(path: Path, incident_cfg, progress=None) -> dict:
         "responders": {rid: {"steps": r.steps, "distance_live_m": r.distance_m,
                              "distance_smoothed_m": _walked(tracks.get(rid)), "poses": r.poses,
                              "recorded_poses": r.recorded_poses, "max_deviation_m": r.max_deviation_m,
+                             "worst_pose": r.worst_pose,
                              "unmatched_live_poses": r.unmatched, **answers.get(rid, {})}
                        for rid, r in sorted(out.items())},
         "max_deviation_m": worst,
@@ -145,11 +147,12 @@ def _answers(r) -> dict:
             "man_down": verdict, "man_down_at": None if at is None else at - r.t_offset}
 
 
-def _compare(live: list, mine: list) -> tuple[float, int]:
+def _compare(live: list, mine: list) -> tuple[float, int, tuple | None]:
     """Each live pose against the reprocessed pose of the same time and step count, in order:
-    the largest distance (m) and how many live poses had none (inf when any had none). Extra
-    reprocessed poses (their live record lost with a crashed chunk) are skipped."""
-    worst, unmatched, j = 0.0, 0, 0
+    the largest distance (m), how many live poses had none (inf when any had none), and where
+    the largest is (t, steps, live x, y, reprocessed x, y; None when every pose is equal).
+    Extra reprocessed poses (their live record lost with a crashed chunk) are skipped."""
+    worst, unmatched, j, at = 0.0, 0, 0, None
     for t, steps, x, y in live:
         k = j
         while k < len(mine) and (mine[k][0], mine[k][1]) != (t, steps):
@@ -157,9 +160,13 @@ def _compare(live: list, mine: list) -> tuple[float, int]:
         if k == len(mine):
             unmatched += 1
             continue
-        worst = max(worst, math.hypot(mine[k][2] - x, mine[k][3] - y))
+        d = math.hypot(mine[k][2] - x, mine[k][3] - y)
+        if d > worst:
+            worst, at = d, (t, steps, x, y, mine[k][2], mine[k][3])
         j = k + 1
-    return (math.inf if unmatched else worst), unmatched
+    return (math.inf if unmatched else worst), unmatched, at
+
+
 def _live_track(rows: list, utc_offset) -> dict:
     """The poses as the service published them, with their covariance (m², ENU) and the UTC
     time each is at (``unix``: its device time + the wearable's UTC offset; without one, +

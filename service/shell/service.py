@@ -56,6 +56,7 @@ import zenoh
 from service.core.incident_core import CoreSettings, Inbound, IncidentCore, Outbound
 from service.protocol import wire
 from service.protocol.incident import IncidentConfig
+from service.review.recorder import as_recorded
 from service.shell.round_intake import RoundIntake
 from service.shell.shard_routes import ShardRoutes
 from service.shell.sharding import in_shard, owns
@@ -83,6 +84,17 @@ class ServiceSettings:
     mmap_threshold_bytes: int | None = 128 * 1024  # bytes: larger blocks mapped alone, returned when freed (None: glibc's)
     slow_s_per_frame: float = 0.0  # s the worker idles per message it takes (tests: a worker that cannot keep up)
     behind_warn_s: float = 1.0  # s: the service's lag (service.core.lag) from which the log says it is behind
+
+
+def _recorded_clock(clock):
+    """``clock`` read as a recording keeps it (:func:`service.review.recorder.as_recorded`)."""
+    if getattr(clock, "recorded", False):
+        return clock
+
+    def now() -> float:
+        return as_recorded(clock())
+    now.recorded = True
+    return now
 
 
 class IncidentService(SnapshotWriter):
@@ -114,7 +126,8 @@ class IncidentService(SnapshotWriter):
         self.actor = actor  # this service's identity (its certificate's name with --tls): the key of its access record
         self.recorder = recorder
         self.recorder_error: str | None = None
-        self.clock = clock
+        # what the core is told of time is what the recording will say (whole ns): live = reprocess
+        self.clock = clock = _recorded_clock(clock)
         self.busy_s = 0.0  # wall time the worker spent on rounds (the benchmark's capacity figure)
         self.behind_s = 0.0  # s: how far behind the core's input is, as of the last tick (service.core.lag)
         self.behind_max_s = 0.0  # ... the most it was
