@@ -44,6 +44,21 @@ on the IMU's samples up to each pressure sample: its standard deviation over abo
 evidence is taken in one pass over both streams (:func:`guard_run`), so frames of any size give
 the same heights.
 
+**The air comes back.** A door is a pulse: opened while the walker walks, its pressure is kept
+out; shut while the walker stands, the height was free, so the shutting passed and the height
+stayed off by the door's pressure (1.56 m and 1.75 m on T02r04 and T04r02 under ``baro_doors``,
+docs/robustness.md, round 11). So for ``release_s`` (30 s) after the guard last kept air out, a
+standing walker's *fast* change (beyond ``still_mps``, 0.2 m/s, or the noise as above) that goes
+*against* the offset is the air returning, and comes off the offset, never past zero:
+
+    f = Δh − clip(Δh, −L_s, L_s),   L_s = max(v_still Δt, n_σ · √2 · (1 − e^(−Δt/τ_f)) · k σ_p),
+    offset ← offset + clip(−f / k, −|offset|, |offset|)   when −f/k and the offset differ in sign.
+
+A first form released any standing change against the offset; the barometer's noise drained the
+offset that way (``ppv_fan`` at seed 27: 4.65 m pooled, 10 broken walks). The cost: a lift ridden
+within 30 s of a fan kept out, in the direction opposite to the fan, loses up to the fan's
+height.
+
 What passes. A fan's rise of 45 Pa (3.8 m) in 2 s while walking leaves about 1.6 m, under the
 floor tracker's switch at 70 % of a floor's height (:mod:`pdr.floors`). A change slower than
 stairs (the weather, 1 hPa/h; a building's air handling) passes whole, as before: the floor
@@ -65,10 +80,11 @@ from pdr.detector_kernels import finite_pairs
 
 # the guard's state row: fast low-pass of p (hPa), its last time, the air offset (hPa), the newest
 # walking sample, ‖f‖'s walking mean and variance, the last IMU time, the last two raw pressures,
-# the mean |second difference| of the raw pressures (hPa) and how many went into it
-A_PF, A_T, A_AIR, A_WALK_T, A_M, A_V, A_IT, A_X1, A_X2, A_D2, A_ND2 = range(11)
-A_STATE = 11
-AIR_START = (math.nan, math.nan, 0.0, -math.inf, math.nan, 0.0, math.nan, math.nan, math.nan, 0.0, 0.0)
+# the mean |second difference| of the raw pressures (hPa) and how many went into it, the last time
+# the guard kept air out
+A_PF, A_T, A_AIR, A_WALK_T, A_M, A_V, A_IT, A_X1, A_X2, A_D2, A_ND2, A_LAST = range(12)
+A_STATE = 12
+AIR_START = (math.nan, math.nan, 0.0, -math.inf, math.nan, 0.0, math.nan, math.nan, math.nan, 0.0, 0.0, -math.inf)
 _D2_PER_SIGMA = math.sqrt(6.0) * math.sqrt(2.0 / math.pi)  # E|p_k − 2p_{k−1} + p_{k−2}| / σ for white noise
 
 
@@ -85,17 +101,22 @@ class AirGuardSettings:
     walk_tau_s: float = 0.5  # s, the walking test's averages of ‖f‖ and its variance
     walk_acc_std: float = 0.5  # m/s²
     m_per_hpa: float = 8.4  # m of height per hPa near the ground at room temperature (pdr.height)
+    release_s: float = 30.0  # s after the guard last kept air out that a standing walker's fast change against the offset is the air coming back
+    still_mps: float = 0.2  # m/s, what a standing walker's phone moves by itself (sway), beyond which a change is fast
 
     def __post_init__(self) -> None:
         for name in ("tau_fast_s", "step_climb_mps", "noise_sigmas", "noise_tau_s", "walk_tau_s", "walk_acc_std",
-                     "m_per_hpa"):
+                     "m_per_hpa", "still_mps"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"AirGuardSettings.{name} must be positive, got {getattr(self, name)!r}")
+        if not self.release_s >= 0:
+            raise ValueError(f"AirGuardSettings.release_s must be >= 0, got {self.release_s!r}")
 
     @property
     def kernel_params(self) -> np.ndarray:
         return np.array([self.tau_fast_s, self.step_climb_mps, self.noise_sigmas, self.step_grace_s,
-                         self.noise_tau_s, self.m_per_hpa, self.walk_tau_s, self.walk_acc_std], np.float64)
+                         self.noise_tau_s, self.m_per_hpa, self.walk_tau_s, self.walk_acc_std, self.release_s,
+                         self.still_mps], np.float64)
 
 
 @njit(cache=True)
@@ -139,6 +160,16 @@ def _pressure_sample(t, x, state, P):  # pragma: no cover - compiled
             lim = max(v_step * dt, n_sig * math.sqrt(2.0) * a * k * sigma)
             share = dh - min(max(dh, -lim), lim)
             state[A_AIR] -= share / k
+            if share != 0.0:
+                state[A_LAST] = t
+        elif t - state[A_LAST] <= P[8] and state[A_AIR] != 0.0:  # standing: the air kept out may come back
+            sigma = state[A_D2] / _D2_PER_SIGMA
+            lim = max(P[9] * dt, n_sig * math.sqrt(2.0) * a * k * sigma)  # m: sway and noise stay put
+            fast = dh - min(max(dh, -lim), lim)
+            dp = -fast / k  # the fast part of the low-passed pressure change (hPa)
+            if dp * state[A_AIR] < 0.0:  # the change goes against the offset: the air returning
+                back = max(-abs(state[A_AIR]), min(abs(state[A_AIR]), dp))
+                state[A_AIR] += back
     state[A_X2], state[A_X1] = state[A_X1], x
     state[A_T] = t
     return x - state[A_AIR]

@@ -161,6 +161,11 @@ class FleetRows:
         if "air" not in d["layout"]:  # a snapshot from before the air guard: each guard starts afresh
             d["layout"]["air"] = ((A_STATE,), "f8", AIR_START)
             d["air"] = np.full((d["n"], A_STATE), AIR_START)
+        air_shape, air_type, _ = d["layout"]["air"]
+        if air_shape[0] < A_STATE:  # a snapshot from before the guard's later fields: they start as a new guard's
+            d["layout"]["air"] = ((A_STATE,), air_type, AIR_START)
+            d["air"] = np.concatenate([d["air"], np.tile(np.array(AIR_START[air_shape[0]:]), (d["air"].shape[0], 1))],
+                                      axis=1)
         fs_shape, fs_type, fs_fill = d["layout"]["fs"]
         if fs_shape[0] < F_STATE:  # a snapshot from before the floor tracker's later fields: they start empty
             d["layout"]["fs"] = ((F_STATE,), fs_type, fs_fill)

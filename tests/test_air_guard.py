@@ -99,3 +99,43 @@ def test_a_fast_change_standing_passes_and_frames_equal_one_batch():
     assert out[-1] > -2.0
     for frame in (0.1, 0.73, 5.0):
         np.testing.assert_array_equal(_heights_through(T_IMU, f, TP, jump, frame), out)
+
+
+def test_a_door_opened_walking_and_shut_standing_leaves_no_offset():
+    """A door (−37 Pa: +3.1 m to the barometer, in 1.5 s) opened while the walker walks and shut
+    20 s later while the walker stands: the opening is kept out, the shutting gives it back, and
+    the height ends where it began (without the release it stayed off by what was kept out). A
+    lift ridden standing long after (beyond ``release_s``) passes whole."""
+    walking = (T_IMU < 25.0)
+    door = _ramp(TP, 10.0, 3.1, 1.5) - _ramp(TP, 30.0, 3.1, 1.5)
+    f = _imu(T_IMU, walking)
+    out = _heights_through(T_IMU, f, TP, door)
+    kept = _heights_through(T_IMU, f, TP, door, settings=AirGuardSettings(release_s=0.0))
+    assert out[(TP > 12.0) & (TP < 25.0)].max() < 2.0  # kept out while open
+    assert kept[-1] < -1.0  # without the release, the door's shutting stays in the height
+    assert abs(out[-1]) < 0.2
+    t_imu, tp = np.arange(0.0, 120.0, 0.01), np.arange(0.0, 120.0, 0.1)
+    walking = (t_imu < 25.0)
+    lift = np.interp(tp, [80.0, 80.0 + 3.0 / 0.7], [0.0, 3.0])  # one floor up at 0.7 m/s, 50 s after the door
+    door = _ramp(tp, 10.0, 3.1, 1.5)  # a door opened walking and left open
+    out = _heights_through(t_imu, _imu(t_imu, walking), tp, door + lift)
+    assert out[-1] - out[tp < 79.0][-1] == pytest.approx(3.0, abs=0.05)
+
+
+def test_a_noisy_barometer_standing_does_not_drain_the_offset():
+    """After a fan kept out while walking, 5 minutes standing with a phone barometer's noise
+    (0.01 hPa at 10 Hz): the noise's fast parts against the offset are no air coming back, and the
+    offset stays. Releasing every change against it (the first form: limits near 0) drains it."""
+    t_imu, tp = np.arange(0.0, 330.0, 0.01), np.arange(0.0, 330.0, 0.1)
+    walking = (t_imu < 25.0)
+    fan = -_ramp(tp, 20.0, 3.8, 2.0)
+    f = _imu(t_imu, walking)
+
+    def drift(settings):
+        out = _heights_through(t_imu, f, tp, fan, settings=settings, noise_hpa=0.01)
+        at_stop = np.mean(out[(tp > 25.0) & (tp < 27.0)])
+        assert at_stop > -2.0  # the fan was mostly kept out
+        return np.mean(out[-50:]) - at_stop
+
+    assert abs(drift(AirGuardSettings())) < 0.2
+    assert drift(AirGuardSettings(still_mps=1e-6, noise_sigmas=1e-6)) < -0.5
