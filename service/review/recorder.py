@@ -65,8 +65,10 @@ from service.review.recording_reader import (  # noqa: F401  (read back where it
     RecordingReader,
     TruncatedRecordingWarning,
     next_segment_path,
+    ns_of_seconds,
     read_recording,
     recording_summary,
+    seconds_of_ns,
     segment_paths,
 )
 
@@ -339,7 +341,7 @@ def as_recorded(t: float) -> float:
     (the promise live = reprocess, bit for bit). One application reaches a value that round-trips
     (checked on 10⁶ readings); the loop is the guarantee."""
     for _ in range(4):
-        r = round(t * 1e9) / 1e9
+        r = seconds_of_ns(ns_of_seconds(t))
         if r == t:
             break
         t = r
@@ -348,7 +350,7 @@ def as_recorded(t: float) -> float:
 
 def _to_ns(t: float, what: str, key: str) -> int:
     try:
-        ns = round(float(t) * 1e9)
+        ns = ns_of_seconds(t)
     except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{what} of {key!r} must be a finite number of Unix seconds, got {t!r}") from None
     if not 0 <= ns < 2**64:

@@ -25,6 +25,16 @@ from mcap.writer import MCAP0_MAGIC
 
 from service.protocol.keys import parse_key
 
+
+def ns_of_seconds(t: float) -> int:
+    """Unix seconds as the file keeps them (``log_time``, ``publish_time``): whole nanoseconds."""
+    return round(float(t) * 1e9)
+
+
+def seconds_of_ns(ns: int) -> float:
+    """... and back, as every reader of a recording gets them."""
+    return ns / 1e9
+
 RECORDING_FORMAT = "firetrack-recording/1"
 RECORDING_METADATA = "firetrack.recording"
 RESUME_ATTACHMENT = "firetrack.resume"
@@ -176,8 +186,8 @@ class RecordingReader:
             return None
         return RecordedMessage(
             key=key, incident=incident, responder=responder, kind=kind, payload=item.data,
-            receive_time=item.log_time / 1e9,
-            publish_time=None if item.publish_time == item.log_time else item.publish_time / 1e9,
+            receive_time=seconds_of_ns(item.log_time),
+            publish_time=None if item.publish_time == item.log_time else seconds_of_ns(item.publish_time),
             receive_time_ns=item.log_time,
         )
 

@@ -88,12 +88,8 @@ class ServiceSettings:
 
 def _recorded_clock(clock):
     """``clock`` read as a recording keeps it (:func:`service.review.recorder.as_recorded`)."""
-    if getattr(clock, "recorded", False):
-        return clock
-
     def now() -> float:
         return as_recorded(clock())
-    now.recorded = True
     return now
 
 
