@@ -187,13 +187,15 @@ class PdrFleet:
     def __getstate__(self) -> dict:
         d = dict(self.__dict__)
         d.pop("_designs", None)  # a cache, designed again on demand
+        d.pop("_air_p", None)  # the guard's settings as numbers: made again from the settings
         return d
 
     def __setstate__(self, d: dict) -> None:
-        if "_air_p" not in d:  # a snapshot from before the air guard: its settings gain the default guard
-            if not hasattr(d["settings"], "air"):
-                object.__setattr__(d["settings"], "air", AirGuardSettings())
-            d["_air_p"] = d["settings"].air.kernel_params
+        if not hasattr(d["settings"], "air"):  # a snapshot from before the air guard: the default guard
+            object.__setattr__(d["settings"], "air", AirGuardSettings())
+        # never the pickled numbers: a snapshot from before a guard setting existed held fewer, and the
+        # kernel would read past them (its settings read the new ones' defaults)
+        d["_air_p"] = d["settings"].air.kernel_params
         self.__dict__.update(d)
         self._designs = {}
         self._attach()  # pickled with the fleet, the trackers' views came back as copies: views again

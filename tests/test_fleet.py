@@ -282,6 +282,18 @@ def _written_before_release(rows) -> dict:
     return d
 
 
+def _fleet_before_release(fleet) -> dict:
+    """... and the fleet then: the guard's 8 numbers pickled, its settings without the release's."""
+    d = {k: v for k, v in fleet.__dict__.items() if k != "_designs"}
+    d["_air_p"] = fleet._air_p[:8].copy()
+    air = object.__new__(type(fleet.settings.air))
+    air.__dict__.update({k: v for k, v in fleet.settings.air.__dict__.items() if k not in ("release_s", "still_mps")})
+    old = object.__new__(type(d["settings"]))
+    old.__dict__.update({**d["settings"].__dict__, "air": air})
+    d["settings"] = old
+    return d
+
+
 def _fleet_before_air(fleet) -> dict:
     """... and the fleet itself: no guard parameters, settings without ``air``."""
     d = {k: v for k, v in fleet.__dict__.items() if k not in ("_designs", "_air_p")}
@@ -316,9 +328,12 @@ def test_a_pickled_fleet_goes_on_like_the_original(writer, monkeypatch):
             m.setattr(FleetRows, "__getstate__", old)
         if writer == "before the air guard":
             m.setattr(PdrFleet, "__getstate__", _fleet_before_air)
+        if writer == "before the air's release":
+            m.setattr(PdrFleet, "__getstate__", _fleet_before_release)
         data = pickle.dumps(fleet, protocol=5)
     twin = pickle.loads(data)
     assert twin.rows.ring_t.shape == fleet.rows.ring_t.shape and twin.rows.free == fleet.rows.free
+    np.testing.assert_array_equal(twin._air_p, fleet._air_p)  # every number the guard's kernel reads
     for m in twin.members:
         assert m.floor_tracker.rows()[0].base is twin.rows.fs and m.floor_tracker.rows()[1].base is twin.rows.ring_t
     a, b = [[] for _ in walks], [[] for _ in walks]
