@@ -58,7 +58,12 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
    compass's) from a run of epochs that agree with each other for ``start_confirm_s`` or across
    a gyro turn (:mod:`pdr.compass_streak`), with ``P = σ_init²``; steps before take the run's mean
    with P = π². Steel held near the phone gives a δ_m that is steady while the walker goes
-   straight but not across a turn. Later, an offset far from δ in a field whose strength is off
+   straight but not across a turn. Only epochs in a field of the usual strength make the run
+   (``start_usual_field``: within ``hold_norm`` of the reference, configured or learned): an
+   epoch in an odd field clears it. A run in steel that proved itself by time would otherwise
+   set δ far off, and the clean field after it, gated out, would need ``P`` to grow past the
+   error (robustness suite ``phone50_steel --seed 2``, T04r02: 120° off for 15 s, 13.6 m p75;
+   3.9 m with the rule). Later, an offset far from δ in a field whose strength is off
    the reference is *held* (:func:`pdr.compass_streak.held`), for the filter and the step's compass.
 
    **A jump is held too** (:meth:`HeadingEstimator._jump_held`), whatever the field's strength:
@@ -384,7 +389,9 @@ class HeadingEstimator:
             # initial heading: a run of epochs that pass the gates and agree with each other, tested
             # by a turn or by time (pdr.compass_streak); until then the steps take the run's mean
             # with P = π² (no absolute evidence: steel at the first landmark must not set δ)
-            if np.isfinite(sig) and self._start_run.add(t_end, dm, psi_end):
+            if odd and s.start_usual_field:  # steel met at the start must not set δ: the run waits for the usual field
+                self._start_run.clear()
+            elif np.isfinite(sig) and self._start_run.add(t_end, dm, psi_end):
                 self._delta = self._start_run.mean
                 self._P = s.sigma_init**2
                 self._tested = (self._start_run.psi_lo, self._start_run.psi_hi)

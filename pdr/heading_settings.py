@@ -64,6 +64,7 @@ class HeadingSettings:
     stand_sigma: float = math.radians(5.0)  # rad, σ_v
     # hold: an epoch whose |B| is off the reference by more than hold_norm and whose offset lies
     # farther from δ than max(hold_angle, hold_sigmas · √P) waits in the rejected run
+    start_usual_field: bool = True  # the first δ only from epochs whose |B| is within hold_norm of the reference
     hold_norm: float = 15.0  # µT (route 02 starts in a 24 µT field and walks on in 35-40 µT: 10 µT held its real compass)
     hold_angle: float = math.radians(35.0)  # rad
     hold_sigmas: float = 3.0

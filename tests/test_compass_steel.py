@@ -124,3 +124,19 @@ def test_the_clean_fields_jump_back_after_a_start_in_steel_is_not_held():
     t, err = _errors(HeadingSettings(), *walk(lambda t: 0.0 * t, 40.0, field=field))
     assert err[(t > 4.0) & (t < 6.0)].min() > 60.0  # the start's δ was the steel's
     assert err[(t > 20.0) & (t < 30.0)].max() < 10.0
+
+
+def test_steel_of_unusual_strength_at_the_start_does_not_set_the_heading():
+    # the phone starts next to steel (50 µT in its axes: the compass turned 68°, the field 69
+    # µT against the site's 48 µT, configured) for 8 s of a straight walk: long enough for a run
+    # of agreeing epochs to prove itself by time. Such a run must not set δ: the first δ waits
+    # for the usual field (robustness suite, phone50_steel --seed 2, T04r02: a start in steel
+    # held 120° off until P had grown past the gate, 13.6 m p75)
+    t, acc, gyr, mag, truth, steps = walk(lambda t: 0.0 * t, 40.0)
+    mag = _steel_in_the_phone(t, mag, 0.0, 8.0, STEEL_UT)
+    site = float(np.linalg.norm(FIELD_ENU))
+    tk, err = _errors(HeadingSettings(field_norm=site), t, acc, gyr, mag, truth, steps)
+    assert err[(tk > 9.0) & (tk < 40.0)].max() < 3.0
+    # the run in steel taken as the start: 68° off, and still 10° off 8 s after the steel
+    tk0, err0 = _errors(HeadingSettings(field_norm=site, start_usual_field=False), t, acc, gyr, mag, truth, steps)
+    assert err0[(tk0 > 7.0) & (tk0 < 8.0)].min() > 60.0 and err0[(tk0 > 16.0) & (tk0 < 17.0)].min() > 10.0
