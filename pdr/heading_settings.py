@@ -55,6 +55,7 @@ class HeadingSettings:
     confirm_turn: float = math.radians(45.0)  # rad, of gyro heading spanned by the run
     confirm_min_s: float = 2.0  # s, the run lasts at least this long
     start_confirm_s: float = 4.0  # s, the first δ: a run this long without a turn also proves itself
+    start_odd_confirm_s: float = 12.0  # s, a start run holding an epoch in an odd field (|B| hold_norm off) proves itself by time only after this
     # a walker standing (the specific force's norm varying less than stand_acc_std over an epoch)
     # reads the same place's field epoch after epoch: δ_m = δ + d + v, the place's disturbance d
     # held for the stand, v the epoch's own noise; a stand ends with a step, a gyro turn or a move
@@ -64,7 +65,6 @@ class HeadingSettings:
     stand_sigma: float = math.radians(5.0)  # rad, σ_v
     # hold: an epoch whose |B| is off the reference by more than hold_norm and whose offset lies
     # farther from δ than max(hold_angle, hold_sigmas · √P) waits in the rejected run
-    start_usual_field: bool = True  # the first δ only from epochs whose |B| is within hold_norm of the reference
     hold_norm: float = 15.0  # µT (route 02 starts in a 24 µT field and walks on in 35-40 µT: 10 µT held its real compass)
     hold_angle: float = math.radians(35.0)  # rad
     hold_sigmas: float = 3.0

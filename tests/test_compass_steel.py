@@ -129,14 +129,28 @@ def test_the_clean_fields_jump_back_after_a_start_in_steel_is_not_held():
 def test_steel_of_unusual_strength_at_the_start_does_not_set_the_heading():
     # the phone starts next to steel (50 µT in its axes: the compass turned 68°, the field 69
     # µT against the site's 48 µT, configured) for 8 s of a straight walk: long enough for a run
-    # of agreeing epochs to prove itself by time. Such a run must not set δ: the first δ waits
-    # for the usual field (robustness suite, phone50_steel --seed 2, T04r02: a start in steel
-    # held 120° off until P had grown past the gate, 13.6 m p75)
+    # of agreeing epochs to prove itself by time (4 s). A run in an odd field needs 12 s, so the
+    # first δ comes from the usual field after it (robustness suite, phone50_steel --seed 2,
+    # T04r02: a start in steel held 120° off until P had grown past the gate, 13.6 m p75)
     t, acc, gyr, mag, truth, steps = walk(lambda t: 0.0 * t, 40.0)
     mag = _steel_in_the_phone(t, mag, 0.0, 8.0, STEEL_UT)
     site = float(np.linalg.norm(FIELD_ENU))
     tk, err = _errors(HeadingSettings(field_norm=site), t, acc, gyr, mag, truth, steps)
     assert err[(tk > 9.0) & (tk < 40.0)].max() < 3.0
-    # the run in steel taken as the start: 68° off, and still 10° off 8 s after the steel
-    tk0, err0 = _errors(HeadingSettings(field_norm=site, start_usual_field=False), t, acc, gyr, mag, truth, steps)
+    # an odd run proving itself in 4 s like any other: the start is steel's, 68° off, and
+    # still 10° off 8 s after the steel
+    tk0, err0 = _errors(HeadingSettings(field_norm=site, start_odd_confirm_s=4.0), t, acc, gyr, mag, truth, steps)
     assert err0[(tk0 > 7.0) & (tk0 < 8.0)].min() > 60.0 and err0[(tk0 > 16.0) & (tk0 < 17.0)].min() > 10.0
+
+
+def test_a_reference_of_the_wrong_strength_delays_the_start_but_does_not_forbid_it():
+    # every epoch is odd against a reference 22 µT too strong (as if learned beside steel): the
+    # clean field's run still sets δ, by time after 12 s instead of 4 s (a rule that never started
+    # from an odd run left mag_steel --seed 2's T03r02 without a compass start for the whole walk)
+    t, acc, gyr, mag, truth, steps = walk(lambda t: 0.0 * t, 40.0, yaw0=1.0)
+    wrong = float(np.linalg.norm(FIELD_ENU)) + 22.0
+    r = HeadingEstimator(HeadingSettings(field_norm=wrong)).update(t, acc, gyr, mag, steps)
+    started = r.t[r.heading_sigma < math.pi / 2]
+    assert started.size and 11.0 < started[0] < 16.0
+    err = np.abs(deg(wrap(r.heading - np.interp(r.t, t, np.unwrap(truth)))))
+    assert err[r.t > 16.0].max() < 3.0
