@@ -66,8 +66,10 @@ This module keeps them apart long enough to judge the compass, then fuses them. 
    T04r02: 120° off for 15 s, live p75 13.6 m; 3.5 m with the rule). It only delays: a
    reference learned in steel makes every later epoch odd (``mag_steel --seed 2``, T03r02), and
    an odd run must still be able to start δ. A first form that never started δ from an odd run
-   left that walk without a compass start for its whole length (+0.9 m). Later, an offset far from δ in a field whose strength is off
-   the reference is *held* (:func:`pdr.compass_streak.held`), for the filter and the step's compass.
+   left that walk without a compass start for its whole length (+0.9 m).
+
+   Later, an offset far from δ in a field whose strength is off the reference is *held*
+   (:func:`pdr.compass_streak.held`), for the filter and the step's compass.
 
    **A jump is held too** (:meth:`HeadingEstimator._jump_held`), whatever the field's strength:
    an offset δ_m that moves by more than ``jump_angle`` (60°) within ``jump_window_s`` (2.5 s)
