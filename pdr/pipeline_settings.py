@@ -28,6 +28,7 @@ class PipelineSettings:
     dz_sigma_m: float = 0.1  # m, per-step height change (barometer after the low-pass)
     min_step_length_m: float = 0.2  # m, a model answer below this is clipped (no negative steps)
     max_step_length_m: float = 1.4  # m, and above this (a running firefighter's long stride)
+    bridge_max_s: float = 4.0  # s, the longest interval a step after a gap in the samples stands in for (pdr.step_events)
     floor_event_hold_s: float = 4.0  # s, a floor change is released this long after it (steps before it are out)
     # motion state
     state_grid_s: float = 0.5  # s
