@@ -72,6 +72,11 @@ class OffsetStreak:
             self.psi_lo, self.psi_hi = min(self.psi_lo, psi), max(self.psi_hi, psi)
             if self.spread > self.spread_max:  # not one offset: the run starts again from this epoch
                 self._start(t_end, dm, psi)
+        return self.proved(t_end, self.long_s)
+
+    def proved(self, t_end: float, long_s: float) -> bool:
+        """Has the run, as of the epoch ending at ``t_end``, proved itself: across a turn, or by
+        lasting ``long_s`` (the heading's start asks for longer of a run in an odd field)?"""
         span = t_end - self.t0
         turned = self.psi_hi - self.psi_lo >= self.turn and span >= self.min_s
-        return turned or span >= self.long_s
+        return turned or span >= long_s

@@ -442,8 +442,7 @@ class HeadingEstimator:
         self._start_odd = odd if run.n == 1 else (self._start_odd or odd)  # n == 1: the run began again here
         if not proved or not self._start_odd:
             return proved
-        turned = run.psi_hi - run.psi_lo >= run.turn and t_end - run.t0 >= run.min_s
-        return turned or t_end - run.t0 >= self.settings.start_odd_confirm_s
+        return run.proved(t_end, self.settings.start_odd_confirm_s)
 
     def _begin_stand(self, psi: float, dm: float, D: float) -> None:
         """A stand begins at gyro heading ``psi`` with compass offset ``dm``: its disturbance

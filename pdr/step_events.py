@@ -83,7 +83,7 @@ class StepAssembler:
         stairs = self._stairs.update(dz)
         L = np.where(stairs.on_stairs, stairs.length, L)
         sigma_L = s.length_sigma_m + s.length_sigma_frac * L
-        L, sigma_L = self._bridge(hd, L.astype(float), sigma_L.astype(float))
+        L, sigma_L = self._bridge(hd, np.asarray(L, float), np.asarray(sigma_L, float))
         events = []
         for k in range(len(hd)):
             self.count += 1
@@ -119,7 +119,7 @@ class StepAssembler:
         s = self.settings
         prev = self._last[0] if self._last else math.nan
         iv = list(self._intervals)
-        L, sigma_L = L.copy(), sigma_L.copy()
+        L, sigma_L = L.copy(), sigma_L.copy()  # the caller's arrays stay as they were
         for k in range(len(hd)):
             t = float(hd.t[k])
             dt = t - prev
